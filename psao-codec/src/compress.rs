@@ -1,0 +1,166 @@
+//! Payload compression: the ids of the spec and the calls into zstd / lz4_flex.
+
+use crate::error::{DecodeError, EncodeError};
+
+/// Payload compression of a frame (header byte 6).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Compression {
+    /// Id 0: the payload is stored as it is.
+    None,
+    /// Id 1: one LZ4 block (no LZ4 frame header).
+    Lz4,
+    /// Id 2: one or more zstd frames (RFC 8878), no dictionary.
+    Zstd,
+}
+
+impl Compression {
+    /// The id on the wire.
+    pub fn id(self) -> u8 {
+        match self {
+            Compression::None => 0,
+            Compression::Lz4 => 1,
+            Compression::Zstd => 2,
+        }
+    }
+
+    /// The compression of an id.
+    pub fn from_id(id: u8) -> Result<Compression, DecodeError> {
+        match id {
+            0 => Ok(Compression::None),
+            1 => Ok(Compression::Lz4),
+            2 => Ok(Compression::Zstd),
+            other => Err(DecodeError::UnknownCompression(other)),
+        }
+    }
+
+    /// Whether this build can (de)compress it.
+    pub fn available(self) -> bool {
+        match self {
+            Compression::None => true,
+            Compression::Lz4 => cfg!(feature = "lz4"),
+            Compression::Zstd => cfg!(feature = "zstd"),
+        }
+    }
+}
+
+/// Reusable decompression state (a zstd context), kept by a decoder.
+#[derive(Default)]
+pub(crate) struct Decompressor {
+    #[cfg(feature = "zstd")]
+    zstd: Option<zstd::bulk::Decompressor<'static>>,
+}
+
+impl std::fmt::Debug for Decompressor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Decompressor")
+    }
+}
+
+impl Decompressor {
+    /// Decompresses `src` into `dst`, which must end up exactly `len` bytes
+    /// long. `len` has been checked against the receiver's limit, so
+    /// reserving it is bounded.
+    pub(crate) fn decompress_into(
+        &mut self,
+        compression: Compression,
+        src: &[u8],
+        len: usize,
+        dst: &mut Vec<u8>,
+    ) -> Result<(), DecodeError> {
+        match compression {
+            Compression::None => {
+                dst.clear();
+                dst.extend_from_slice(src);
+            }
+            #[cfg(feature = "lz4")]
+            Compression::Lz4 => {
+                // Only growth is zero-filled; the scratch keeps its length.
+                dst.resize(len, 0);
+                let n = lz4_flex::block::decompress_into(src, dst)
+                    .map_err(|_| DecodeError::Decompress(compression))?;
+                dst.truncate(n);
+            }
+            #[cfg(feature = "zstd")]
+            Compression::Zstd => {
+                dst.clear();
+                dst.reserve_exact(len);
+                let z = match &mut self.zstd {
+                    Some(z) => z,
+                    slot => slot.insert(
+                        zstd::bulk::Decompressor::new()
+                            .map_err(|_| DecodeError::Decompress(compression))?,
+                    ),
+                };
+                z.decompress_to_buffer(src, dst)
+                    .map_err(|_| DecodeError::Decompress(compression))?;
+            }
+            #[allow(unreachable_patterns)]
+            other => return Err(DecodeError::CompressionUnavailable(other)),
+        }
+        if dst.len() != len {
+            return Err(DecodeError::Decompress(compression));
+        }
+        Ok(())
+    }
+}
+
+/// Reusable compression state (a zstd context), kept by an encoder.
+#[derive(Default)]
+pub(crate) struct Compressor {
+    #[cfg(feature = "zstd")]
+    zstd: Option<(i32, zstd::bulk::Compressor<'static>)>,
+    #[cfg(feature = "zstd")]
+    buf: Vec<u8>,
+}
+
+impl std::fmt::Debug for Compressor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Compressor")
+    }
+}
+
+impl Compressor {
+    /// Appends the compressed form of `src` to `dst`.
+    pub(crate) fn compress_into(
+        &mut self,
+        compression: Compression,
+        zstd_level: i32,
+        src: &[u8],
+        dst: &mut Vec<u8>,
+    ) -> Result<(), EncodeError> {
+        let failed = |e: std::io::Error| EncodeError::Compressor(e.to_string());
+        match compression {
+            Compression::None => dst.extend_from_slice(src),
+            #[cfg(feature = "lz4")]
+            Compression::Lz4 => {
+                let start = dst.len();
+                dst.resize(
+                    start + lz4_flex::block::get_maximum_output_size(src.len()),
+                    0,
+                );
+                let n = lz4_flex::block::compress_into(src, &mut dst[start..])
+                    .map_err(|e| EncodeError::Compressor(e.to_string()))?;
+                dst.truncate(start + n);
+            }
+            #[cfg(feature = "zstd")]
+            Compression::Zstd => {
+                if self.zstd.as_ref().is_none_or(|z| z.0 != zstd_level) {
+                    let c = zstd::bulk::Compressor::new(zstd_level).map_err(failed)?;
+                    self.zstd = Some((zstd_level, c));
+                }
+                if let Some((_, z)) = &mut self.zstd {
+                    // A Vec is written from its start, so compress into
+                    // our own buffer and append.
+                    self.buf.clear();
+                    self.buf.reserve(zstd::zstd_safe::compress_bound(src.len()));
+                    z.compress_to_buffer(src, &mut self.buf).map_err(failed)?;
+                    dst.extend_from_slice(&self.buf);
+                }
+            }
+            #[allow(unreachable_patterns)]
+            other => return Err(EncodeError::CompressionUnavailable(other)),
+        }
+        let _ = (zstd_level, failed);
+        Ok(())
+    }
+}

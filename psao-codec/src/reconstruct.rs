@@ -1,0 +1,96 @@
+//! CPU reconstruction of AO at a surface point from a mirror (paper eq. 2-4),
+//! in instance-local space.
+
+use std::sync::OnceLock;
+
+use glam::{Affine3A, IVec3, Vec3};
+
+use crate::mirror::InstanceMirror;
+use crate::point::decode_normal;
+
+/// Decoded unit normals of all 256 normal codes.
+pub fn normal_table() -> &'static [Vec3; 256] {
+    static TABLE: OnceLock<[Vec3; 256]> = OnceLock::new();
+    TABLE.get_or_init(|| std::array::from_fn(|c| decode_normal(c as u8)))
+}
+
+/// The weight of eq. 2 with the rejections of eq. 3, for a point at `p`
+/// with normal `n_p` seen from surface point `x` with normal `n_x`.
+#[inline]
+pub fn weight(p: Vec3, n_p: Vec3, x: Vec3, n_x: Vec3, r: f32, t_n: f32, t_d: f32) -> f32 {
+    if n_p.dot(n_x) <= t_n {
+        return 0.0;
+    }
+    let d = p - x;
+    let dist = d.length();
+    let a = (r - dist) / r;
+    if a <= 0.0 {
+        return 0.0;
+    }
+    if dist > 0.0 {
+        let c = n_p.dot(d) / dist;
+        if c * c >= t_d {
+            return 0.0;
+        }
+    }
+    a
+}
+
+/// The first of the 2x2x2 cells around a local position: the cell whose
+/// centre is the nearest at or below `x` on every axis.
+pub fn base_cell(inst: &InstanceMirror, x: Vec3) -> IVec3 {
+    let d = inst.def();
+    let g = (x - d.origin) / d.cell_size - 0.5;
+    let g = g.clamp(Vec3::splat(-2.0), d.dims.as_vec3() + 1.0);
+    g.floor().as_ivec3()
+}
+
+/// AO at instance-local position `x` with unit local normal `n` (eq. 4):
+/// the weighted mean of the points in the 2x2x2 cells around `x`, or 1 when
+/// every weight is zero (also for a non-finite `x`).
+pub fn reconstruct_ao(inst: &InstanceMirror, x: Vec3, n: Vec3) -> f32 {
+    let d = *inst.def();
+    if !x.is_finite() || !n.is_finite() {
+        return 1.0;
+    }
+    let normals = normal_table();
+    let base = base_cell(inst, x);
+    let dims = d.dims.as_ivec3();
+    let (mut sum_w, mut sum) = (0.0f32, 0.0f32);
+    for dz in 0..2 {
+        for dy in 0..2 {
+            for dx in 0..2 {
+                let c = base + IVec3::new(dx, dy, dz);
+                if c.cmplt(IVec3::ZERO).any() || c.cmpge(dims).any() {
+                    continue;
+                }
+                let c = c.as_uvec3();
+                let Some(cell) = inst.find_cell(d.key(c)) else {
+                    continue;
+                };
+                let min = d.cell_min(c);
+                for w in inst.cell_points(cell) {
+                    let p = min + w.frac() * d.cell_size;
+                    let n_p = normals[w.fields().normal as usize];
+                    let a = weight(p, n_p, x, n, d.radius, d.t_n, d.t_d);
+                    sum_w += a;
+                    sum += a * w.ao();
+                }
+            }
+        }
+    }
+    if sum_w > 0.0 { sum / sum_w } else { 1.0 }
+}
+
+/// Maps a world position and unit normal into instance-local space with the
+/// inverse of a local-to-world transform (normals by the transpose of the
+/// linear part, renormalized). Returns `None` for a singular transform.
+pub fn world_to_local(local_to_world: &Affine3A, pos: Vec3, normal: Vec3) -> Option<(Vec3, Vec3)> {
+    if local_to_world.matrix3.determinant().abs() <= f32::MIN_POSITIVE {
+        return None;
+    }
+    let inv = local_to_world.inverse();
+    let x = inv.transform_point3(pos);
+    let n = local_to_world.matrix3.transpose().mul_vec3(normal.into());
+    Some((x, Vec3::from(n).normalize_or_zero()))
+}

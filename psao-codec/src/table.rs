@@ -1,0 +1,463 @@
+//! The server's authoritative hash grid of one instance (paper 3.2).
+//!
+//! Points are addressed by caller-chosen dense ids. The table keeps buckets
+//! and cells in exactly the layout a client [`Mirror`](crate::Mirror) holds,
+//! keeps both compacted (occupied entries and allocated points first), and
+//! records which buckets and cells changed since the last
+//! [`GridTable::take_dirty`], with each dirty cell's words as last sent.
+//! Points that do not fit (full bucket, full cell, exhausted pool, outside
+//! the grid) are dropped and counted, never silently.
+
+use glam::Vec3;
+
+use crate::error::EncodeError;
+use crate::grid::{BucketEntry, InstanceDef, MAX_CELL_CAPACITY};
+use crate::point::{POSITION_QUANTA, PointWord, quantize_ao};
+
+/// Where a point id stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Placement {
+    /// Not in the table (never set, or removed).
+    Absent,
+    /// Stored in `cell` at `slot`.
+    Stored {
+        /// Cell index.
+        cell: u32,
+        /// Slot in the cell.
+        slot: u8,
+    },
+    /// Set, but dropped for the given reason; retried on its next update.
+    Dropped(DropReason),
+}
+
+/// Why a point is not stored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DropReason {
+    /// Its position is outside the grid (or not finite).
+    OutOfGrid,
+    /// Its cell is new and its bucket is full (hash collisions).
+    BucketFull,
+    /// Its cell already holds `cell_capacity` points.
+    CellFull,
+    /// Its cell is new and no free cell is left in the pool.
+    PoolExhausted,
+}
+
+/// Counts of what the table did, cumulative since creation.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TableStats {
+    /// Points stored now.
+    pub stored: u32,
+    /// Cells allocated now.
+    pub cells: u32,
+    /// Drops because the point was outside the grid.
+    pub out_of_grid: u64,
+    /// Drops because a bucket was full.
+    pub bucket_overflow: u64,
+    /// Drops because a cell was full.
+    pub cell_overflow: u64,
+    /// Drops because the cell pool was exhausted.
+    pub pool_exhausted: u64,
+}
+
+/// When a point is worth sending again (the paper's thresholds).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Thresholds {
+    /// Position change, in quanta of the cell (the paper: 3).
+    pub position_quanta: f32,
+    /// Smallest cosine between old and new normal that is not an update (0.6).
+    pub normal_cos: f32,
+    /// AO change in 1/255 steps above which it is an update (8).
+    pub ao_steps: u8,
+}
+
+impl Default for Thresholds {
+    fn default() -> Self {
+        Thresholds {
+            position_quanta: 3.0,
+            normal_cos: 0.6,
+            ao_steps: 8,
+        }
+    }
+}
+
+/// A changed cell: its index and its words as the client last saw them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DirtyCell {
+    /// Cell index.
+    pub cell: u32,
+    /// Words before the changes (only `cell_capacity` of them are used).
+    pub old: [u32; MAX_CELL_CAPACITY as usize],
+}
+
+/// What changed in a table since the last [`GridTable::take_dirty`].
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct DirtySet {
+    /// Changed buckets, ascending.
+    pub buckets: Vec<u32>,
+    /// Changed cells, ascending by index.
+    pub cells: Vec<DirtyCell>,
+}
+
+impl DirtySet {
+    /// Whether nothing changed.
+    pub fn is_empty(&self) -> bool {
+        self.buckets.is_empty() && self.cells.is_empty()
+    }
+}
+
+const ABSENT: u32 = u32::MAX;
+
+#[derive(Clone, Copy, Debug)]
+struct Loc {
+    /// Cell index, [`ABSENT`], or `ABSENT - 1 - reason` for a dropped point.
+    cell: u32,
+    slot: u8,
+}
+
+impl Loc {
+    fn placement(self) -> Placement {
+        match self.cell {
+            ABSENT => Placement::Absent,
+            c if c >= ABSENT - 4 => Placement::Dropped(match ABSENT - 1 - c {
+                0 => DropReason::OutOfGrid,
+                1 => DropReason::BucketFull,
+                2 => DropReason::CellFull,
+                _ => DropReason::PoolExhausted,
+            }),
+            cell => Placement::Stored {
+                cell,
+                slot: self.slot,
+            },
+        }
+    }
+
+    fn dropped(reason: DropReason) -> Loc {
+        let r = match reason {
+            DropReason::OutOfGrid => 0,
+            DropReason::BucketFull => 1,
+            DropReason::CellFull => 2,
+            DropReason::PoolExhausted => 3,
+        };
+        Loc {
+            cell: ABSENT - 1 - r,
+            slot: 0,
+        }
+    }
+}
+
+/// The authoritative hash grid of one instance.
+#[derive(Clone, Debug)]
+pub struct GridTable {
+    id: u32,
+    def: InstanceDef,
+    buckets: Vec<BucketEntry>,
+    bucket_len: Vec<u8>,
+    words: Vec<u32>,
+    cell_len: Vec<u8>,
+    cell_key: Vec<u32>,
+    slot_point: Vec<u32>,
+    free: Vec<u32>,
+    points: Vec<Loc>,
+    max_points: u32,
+    bucket_dirty: Vec<bool>,
+    dirty_buckets: Vec<u32>,
+    cell_dirty: Vec<bool>,
+    dirty_cells: Vec<DirtyCell>,
+    stats: TableStats,
+}
+
+impl GridTable {
+    /// An empty table for instance `id`. Point ids must stay below
+    /// `cell_pool * cell_capacity * 4` (so a wrong id cannot make the table
+    /// allocate without bound).
+    pub fn new(id: u32, def: InstanceDef) -> Result<GridTable, EncodeError> {
+        def.validate()?;
+        let cells = def.cell_pool as usize;
+        Ok(GridTable {
+            id,
+            def,
+            buckets: vec![BucketEntry::EMPTY; def.bucket_entries()],
+            bucket_len: vec![0; def.table_size() as usize],
+            words: vec![0; def.cell_words()],
+            cell_len: vec![0; cells],
+            cell_key: vec![0; cells],
+            slot_point: vec![ABSENT; def.cell_words()],
+            free: (0..def.cell_pool).rev().collect(),
+            points: Vec::new(),
+            max_points: (def.cell_words() as u64 * 4).min(u32::MAX as u64 - 8) as u32,
+            bucket_dirty: vec![false; def.table_size() as usize],
+            dirty_buckets: Vec::new(),
+            cell_dirty: vec![false; cells],
+            dirty_cells: Vec::new(),
+            stats: TableStats::default(),
+        })
+    }
+
+    /// The instance id.
+    pub fn id(&self) -> u32 {
+        self.id
+    }
+
+    /// The grid definition.
+    pub fn def(&self) -> &InstanceDef {
+        &self.def
+    }
+
+    /// Bucket entries, in the mirror's layout.
+    pub fn buckets(&self) -> &[BucketEntry] {
+        &self.buckets
+    }
+
+    /// Point words, in the mirror's layout.
+    pub fn words(&self) -> &[u32] {
+        &self.words
+    }
+
+    /// Occupied entries of a bucket.
+    pub fn bucket(&self, bucket: u32) -> &[BucketEntry] {
+        let cap = self.def.bucket_capacity as usize;
+        let start = bucket as usize * cap;
+        &self.buckets[start..start + self.bucket_len[bucket as usize] as usize]
+    }
+
+    /// All words of a cell (allocated first, then zeros).
+    pub fn cell(&self, cell: u32) -> &[u32] {
+        let cap = self.def.cell_capacity as usize;
+        &self.words[cell as usize * cap..(cell as usize + 1) * cap]
+    }
+
+    /// Number of allocated points in a cell.
+    pub fn cell_len(&self, cell: u32) -> u8 {
+        self.cell_len[cell as usize]
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> TableStats {
+        self.stats
+    }
+
+    /// Where a point stands.
+    pub fn placement(&self, id: u32) -> Placement {
+        self.points
+            .get(id as usize)
+            .map_or(Placement::Absent, |l| l.placement())
+    }
+
+    /// Whether changes are waiting for [`take_dirty`](Self::take_dirty).
+    pub fn has_pending(&self) -> bool {
+        !self.dirty_buckets.is_empty() || !self.dirty_cells.is_empty()
+    }
+
+    /// Takes the set of buckets and cells changed since the last call.
+    pub fn take_dirty(&mut self) -> DirtySet {
+        let mut buckets = std::mem::take(&mut self.dirty_buckets);
+        let mut cells = std::mem::take(&mut self.dirty_cells);
+        for &b in &buckets {
+            self.bucket_dirty[b as usize] = false;
+        }
+        for c in &cells {
+            self.cell_dirty[c.cell as usize] = false;
+        }
+        buckets.sort_unstable();
+        cells.sort_unstable_by_key(|c| c.cell);
+        DirtySet { buckets, cells }
+    }
+
+    /// Sets a point (inserting, moving or updating it). `local` is its
+    /// instance-local position, `normal` need not be normalized, `ao` is in
+    /// `[0, 1]`. Returns where it ended up.
+    pub fn set_point(
+        &mut self,
+        id: u32,
+        local: Vec3,
+        normal: Vec3,
+        ao: f32,
+    ) -> Result<Placement, EncodeError> {
+        if id >= self.max_points {
+            return Err(EncodeError::PointId {
+                id,
+                limit: self.max_points,
+            });
+        }
+        if self.points.len() <= id as usize {
+            self.points.resize(
+                id as usize + 1,
+                Loc {
+                    cell: ABSENT,
+                    slot: 0,
+                },
+            );
+        }
+        let Some(cell_pos) = self.def.cell_of(local) else {
+            self.unlink(id);
+            self.stats.out_of_grid += 1;
+            self.points[id as usize] = Loc::dropped(DropReason::OutOfGrid);
+            return Ok(self.placement(id));
+        };
+        let frac = (local - self.def.cell_min(cell_pos)) / self.def.cell_size;
+        let word = PointWord::encode(frac, normal, ao).0;
+        let key = self.def.key(cell_pos);
+        if let Placement::Stored { cell, slot } = self.placement(id)
+            && self.cell_key[cell as usize] == key
+        {
+            let i = cell as usize * self.def.cell_capacity as usize + slot as usize;
+            if self.words[i] != word {
+                self.touch_cell(cell);
+                self.words[i] = word;
+            }
+            return Ok(self.placement(id));
+        }
+        self.unlink(id);
+        let loc = self.insert(id, key, word);
+        self.points[id as usize] = loc;
+        Ok(loc.placement())
+    }
+
+    /// Sets a point only if it differs from what the client holds by more
+    /// than the thresholds (or moved to another cell, or is not stored).
+    /// Returns whether it was set.
+    pub fn update_point(
+        &mut self,
+        id: u32,
+        local: Vec3,
+        normal: Vec3,
+        ao: f32,
+        thresholds: &Thresholds,
+    ) -> Result<bool, EncodeError> {
+        if let Placement::Stored { cell, slot } = self.placement(id)
+            && self.def.cell_of(local).map(|c| self.def.key(c))
+                == Some(self.cell_key[cell as usize])
+        {
+            let cap = self.def.cell_capacity as usize;
+            let old = PointWord(self.words[cell as usize * cap + slot as usize]);
+            let cell_pos = self.def.cell_of(local).unwrap_or_default();
+            let quantum = self.def.cell_size / POSITION_QUANTA as f32;
+            let old_pos = self.def.cell_min(cell_pos) + old.frac() * self.def.cell_size;
+            let moved = ((local - old_pos) / quantum).length() > thresholds.position_quanta;
+            let turned = old.normal().dot(normal.normalize_or_zero()) < thresholds.normal_cos;
+            let shaded = quantize_ao(ao).abs_diff(old.fields().ao) > thresholds.ao_steps;
+            if !(moved || turned || shaded) {
+                return Ok(false);
+            }
+        }
+        self.set_point(id, local, normal, ao)?;
+        Ok(true)
+    }
+
+    /// Removes a point. Returns whether it was stored.
+    pub fn remove_point(&mut self, id: u32) -> bool {
+        let stored = matches!(self.placement(id), Placement::Stored { .. });
+        self.unlink(id);
+        if let Some(l) = self.points.get_mut(id as usize) {
+            l.cell = ABSENT;
+        }
+        stored
+    }
+
+    fn touch_cell(&mut self, cell: u32) {
+        if !self.cell_dirty[cell as usize] {
+            self.cell_dirty[cell as usize] = true;
+            let mut old = [0u32; MAX_CELL_CAPACITY as usize];
+            let words = self.cell(cell);
+            old[..words.len()].copy_from_slice(words);
+            self.dirty_cells.push(DirtyCell { cell, old });
+        }
+    }
+
+    fn touch_bucket(&mut self, bucket: u32) {
+        if !self.bucket_dirty[bucket as usize] {
+            self.bucket_dirty[bucket as usize] = true;
+            self.dirty_buckets.push(bucket);
+        }
+    }
+
+    fn insert(&mut self, id: u32, key: u32, word: u32) -> Loc {
+        let bucket = self.def.bucket_of_key(key);
+        let cap = self.def.bucket_capacity as usize;
+        let start = bucket as usize * cap;
+        let len = self.bucket_len[bucket as usize] as usize;
+        let cell = match self.buckets[start..start + len]
+            .iter()
+            .find(|e| e.key == key)
+        {
+            Some(e) => e.cell,
+            None => {
+                if len == cap {
+                    self.stats.bucket_overflow += 1;
+                    return Loc::dropped(DropReason::BucketFull);
+                }
+                let Some(cell) = self.free.pop() else {
+                    self.stats.pool_exhausted += 1;
+                    return Loc::dropped(DropReason::PoolExhausted);
+                };
+                self.touch_bucket(bucket);
+                self.buckets[start + len] = BucketEntry { key, cell };
+                self.bucket_len[bucket as usize] += 1;
+                self.cell_key[cell as usize] = key;
+                self.stats.cells += 1;
+                cell
+            }
+        };
+        let n = self.cell_len[cell as usize];
+        if n == self.def.cell_capacity {
+            self.stats.cell_overflow += 1;
+            return Loc::dropped(DropReason::CellFull);
+        }
+        self.touch_cell(cell);
+        let i = cell as usize * self.def.cell_capacity as usize + n as usize;
+        self.words[i] = word;
+        self.slot_point[i] = id;
+        self.cell_len[cell as usize] = n + 1;
+        self.stats.stored += 1;
+        Loc { cell, slot: n }
+    }
+
+    /// Takes a stored point out of its cell, keeping the cell compacted and
+    /// freeing it when it empties. The caller sets the point's new `Loc`.
+    fn unlink(&mut self, id: u32) {
+        let Some(Placement::Stored { cell, slot }) =
+            self.points.get(id as usize).map(|l| l.placement())
+        else {
+            return;
+        };
+        self.touch_cell(cell);
+        let cap = self.def.cell_capacity as usize;
+        let base = cell as usize * cap;
+        let last = self.cell_len[cell as usize] as usize - 1;
+        if slot as usize != last {
+            self.words[base + slot as usize] = self.words[base + last];
+            let moved = self.slot_point[base + last];
+            self.slot_point[base + slot as usize] = moved;
+            self.points[moved as usize].slot = slot;
+        }
+        self.words[base + last] = 0;
+        self.slot_point[base + last] = ABSENT;
+        self.cell_len[cell as usize] = last as u8;
+        self.points[id as usize].cell = ABSENT;
+        self.stats.stored -= 1;
+        if last == 0 {
+            self.free_cell(cell);
+        }
+    }
+
+    fn free_cell(&mut self, cell: u32) {
+        let key = self.cell_key[cell as usize];
+        let bucket = self.def.bucket_of_key(key);
+        let cap = self.def.bucket_capacity as usize;
+        let start = bucket as usize * cap;
+        let len = self.bucket_len[bucket as usize] as usize;
+        if let Some(pos) = self.buckets[start..start + len]
+            .iter()
+            .position(|e| e.key == key)
+        {
+            self.touch_bucket(bucket);
+            self.buckets
+                .copy_within(start + pos + 1..start + len, start + pos);
+            self.buckets[start + len - 1] = BucketEntry::EMPTY;
+            self.bucket_len[bucket as usize] -= 1;
+        }
+        self.free.push(cell);
+        self.stats.cells -= 1;
+    }
+}
