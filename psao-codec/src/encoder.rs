@@ -227,7 +227,10 @@ impl FrameBuilder<'_> {
 
     /// Writes the whole state of `table`: its definition, then every
     /// occupied bucket and allocated cell. Fails if the table has changes
-    /// not yet sent in a delta (the keyframe would not match its sequence).
+    /// not yet sent in a delta (the keyframe would not match its sequence):
+    /// a server that fills a table before its first client either sends
+    /// those changes as a delta or discards them with
+    /// [`GridTable::take_dirty`].
     pub fn snapshot(&mut self, table: &GridTable) -> Result<(), EncodeError> {
         if table.has_pending() {
             return Err(EncodeError::PendingChanges(table.id()));

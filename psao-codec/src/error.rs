@@ -296,7 +296,7 @@ pub enum EncodeError {
     PointId {
         /// The id.
         id: u32,
-        /// The limit (`cell_pool * cell_capacity * 4`).
+        /// The table's `max_points`.
         limit: u32,
     },
     /// A keyframe was asked for while the table holds changes not yet sent

@@ -20,7 +20,7 @@
 //!     table_log2: 6, bucket_capacity: 8, cell_capacity: 7, cell_pool: 512,
 //!     point_format: 0, radius: 0.1, t_n: 0.1, t_d: 0.7,
 //! };
-//! let mut table = GridTable::new(7, def).unwrap();
+//! let mut table = GridTable::new(7, def, 1000).unwrap();
 //! let mut encoder = Encoder::new(EncoderConfig::default());
 //! let mut decoder = Decoder::new(Limits::default());
 //!

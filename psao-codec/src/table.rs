@@ -168,10 +168,10 @@ pub struct GridTable {
 }
 
 impl GridTable {
-    /// An empty table for instance `id`. Point ids must stay below
-    /// `cell_pool * cell_capacity * 4` (so a wrong id cannot make the table
-    /// allocate without bound).
-    pub fn new(id: u32, def: InstanceDef) -> Result<GridTable, EncodeError> {
+    /// An empty table for instance `id` whose points have dense ids below
+    /// `max_points` (the table keeps 8 bytes per id, so a wrong id cannot
+    /// make it allocate without bound).
+    pub fn new(id: u32, def: InstanceDef, max_points: u32) -> Result<GridTable, EncodeError> {
         def.validate()?;
         let cells = def.cell_pool as usize;
         Ok(GridTable {
@@ -185,7 +185,7 @@ impl GridTable {
             slot_point: vec![ABSENT; def.cell_words()],
             free: (0..def.cell_pool).rev().collect(),
             points: Vec::new(),
-            max_points: (def.cell_words() as u64 * 4).min(u32::MAX as u64 - 8) as u32,
+            max_points,
             bucket_dirty: vec![false; def.table_size() as usize],
             dirty_buckets: Vec::new(),
             cell_dirty: vec![false; cells],

@@ -1,0 +1,180 @@
+//! CPU reconstruction (eq. 2-4) against hand-computed cases.
+
+mod common;
+
+use common::*;
+use glam::{Affine3A, Quat, UVec3, Vec3};
+use psao_codec::*;
+
+/// A mirror of one table, through a real keyframe.
+fn mirror_of(table: &mut GridTable) -> Decoder {
+    table.take_dirty();
+    let mut enc = Encoder::new(EncoderConfig::default());
+    let mut d = Decoder::new(Limits::default());
+    d.receive(&keyframe(&mut enc, &[table]).bytes).unwrap();
+    d
+}
+
+/// Exact decoded position of a point as stored.
+fn stored(table: &GridTable, id: u32, key_cell: UVec3) -> (Vec3, f32) {
+    let Placement::Stored { cell, slot } = table.placement(id) else {
+        panic!()
+    };
+    let def = table.def();
+    let w = PointWord(table.cell(cell)[slot as usize]);
+    (def.cell_min(key_cell) + w.frac() * def.cell_size, w.ao())
+}
+
+#[test]
+fn no_points_gives_one() {
+    let mut t = GridTable::new(1, small_def(), 4).unwrap();
+    let d = mirror_of(&mut t);
+    let m = d.mirror().instance(1).unwrap();
+    assert_eq!(reconstruct_ao(m, Vec3::new(0.1, 0.5, 0.1), Vec3::Y), 1.0);
+    assert_eq!(reconstruct_ao(m, Vec3::NAN, Vec3::Y), 1.0);
+    assert_eq!(
+        reconstruct_ao(m, Vec3::splat(1e30), Vec3::Y),
+        1.0,
+        "far outside the grid"
+    );
+}
+
+#[test]
+fn two_points_weighted_mean_matches_hand_computation() {
+    let def = small_def(); // r = 0.2, cells 0.25
+    let mut t = GridTable::new(1, def, 4).unwrap();
+    let c = UVec3::new(4, 1, 4); // cell [0, 0.25) x [0.25, 0.5) x [0, 0.25)
+    let p0 = def.cell_min(c) + Vec3::new(0.05, 0.1, 0.1);
+    let p1 = def.cell_min(c) + Vec3::new(0.2, 0.1, 0.1);
+    t.set_point(0, p0, Vec3::Y, 0.2).unwrap();
+    t.set_point(1, p1, Vec3::Y, 0.8).unwrap();
+    let (q0, ao0) = stored(&t, 0, c);
+    let (q1, ao1) = stored(&t, 1, c);
+    let d = mirror_of(&mut t);
+    let m = d.mirror().instance(1).unwrap();
+    let x = def.cell_min(c) + Vec3::new(0.1, 0.1, 0.1);
+    let w0 = (0.2 - (q0 - x).length()) / 0.2;
+    let w1 = (0.2 - (q1 - x).length()) / 0.2;
+    assert!(w0 > 0.0 && w1 > 0.0);
+    let expect = (w0 * ao0 + w1 * ao1) / (w0 + w1);
+    let got = reconstruct_ao(m, x, Vec3::Y);
+    assert!((got - expect).abs() < 1e-6, "{got} vs {expect}");
+    // At a point exactly on a stored position, other points still count.
+    let at = reconstruct_ao(m, q0, Vec3::Y);
+    assert!(at < ao1 && at > ao0);
+}
+
+#[test]
+fn normal_and_direction_tests_reject_points() {
+    let def = small_def();
+    let mut t = GridTable::new(1, def, 4).unwrap();
+    let c = UVec3::new(4, 1, 4);
+    let x = def.cell_min(c) + Vec3::splat(0.125);
+    // A point facing away (n_p . n_x <= T_n).
+    t.set_point(0, x + Vec3::new(0.05, 0.0, 0.0), Vec3::NEG_Y, 0.0)
+        .unwrap();
+    let d = mirror_of(&mut t);
+    assert_eq!(
+        reconstruct_ao(d.mirror().instance(1).unwrap(), x, Vec3::Y),
+        1.0
+    );
+    // A point straight below along its normal ((n_p . dir)^2 >= T_d).
+    let mut t = GridTable::new(1, def, 4).unwrap();
+    t.set_point(0, x - Vec3::new(0.0, 0.1, 0.0), Vec3::Y, 0.0)
+        .unwrap();
+    let d = mirror_of(&mut t);
+    assert_eq!(
+        reconstruct_ao(d.mirror().instance(1).unwrap(), x, Vec3::Y),
+        1.0
+    );
+    // The same point beside x, in its tangent plane, counts.
+    let mut t = GridTable::new(1, def, 4).unwrap();
+    t.set_point(0, x + Vec3::new(0.1, 0.0, 0.0), Vec3::Y, 0.0)
+        .unwrap();
+    let d = mirror_of(&mut t);
+    assert_eq!(
+        reconstruct_ao(d.mirror().instance(1).unwrap(), x, Vec3::Y),
+        0.0
+    );
+    // Beyond the radius: no weight.
+    let mut t = GridTable::new(1, def, 4).unwrap();
+    t.set_point(0, x + Vec3::new(0.21, 0.0, 0.0), Vec3::Y, 0.0)
+        .unwrap();
+    let d = mirror_of(&mut t);
+    assert_eq!(
+        reconstruct_ao(d.mirror().instance(1).unwrap(), x, Vec3::Y),
+        1.0
+    );
+}
+
+#[test]
+fn two_by_two_by_two_neighbourhood_reaches_across_cells() {
+    let def = small_def();
+    let mut t = GridTable::new(1, def, 4).unwrap();
+    let c = UVec3::new(4, 1, 4);
+    // x in the upper half of cell c: the neighbourhood is c..c+1 per axis.
+    let x = def.cell_min(c) + Vec3::splat(0.2);
+    let across = def.cell_min(c + UVec3::ONE) + Vec3::splat(0.01);
+    t.set_point(0, across, Vec3::Y, 0.0).unwrap();
+    let d = mirror_of(&mut t);
+    assert_eq!(base_cell(d.mirror().instance(1).unwrap(), x), c.as_ivec3());
+    let ao = reconstruct_ao(
+        d.mirror().instance(1).unwrap(),
+        x,
+        (Vec3::Y + Vec3::X * 0.3).normalize(),
+    );
+    assert_eq!(ao, 0.0);
+    // From the lower half of c, cell c+1 is outside the 2x2x2 block.
+    let low = def.cell_min(c) + Vec3::splat(0.1);
+    assert_eq!(
+        reconstruct_ao(d.mirror().instance(1).unwrap(), low, Vec3::Y),
+        1.0
+    );
+}
+
+#[test]
+fn grid_border_cells_are_skipped_not_wrapped() {
+    let def = small_def();
+    let mut t = GridTable::new(1, def, 4).unwrap();
+    // A point in cell x = 7 (last column); sample from just outside x = 0's side.
+    t.set_point(
+        0,
+        def.cell_min(UVec3::new(7, 0, 0)) + Vec3::splat(0.1),
+        Vec3::Y,
+        0.0,
+    )
+    .unwrap();
+    let d = mirror_of(&mut t);
+    let m = d.mirror().instance(1).unwrap();
+    assert_eq!(
+        reconstruct_ao(m, def.origin + Vec3::new(-0.01, 0.1, 0.1), Vec3::Y),
+        1.0
+    );
+    assert_eq!(
+        reconstruct_ao(
+            m,
+            def.cell_min(UVec3::new(7, 0, 0)) + Vec3::new(0.25, 0.1, 0.1),
+            Vec3::Y
+        ),
+        0.0
+    );
+}
+
+#[test]
+fn world_to_local_inverts_rigid_and_scaled_transforms() {
+    let m = Affine3A::from_scale_rotation_translation(
+        Vec3::new(2.0, 1.0, 0.5),
+        Quat::from_rotation_y(0.7),
+        Vec3::new(10.0, -3.0, 2.0),
+    );
+    let local = Vec3::new(0.3, 0.2, -0.1);
+    let n_local = Vec3::new(0.0, 1.0, 1.0).normalize();
+    let world = m.transform_point3(local);
+    // World normal: inverse transpose of the linear part.
+    let n_world = (m.matrix3.inverse().transpose() * n_local).normalize();
+    let (x, n) = world_to_local(&m, world, n_world.into()).unwrap();
+    assert!((x - local).length() < 1e-5);
+    assert!((n - n_local).length() < 1e-5);
+    let singular = Affine3A::from_scale(Vec3::new(1.0, 0.0, 1.0));
+    assert!(world_to_local(&singular, world, Vec3::Y).is_none());
+}
