@@ -44,7 +44,8 @@ impl FrameHeader {
     pub fn write(&self, out: &mut [u8; HEADER_LEN]) {
         out[0..4].copy_from_slice(&MAGIC);
         out[4] = VERSION;
-        out[5] = (self.keyframe as u8) * FLAG_KEYFRAME | (self.has_checksum as u8) * FLAG_CHECKSUM;
+        out[5] =
+            ((self.keyframe as u8) * FLAG_KEYFRAME) | ((self.has_checksum as u8) * FLAG_CHECKSUM);
         out[6] = self.compression.id();
         out[7] = 0;
         out[8..12].copy_from_slice(&self.sequence.to_le_bytes());

@@ -91,6 +91,6 @@ pub fn world_to_local(local_to_world: &Affine3A, pos: Vec3, normal: Vec3) -> Opt
     }
     let inv = local_to_world.inverse();
     let x = inv.transform_point3(pos);
-    let n = local_to_world.matrix3.transpose().mul_vec3(normal.into());
-    Some((x, Vec3::from(n).normalize_or_zero()))
+    let n = local_to_world.matrix3.transpose().mul_vec3(normal);
+    Some((x, n.normalize_or_zero()))
 }
