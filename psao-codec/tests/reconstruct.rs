@@ -172,7 +172,7 @@ fn world_to_local_inverts_rigid_and_scaled_transforms() {
     let world = m.transform_point3(local);
     // World normal: inverse transpose of the linear part.
     let n_world = (m.matrix3.inverse().transpose() * n_local).normalize();
-    let (x, n) = world_to_local(&m, world, n_world.into()).unwrap();
+    let (x, n) = world_to_local(&m, world, n_world).unwrap();
     assert!((x - local).length() < 1e-5);
     assert!((n - n_local).length() < 1e-5);
     let singular = Affine3A::from_scale(Vec3::new(1.0, 0.0, 1.0));
