@@ -46,9 +46,6 @@ pub enum MessageError {
     /// The message runs past the end of the payload.
     #[error("message truncated")]
     Truncated,
-    /// More messages than the header's `message_count` or the receiver's limit.
-    #[error("more messages than message_count or the receiver's limit")]
-    TooManyMessages,
     /// The payload ended (or `message_count` was reached) without `EndOfFrame`.
     #[error("payload does not end with EndOfFrame")]
     MissingEnd,
@@ -259,7 +256,6 @@ impl MessageError {
         match self {
             MessageError::UnknownType(_) => "unknown_message_type",
             MessageError::Truncated => "message_truncated",
-            MessageError::TooManyMessages => "message_count",
             MessageError::MissingEnd => "missing_end",
             MessageError::TrailingBytes => "after_end",
             MessageError::Varint => "varint",

@@ -97,14 +97,14 @@ impl FrameHeader {
         if !header.keyframe && !crate::sequence::is_newer(header.sequence, header.base_sequence) {
             return Err(DecodeError::HeaderField("base_sequence"));
         }
-        if !header.has_checksum && header.checksum != 0 {
-            return Err(DecodeError::HeaderField("checksum"));
-        }
         if header.message_count == 0 {
             return Err(DecodeError::HeaderField("message_count"));
         }
         if compression == Compression::None && header.compressed_len != header.uncompressed_len {
             return Err(DecodeError::HeaderField("compressed_len"));
+        }
+        if !header.has_checksum && header.checksum != 0 {
+            return Err(DecodeError::HeaderField("checksum"));
         }
         Ok(header)
     }

@@ -219,6 +219,75 @@ impl Mirror {
         self.bytes
     }
 
+    /// A canonical text listing of the whole state: the sequence, then per
+    /// instance its definition, transform, occupied bucket entries and
+    /// allocated words with their decoded fields. The expected content of
+    /// every vector in spec/vectors is written in this form.
+    pub fn describe(&self) -> String {
+        use std::fmt::Write;
+        let mut out = String::new();
+        match self.sequence {
+            Some(s) => writeln!(out, "sequence {s}"),
+            None => writeln!(out, "sequence none"),
+        }
+        .ok();
+        for (id, m) in &self.instances {
+            let d = m.def;
+            let v = |v: glam::Vec3| format!("{} {} {}", v.x, v.y, v.z);
+            writeln!(
+                out,
+                "instance {id} origin {} cell_size {} dims {} {} {} table_log2 {} \
+                 bucket_capacity {} cell_capacity {} cell_pool {} point_format {} \
+                 radius {} t_n {} t_d {}",
+                v(d.origin),
+                v(d.cell_size),
+                d.dims.x,
+                d.dims.y,
+                d.dims.z,
+                d.table_log2,
+                d.bucket_capacity,
+                d.cell_capacity,
+                d.cell_pool,
+                d.point_format,
+                d.radius,
+                d.t_n,
+                d.t_d
+            )
+            .ok();
+            if let Some(t) = m.transform {
+                let floats: Vec<String> = t.matrix.iter().map(|f| f.to_string()).collect();
+                writeln!(
+                    out,
+                    "transform {id} seq {} matrix {}",
+                    t.sequence,
+                    floats.join(" ")
+                )
+                .ok();
+            }
+            let cap = d.bucket_capacity as usize;
+            for (i, e) in m.buckets.iter().enumerate().filter(|(_, e)| !e.is_empty()) {
+                writeln!(out, "bucket {id} {} key {} cell {}", i / cap, e.key, e.cell).ok();
+            }
+            let cap = d.cell_capacity as usize;
+            for (i, &w) in m.words.iter().enumerate().filter(|(_, w)| **w != 0) {
+                let f = PointWord(w).fields();
+                writeln!(
+                    out,
+                    "word {id} cell {} slot {} {w:08x} pos {} {} {} normal {:02x} ao {}",
+                    i / cap,
+                    i % cap,
+                    f.position.x,
+                    f.position.y,
+                    f.position.z,
+                    f.normal,
+                    f.ao
+                )
+                .ok();
+            }
+        }
+        out
+    }
+
     /// Takes the list of what changed since the last call.
     pub fn take_changes(&mut self) -> Changes {
         std::mem::take(&mut self.changes)

@@ -1,0 +1,772 @@
+//! Writes the test vectors of `spec/vectors/`.
+//!
+//! Frames are assembled byte by byte from spec/wire-format.md (not with the
+//! crate's encoder), decoded with `psao-codec`, and stored with the outcome
+//! of every frame and the final mirror state. `tests/vectors.rs` replays
+//! them, so the code and the committed vectors cannot drift apart silently.
+//!
+//! `cargo run -p psao-codec --example gen_vectors [-- OUT_DIR]`
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use glam::UVec3;
+use psao_codec::point::{PointFields, PointWord};
+use psao_codec::{Decoder, Event, Limits};
+
+// ---- raw message builders (spec section 5) ----
+
+fn u32le(out: &mut Vec<u8>, v: u32) {
+    out.extend_from_slice(&v.to_le_bytes());
+}
+
+fn f32le(out: &mut Vec<u8>, v: f32) {
+    out.extend_from_slice(&v.to_le_bytes());
+}
+
+fn varint(out: &mut Vec<u8>, mut v: u32) {
+    while v >= 0x80 {
+        out.push(v as u8 | 0x80);
+        v >>= 7;
+    }
+    out.push(v as u8);
+}
+
+fn index_list(out: &mut Vec<u8>, idx: &[u32]) {
+    let mut next = 0u32;
+    for &i in idx {
+        varint(out, i - next);
+        next = i.wrapping_add(1);
+    }
+}
+
+fn planar(out: &mut Vec<u8>, vals: &[u32]) {
+    for b in 0..4 {
+        out.extend(vals.iter().map(|v| (v >> (8 * b)) as u8));
+    }
+}
+
+/// The grid every vector uses: 4x4x4 cells of 0.5, 8 buckets of 4, cells of 4, pool 16.
+#[derive(Clone, Copy)]
+struct Def {
+    dims: [u32; 3],
+    table_log2: u8,
+    pool: u32,
+}
+
+const DEF: Def = Def {
+    dims: [4, 4, 4],
+    table_log2: 3,
+    pool: 16,
+};
+
+fn define(id: u32, d: Def) -> Vec<u8> {
+    let mut o = vec![0x01];
+    u32le(&mut o, id);
+    for f in [0.0, 0.0, 0.0, 0.5, 0.5, 0.5] {
+        f32le(&mut o, f);
+    }
+    for x in d.dims {
+        u32le(&mut o, x);
+    }
+    o.extend_from_slice(&[d.table_log2, 4, 4, 0]);
+    u32le(&mut o, d.pool);
+    for f in [0.25, 0.1, 0.7] {
+        f32le(&mut o, f);
+    }
+    o
+}
+
+fn remove(id: u32) -> Vec<u8> {
+    let mut o = vec![0x02];
+    u32le(&mut o, id);
+    o
+}
+
+fn transform(id: u32, seq: u32, tx: f32) -> Vec<u8> {
+    let mut o = vec![0x03];
+    u32le(&mut o, id);
+    u32le(&mut o, seq);
+    for f in [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, tx, 2.0, 0.0] {
+        f32le(&mut o, f);
+    }
+    o
+}
+
+fn buckets(id: u32, list: &[(u32, &[(u32, u32)])]) -> Vec<u8> {
+    let mut o = vec![0x04];
+    u32le(&mut o, id);
+    u32le(&mut o, list.len() as u32);
+    index_list(&mut o, &list.iter().map(|b| b.0).collect::<Vec<_>>());
+    o.extend(list.iter().map(|b| b.1.len() as u8));
+    let keys: Vec<u32> = list.iter().flat_map(|b| b.1.iter().map(|e| e.0)).collect();
+    let cells: Vec<u32> = list.iter().flat_map(|b| b.1.iter().map(|e| e.1)).collect();
+    planar(&mut o, &keys);
+    planar(&mut o, &cells);
+    o
+}
+
+fn cells_full(id: u32, list: &[(u32, &[u32])]) -> Vec<u8> {
+    let mut o = vec![0x05];
+    u32le(&mut o, id);
+    u32le(&mut o, list.len() as u32);
+    index_list(&mut o, &list.iter().map(|c| c.0).collect::<Vec<_>>());
+    o.extend(list.iter().map(|c| c.1.len() as u8));
+    planar(
+        &mut o,
+        &list
+            .iter()
+            .flat_map(|c| c.1.iter().copied())
+            .collect::<Vec<_>>(),
+    );
+    o
+}
+
+fn cells_xor(id: u32, list: &[(u32, u8, &[u32])]) -> Vec<u8> {
+    let mut o = vec![0x06];
+    u32le(&mut o, id);
+    u32le(&mut o, list.len() as u32);
+    index_list(&mut o, &list.iter().map(|c| c.0).collect::<Vec<_>>());
+    o.extend(list.iter().map(|c| c.1));
+    planar(
+        &mut o,
+        &list
+            .iter()
+            .flat_map(|c| c.2.iter().copied())
+            .collect::<Vec<_>>(),
+    );
+    o
+}
+
+fn cells_ao(id: u32, list: &[(u32, u8, &[u8])]) -> Vec<u8> {
+    let mut o = vec![0x07];
+    u32le(&mut o, id);
+    u32le(&mut o, list.len() as u32);
+    index_list(&mut o, &list.iter().map(|c| c.0).collect::<Vec<_>>());
+    o.extend(list.iter().map(|c| c.1));
+    o.extend(list.iter().flat_map(|c| c.2.iter().copied()));
+    o
+}
+
+fn free(id: u32, cells: &[u32]) -> Vec<u8> {
+    let mut o = vec![0x08];
+    u32le(&mut o, id);
+    u32le(&mut o, cells.len() as u32);
+    index_list(&mut o, cells);
+    o
+}
+
+const END: [u8; 1] = [0x00];
+
+fn word(pos: [u32; 3], normal: u8, ao: u8) -> u32 {
+    PointWord::pack(PointFields {
+        position: UVec3::from(pos),
+        normal,
+        ao,
+    })
+    .0
+}
+
+// ---- frames (spec section 3) ----
+
+#[derive(Clone)]
+struct Frame {
+    keyframe: bool,
+    checksum: bool,
+    compression: u8,
+    seq: u32,
+    base: u32,
+    messages: Vec<Vec<u8>>,
+    /// Overrides `message_count` (default: number of messages).
+    count: Option<u32>,
+}
+
+fn key(seq: u32, messages: Vec<Vec<u8>>) -> Frame {
+    Frame {
+        keyframe: true,
+        checksum: false,
+        compression: 0,
+        seq,
+        base: seq,
+        messages,
+        count: None,
+    }
+}
+
+fn delta(seq: u32, base: u32, messages: Vec<Vec<u8>>) -> Frame {
+    Frame {
+        keyframe: false,
+        base,
+        ..key(seq, messages)
+    }
+}
+
+impl Frame {
+    fn bytes(&self) -> Vec<u8> {
+        let payload: Vec<u8> = self.messages.concat();
+        let wire = match self.compression {
+            0 => payload.clone(),
+            1 => lz4_flex::block::compress(&payload),
+            _ => zstd::bulk::compress(&payload, 3).expect("zstd"),
+        };
+        let mut h = Vec::with_capacity(32 + wire.len());
+        h.extend_from_slice(b"PSAO");
+        h.push(1);
+        h.push(self.keyframe as u8 | (self.checksum as u8) << 1);
+        h.push(self.compression);
+        h.push(0);
+        u32le(&mut h, self.seq);
+        u32le(&mut h, self.base);
+        u32le(&mut h, self.count.unwrap_or(self.messages.len() as u32));
+        u32le(&mut h, payload.len() as u32);
+        u32le(&mut h, wire.len() as u32);
+        let crc = if self.checksum {
+            let mut c = crc32fast::Hasher::new();
+            c.update(&h);
+            c.update(&wire);
+            c.finalize()
+        } else {
+            0
+        };
+        u32le(&mut h, crc);
+        h.extend_from_slice(&wire);
+        h
+    }
+}
+
+// ---- vectors ----
+
+struct Vector {
+    name: &'static str,
+    about: &'static str,
+    limits: Vec<(&'static str, u64)>,
+    frames: Vec<Vec<u8>>,
+    notes: Vec<String>,
+}
+
+fn v(name: &'static str, about: &'static str, frames: Vec<Vec<u8>>) -> Vector {
+    Vector {
+        name,
+        about,
+        limits: Vec::new(),
+        frames,
+        notes: Vec::new(),
+    }
+}
+
+fn with_limit(mut vector: Vector, name: &'static str, value: u64) -> Vector {
+    vector.limits.push((name, value));
+    vector
+}
+
+fn set_limit(l: &mut Limits, name: &str, value: u64) {
+    match name {
+        "max_frame_bytes" => l.max_frame_bytes = value as u32,
+        "max_payload_bytes" => l.max_payload_bytes = value as u32,
+        "max_messages" => l.max_messages = value as u32,
+        "max_instances" => l.max_instances = value as u32,
+        "max_table_log2" => l.max_table_log2 = value as u8,
+        "max_cell_pool" => l.max_cell_pool = value as u32,
+        "max_mirror_bytes" => l.max_mirror_bytes = value,
+        other => panic!("unknown limit {other}"),
+    }
+}
+
+/// Keyframe 5 of instance 1 holding one point in cell (1,0,0): key 1,
+/// bucket 1, cell 0.
+fn base_keyframe() -> Frame {
+    let mut f = key(
+        5,
+        vec![
+            define(1, DEF),
+            transform(1, 1, 3.0),
+            buckets(1, &[(1, &[(1, 0)])]),
+            cells_full(1, &[(0, &[W1])]),
+            END.to_vec(),
+        ],
+    );
+    f.checksum = true;
+    f
+}
+
+const W1: u32 = 0x8C21_77C8; // pos (1,1,3), normal 0x77 (+Z), ao 200
+const W2: u32 = 0x8000_7440; // pos (0,0,0), normal 0x74, ao 64
+
+fn annotate_base(bytes: &[u8]) -> Vec<String> {
+    let fields: &[(usize, &str)] = &[
+        (4, "magic \"PSAO\""),
+        (1, "version 1"),
+        (1, "flags 0x03: KEYFRAME | CHECKSUM"),
+        (1, "compression 0 (none)"),
+        (1, "reserved"),
+        (4, "sequence 5"),
+        (4, "base_sequence 5 (= sequence in a keyframe)"),
+        (4, "message_count 5"),
+        (4, "uncompressed_len"),
+        (4, "compressed_len (= uncompressed_len)"),
+        (4, "checksum: CRC-32 of bytes 0..28 and the payload"),
+        (1, "DefineInstance 0x01"),
+        (4, "  instance 1"),
+        (12, "  origin 0 0 0"),
+        (12, "  cell_size 0.5 0.5 0.5"),
+        (12, "  dims 4 4 4"),
+        (
+            4,
+            "  table_log2 3, bucket_capacity 4, cell_capacity 4, point_format 0",
+        ),
+        (4, "  cell_pool 16"),
+        (12, "  radius 0.25, t_n 0.1, t_d 0.7"),
+        (1, "Transform 0x03"),
+        (4, "  instance 1"),
+        (4, "  transform_sequence 1"),
+        (48, "  matrix: identity, translation (3, 2, 0)"),
+        (1, "Buckets 0x04"),
+        (4, "  instance 1"),
+        (4, "  count 1"),
+        (1, "  bucket index list: 1"),
+        (1, "  entries: 1"),
+        (
+            4,
+            "  keys, planar: key 1 = cell (1,0,0): 1 + 0*4*17 + 0*4*4*31",
+        ),
+        (4, "  cells, planar: cell 0"),
+        (1, "CellsFull 0x05"),
+        (4, "  instance 1"),
+        (4, "  count 1"),
+        (1, "  cell index list: 0"),
+        (1, "  points: 1"),
+        (
+            4,
+            "  words, planar: 0x8c2177c8 = A, pos (1,1,3), normal 0x77 (+Z), ao 200",
+        ),
+        (1, "EndOfFrame 0x00"),
+    ];
+    let mut out = Vec::new();
+    let mut at = 0;
+    for &(n, what) in fields {
+        let hex: String = bytes[at..at + n]
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
+        out.push(format!("{at:4} {hex:<24} {what}"));
+        at += n;
+    }
+    assert_eq!(at, bytes.len(), "annotation covers the frame");
+    out
+}
+
+fn vectors() -> Vec<Vector> {
+    let kf = base_keyframe();
+    let kfb = kf.bytes();
+    let mut list = Vec::new();
+
+    list.push(v(
+        "01-keyframe-empty",
+        "A keyframe with no instance: just EndOfFrame.",
+        vec![key(0, vec![END.to_vec()]).bytes()],
+    ));
+    let mut two = v(
+        "02-keyframe-one-point",
+        "Keyframe 5: instance 1, its transform, one bucket and one cell holding one point. Annotated below.",
+        vec![kfb.clone()],
+    );
+    two.notes = annotate_base(&kfb);
+    list.push(two);
+    list.push(v(
+        "03-delta-xor-ao-free",
+        "Deltas 6-8: a second point by XOR, AO deltas (+10, -5 mod 256), then the cell freed and its bucket emptied.",
+        vec![
+            kfb.clone(),
+            delta(6, 5, vec![cells_xor(1, &[(0, 0b10, &[W2])]), END.to_vec()]).bytes(),
+            delta(7, 6, vec![cells_ao(1, &[(0, 0b11, &[10, 251])]), END.to_vec()]).bytes(),
+            delta(8, 7, vec![free(1, &[0]), buckets(1, &[(1, &[])]), END.to_vec()]).bytes(),
+        ],
+    ));
+    let mut lz = kf.clone();
+    lz.compression = 1;
+    list.push(v(
+        "04-keyframe-lz4",
+        "The keyframe of 02 with an LZ4 block payload.",
+        vec![lz.bytes()],
+    ));
+    let mut zs = kf.clone();
+    zs.compression = 2;
+    list.push(v(
+        "05-keyframe-zstd",
+        "The keyframe of 02 with a zstd payload.",
+        vec![zs.bytes()],
+    ));
+    let d6 = delta(6, 5, vec![cells_ao(1, &[(0, 1, &[1])]), END.to_vec()]).bytes();
+    list.push(v(
+        "06-stale-duplicate",
+        "Delta 6 twice (the second is stale), then keyframe 5 again (stale: the mirror is at 6).",
+        vec![kfb.clone(), d6.clone(), d6.clone(), kfb.clone()],
+    ));
+    list.push(v(
+        "07-gap-need-keyframe",
+        "A delta before any keyframe, then keyframe 5, then delta 7 based on 6 (6 was lost): need keyframe, state unchanged.",
+        vec![
+            d6.clone(),
+            kfb.clone(),
+            delta(7, 6, vec![cells_ao(1, &[(0, 1, &[1])]), END.to_vec()]).bytes(),
+        ],
+    ));
+    let mut wrap = kf.clone();
+    wrap.seq = u32::MAX;
+    wrap.base = u32::MAX;
+    list.push(v(
+        "08-wraparound",
+        "Keyframe at 2^32-1, then delta 0 based on 2^32-1: sequences wrap.",
+        vec![
+            wrap.bytes(),
+            delta(
+                0,
+                u32::MAX,
+                vec![cells_ao(1, &[(0, 1, &[7])]), END.to_vec()],
+            )
+            .bytes(),
+        ],
+    ));
+    list.push(v(
+        "09-transform-order",
+        "Transform sequence 1 stored; a late transform 0 in delta 6 is ignored; transform 2 in delta 7 replaces it.",
+        vec![
+            kfb.clone(),
+            delta(6, 5, vec![transform(1, 0, 9.0), END.to_vec()]).bytes(),
+            delta(7, 6, vec![transform(1, 2, 4.0), END.to_vec()]).bytes(),
+        ],
+    ));
+    list.push(v(
+        "10-redefine-and-remove",
+        "Keyframe with instances 1 and 2; a delta redefines 1 (which clears it) and removes 2.",
+        vec![
+            key(
+                5,
+                vec![
+                    define(1, DEF),
+                    transform(1, 1, 3.0),
+                    buckets(1, &[(1, &[(1, 0)])]),
+                    cells_full(1, &[(0, &[W1])]),
+                    define(2, DEF),
+                    END.to_vec(),
+                ],
+            )
+            .bytes(),
+            delta(6, 5, vec![define(1, DEF), remove(2), END.to_vec()]).bytes(),
+        ],
+    ));
+    list.push(v(
+        "11-coalesced-delta",
+        "A delta from 5 straight to 9 (a server coalescing four deltas for a slow client).",
+        vec![
+            kfb.clone(),
+            delta(9, 5, vec![cells_ao(1, &[(0, 1, &[2])]), END.to_vec()]).bytes(),
+        ],
+    ));
+    list.push(v(
+        "12-atomic-rollback",
+        "Delta 6 sets transform 2 and adds a point, then breaks compaction in its third message: nothing of it applies.",
+        vec![
+            kfb.clone(),
+            delta(
+                6,
+                5,
+                vec![
+                    transform(1, 2, 8.0),
+                    cells_xor(1, &[(0, 0b10, &[W2])]),
+                    cells_xor(1, &[(0, 0b1000, &[W2])]),
+                    END.to_vec(),
+                ],
+            )
+            .bytes(),
+        ],
+    ));
+
+    // ---- one vector per error class ----
+    let bad = |f: &dyn Fn(&mut Vec<u8>)| {
+        let mut b = kfb.clone();
+        f(&mut b);
+        b
+    };
+    let after_kf = |name, about, messages: Vec<Vec<u8>>| {
+        let mut m = messages;
+        m.push(END.to_vec());
+        v(name, about, vec![kfb.clone(), delta(6, 5, m).bytes()])
+    };
+    list.push(v(
+        "13-truncated",
+        "The keyframe of 02 cut to 20 bytes.",
+        vec![kfb[..20].to_vec()],
+    ));
+    list.push(v(
+        "14-trailing-bytes",
+        "The keyframe of 02 with one extra byte.",
+        vec![bad(&|b| b.push(0))],
+    ));
+    list.push(v(
+        "15-bad-magic",
+        "Magic \"PSAP\".",
+        vec![bad(&|b| b[3] = b'P')],
+    ));
+    list.push(v(
+        "16-unsupported-version",
+        "Version 2.",
+        vec![bad(&|b| b[4] = 2)],
+    ));
+    list.push(v(
+        "17-header-field",
+        "Reserved flag bit 2 set.",
+        vec![bad(&|b| b[5] |= 4)],
+    ));
+    list.push(v(
+        "18-unknown-compression",
+        "Compression id 3.",
+        vec![bad(&|b| b[6] = 3)],
+    ));
+    list.push(with_limit(
+        v(
+            "19-frame-too-large",
+            "A receiver limited to 40-byte frames.",
+            vec![kfb.clone()],
+        ),
+        "max_frame_bytes",
+        40,
+    ));
+    list.push(with_limit(
+        v(
+            "20-payload-too-large",
+            "A receiver limited to 4-byte payloads.",
+            vec![kfb.clone()],
+        ),
+        "max_payload_bytes",
+        4,
+    ));
+    list.push(with_limit(
+        v(
+            "21-too-many-messages",
+            "A receiver limited to 2 messages per frame.",
+            vec![kfb.clone()],
+        ),
+        "max_messages",
+        2,
+    ));
+    list.push(v(
+        "22-checksum",
+        "One payload byte flipped under a checksum.",
+        vec![bad(&|b| *b.last_mut().expect("payload") ^= 0x40)],
+    ));
+    let mut z = kf.clone();
+    z.compression = 2;
+    let mut zb = z.bytes();
+    let n = zb.len();
+    zb[n - 6] ^= 0xFF;
+    zb[28..32].fill(0);
+    zb[5] &= !2;
+    list.push(v(
+        "23-decompress",
+        "A zstd payload with corrupted bytes (no checksum).",
+        vec![zb],
+    ));
+    list.push(after_kf(
+        "24-unknown-message-type",
+        "Message type 0x09.",
+        vec![vec![0x09]],
+    ));
+    let mut short = delta(6, 5, vec![define(3, DEF)[..30].to_vec()]);
+    short.count = Some(1);
+    list.push(v(
+        "25-message-truncated",
+        "A DefineInstance cut after 30 bytes.",
+        vec![kfb.clone(), short.bytes()],
+    ));
+    let mut missing = delta(6, 5, vec![cells_ao(1, &[(0, 1, &[1])])]);
+    missing.count = Some(1);
+    list.push(v(
+        "26-missing-end",
+        "A payload whose only message is not EndOfFrame.",
+        vec![kfb.clone(), missing.bytes()],
+    ));
+    let mut after = delta(6, 5, vec![END.to_vec(), END.to_vec()]);
+    after.count = Some(1);
+    list.push(v(
+        "27-after-end",
+        "Bytes after EndOfFrame.",
+        vec![kfb.clone(), after.bytes()],
+    ));
+    let mut nonmin = vec![0x08];
+    u32le(&mut nonmin, 1);
+    u32le(&mut nonmin, 1);
+    nonmin.extend_from_slice(&[0x80, 0x00]);
+    list.push(after_kf(
+        "28-varint",
+        "A non-minimal varint (0x80 0x00) in CellsFree.",
+        vec![nonmin],
+    ));
+    let mut overflow = vec![0x08];
+    u32le(&mut overflow, 1);
+    u32le(&mut overflow, 2);
+    varint(&mut overflow, u32::MAX);
+    varint(&mut overflow, 0);
+    list.push(after_kf(
+        "29-index-overflow",
+        "An index list 2^32-1 then one more.",
+        vec![overflow],
+    ));
+    list.push(after_kf(
+        "30-zero-mask",
+        "A CellsAo mask of 0.",
+        vec![cells_ao(1, &[(0, 0, &[])])],
+    ));
+    let mut big = vec![0x04];
+    u32le(&mut big, 1);
+    u32le(&mut big, 1);
+    big.extend_from_slice(&[1, 17]);
+    big.extend(std::iter::repeat_n(0u8, 17 * 8));
+    list.push(after_kf(
+        "31-count-too-large",
+        "A bucket listing 17 entries.",
+        vec![big],
+    ));
+    list.push(after_kf(
+        "32-invalid-definition",
+        "Dims 0 x 4 x 4.",
+        vec![define(
+            3,
+            Def {
+                dims: [0, 4, 4],
+                ..DEF
+            },
+        )],
+    ));
+    let mut nan = transform(1, 2, 0.0);
+    nan[9..13].copy_from_slice(&f32::NAN.to_le_bytes());
+    list.push(after_kf(
+        "33-non-finite-transform",
+        "A NaN in a transform.",
+        vec![nan],
+    ));
+    list.push(after_kf(
+        "34-unknown-instance",
+        "An AO delta for instance 9.",
+        vec![cells_ao(9, &[(0, 1, &[1])])],
+    ));
+    list.push(with_limit(
+        v(
+            "35-instance-limit",
+            "A receiver holding 1 instance gets a keyframe defining 2.",
+            vec![key(1, vec![define(1, DEF), define(2, DEF), END.to_vec()]).bytes()],
+        ),
+        "max_instances",
+        1,
+    ));
+    list.push(with_limit(
+        v(
+            "36-resource-limit",
+            "A receiver with 100 bytes of mirror memory.",
+            vec![kfb.clone()],
+        ),
+        "max_mirror_bytes",
+        100,
+    ));
+    list.push(after_kf(
+        "37-bucket-index",
+        "Bucket 8 of an 8-bucket table.",
+        vec![buckets(1, &[(8, &[])])],
+    ));
+    list.push(after_kf(
+        "38-bucket-over-capacity",
+        "Five entries in a bucket of 4.",
+        vec![buckets(
+            1,
+            &[(1, &[(1, 0), (9, 1), (17 * 4 + 1, 2), (33, 3), (41, 4)])],
+        )],
+    ));
+    list.push(after_kf(
+        "39-key-not-in-grid",
+        "Key 17 names no cell of a 4x4x4 grid (17 div 4 = 4 is not a multiple of 17).",
+        vec![buckets(1, &[(1, &[(17, 0)])])],
+    ));
+    list.push(after_kf(
+        "40-key-wrong-bucket",
+        "Key 1 listed in bucket 2.",
+        vec![buckets(1, &[(2, &[(1, 0)])])],
+    ));
+    list.push(after_kf(
+        "41-duplicate-key",
+        "Key 1 twice in bucket 1.",
+        vec![buckets(1, &[(1, &[(1, 0), (1, 1)])])],
+    ));
+    list.push(after_kf(
+        "42-cell-index",
+        "Cell 16 of a 16-cell pool.",
+        vec![free(1, &[16])],
+    ));
+    list.push(after_kf(
+        "43-slot-beyond-capacity",
+        "XOR mask bit 4 with 4 slots per cell.",
+        vec![cells_xor(1, &[(0, 0b1_0000, &[W2])])],
+    ));
+    list.push(after_kf(
+        "44-invalid-word",
+        "CellsFull with a normal code u = 15.",
+        vec![cells_full(1, &[(1, &[word([0, 0, 0], 0x77, 1) | 0x0F00])])],
+    ));
+    list.push(after_kf(
+        "45-compaction",
+        "XOR puts a point in slot 2 while slot 1 is empty.",
+        vec![cells_xor(1, &[(0, 0b100, &[W2])])],
+    ));
+    list.push(after_kf(
+        "46-ao-to-empty-slot",
+        "AO delta for empty slot 1.",
+        vec![cells_ao(1, &[(0, 0b10, &[1])])],
+    ));
+    assert_eq!(W1, word([1, 1, 3], 0x77, 200));
+    assert_eq!(W2, word([0, 0, 0], 0x74, 64));
+    list
+}
+
+fn hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+fn main() {
+    let dir: PathBuf = std::env::args()
+        .nth(1)
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../spec/vectors"));
+    std::fs::create_dir_all(&dir).expect("create vector dir");
+    for vector in vectors() {
+        let mut limits = Limits::default();
+        let mut text = String::new();
+        writeln!(text, "# {}", vector.name).ok();
+        writeln!(text, "# {}", vector.about).ok();
+        for line in &vector.notes {
+            writeln!(text, "#   {line}").ok();
+        }
+        for (name, value) in &vector.limits {
+            set_limit(&mut limits, name, *value);
+            writeln!(text, "limit {name} {value}").ok();
+        }
+        let mut decoder = Decoder::new(limits);
+        for frame in &vector.frames {
+            writeln!(text, "frame {}", hex(frame)).ok();
+            let expect = match decoder.receive(frame) {
+                Ok(Event::Applied { sequence, keyframe }) => {
+                    format!(
+                        "applied {sequence} {}",
+                        if keyframe { "keyframe" } else { "delta" }
+                    )
+                }
+                Ok(Event::Stale { .. }) => "stale".to_string(),
+                Ok(Event::NeedKeyframe { .. }) => "need_keyframe".to_string(),
+                Err(e) => format!("error {}", e.code()),
+            };
+            writeln!(text, "expect {expect}").ok();
+        }
+        writeln!(text, "state").ok();
+        text.push_str(&decoder.mirror().describe());
+        std::fs::write(dir.join(format!("{}.txt", vector.name)), text).expect("write vector");
+    }
+    println!("wrote vectors to {}", dir.display());
+}
