@@ -721,6 +721,26 @@ fn vectors() -> Vec<Vector> {
         "AO delta for empty slot 1.",
         vec![cells_ao(1, &[(0, 0b10, &[1])])],
     ));
+    let (w3, w4, w5, w6) = (
+        word([5, 9, 17], 0x3a, 17),
+        word([31, 0, 30], 0xe0, 255),
+        word([12, 24, 6], 0x0e, 0),
+        word([2, 27, 11], 0x5c, 99),
+    );
+    list.push(v(
+        "47-keyframe-planar",
+        "Planar arrays of several values: bucket 1 holds keys 1 (cell (1,0,0)) and 993 (cell (1,0,2)), bucket 6 key 70 (cell (2,1,0)); cells of 2, 1 and 3 points.",
+        vec![key(
+            3,
+            vec![
+                define(1, DEF),
+                buckets(1, &[(1, &[(1, 0), (993, 1)]), (6, &[(70, 2)])]),
+                cells_full(1, &[(0, &[W1, W2]), (1, &[w3]), (2, &[w4, w5, w6])]),
+                END.to_vec(),
+            ],
+        )
+        .bytes()],
+    ));
     assert_eq!(W1, word([1, 1, 3], 0x77, 200));
     assert_eq!(W2, word([0, 0, 0], 0x74, 64));
     list

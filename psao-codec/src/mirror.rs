@@ -517,7 +517,8 @@ impl Mirror {
             .instances
             .get(&instance)
             .map_or(0, |m| m.def.mirror_bytes() as u64);
-        if old_bytes == 0 && self.instances.len() as u64 >= limits.max_instances as u64 {
+        let is_new = !self.instances.contains_key(&instance);
+        if is_new && self.instances.len() as u64 >= limits.max_instances as u64 {
             return Err(MessageError::InstanceLimit {
                 limit: limits.max_instances,
             });
