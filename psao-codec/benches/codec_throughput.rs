@@ -128,17 +128,17 @@ fn paper_bytes(steps: &[Step]) -> usize {
     total
 }
 
-fn raw_decompress(c: Compression, frames: &[EncodedFrame], out: &mut Vec<u8>) {
+fn raw_decompress(frames: &[EncodedFrame], out: &mut [u8]) {
     for f in frames {
         let h = psao_codec::FrameHeader::parse(&f.bytes).expect("header");
         let payload = &f.bytes[psao_codec::HEADER_LEN..];
         let n = h.uncompressed_len as usize;
-        match (c, h.compression) {
-            (_, Compression::None) => out[..payload.len()].copy_from_slice(payload),
-            (_, Compression::Lz4) => {
+        match h.compression {
+            Compression::None => out[..payload.len()].copy_from_slice(payload),
+            Compression::Lz4 => {
                 lz4_flex::block::decompress_into(payload, &mut out[..n]).expect("lz4");
             }
-            (_, Compression::Zstd) => {
+            Compression::Zstd => {
                 zstd::bulk::decompress_to_buffer(payload, &mut out[..n]).expect("zstd");
             }
         }
@@ -242,7 +242,7 @@ fn main() {
                 .unwrap_or(0)
         ];
         let t_raw = time(reps, || {
-            raw_decompress(compression, &frames, &mut out);
+            raw_decompress(&frames, &mut out);
             black_box(&out);
         });
 
