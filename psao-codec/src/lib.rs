@@ -71,5 +71,7 @@ pub use limits::Limits;
 pub use message::{BucketsMsg, CellsMsg, IndexIter, IndexList, Message, PlanarU32, kind};
 pub use mirror::{Change, Changes, Event, InstanceMirror, Mirror, Transform};
 pub use point::PointWord;
-pub use reconstruct::{base_cell, normal_table, reconstruct_ao, weight, world_to_local};
+pub use reconstruct::{
+    WeightParams, base_cell, normal_table, reconstruct_ao, weight, world_to_local,
+};
 pub use table::{DirtyCell, DirtySet, DropReason, GridTable, Placement, TableStats, Thresholds};

@@ -5,6 +5,7 @@ use std::sync::OnceLock;
 
 use glam::{Affine3A, IVec3, Vec3};
 
+use crate::grid::InstanceDef;
 use crate::mirror::InstanceMirror;
 use crate::point::decode_normal;
 
@@ -14,10 +15,40 @@ pub fn normal_table() -> &'static [Vec3; 256] {
     TABLE.get_or_init(|| std::array::from_fn(|c| decode_normal(c as u8)))
 }
 
+/// Parameters of eq. 2-3 for one instance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WeightParams {
+    /// Interpolation radius r.
+    pub radius: f32,
+    /// Normal threshold T_n.
+    pub t_n: f32,
+    /// Direction threshold T_d.
+    pub t_d: f32,
+    /// Distance below which the direction test is skipped: the largest
+    /// position quantization offset, `|cell_size| / 64`. Closer than that,
+    /// the direction from `x` to a point is quantization noise, and eq. 3
+    /// would reject a point's own sample whenever that noise happens to lie
+    /// along the normal.
+    pub noise: f32,
+}
+
+impl WeightParams {
+    /// The parameters of an instance definition.
+    pub fn of(def: &InstanceDef) -> WeightParams {
+        WeightParams {
+            radius: def.radius,
+            t_n: def.t_n,
+            t_d: def.t_d,
+            noise: def.cell_size.length() / 64.0,
+        }
+    }
+}
+
 /// The weight of eq. 2 with the rejections of eq. 3, for a point at `p`
 /// with normal `n_p` seen from surface point `x` with normal `n_x`.
 #[inline]
-pub fn weight(p: Vec3, n_p: Vec3, x: Vec3, n_x: Vec3, r: f32, t_n: f32, t_d: f32) -> f32 {
+pub fn weight(p: Vec3, n_p: Vec3, x: Vec3, n_x: Vec3, w: &WeightParams) -> f32 {
+    let (r, t_n, t_d) = (w.radius, w.t_n, w.t_d);
     if n_p.dot(n_x) <= t_n {
         return 0.0;
     }
@@ -27,7 +58,7 @@ pub fn weight(p: Vec3, n_p: Vec3, x: Vec3, n_x: Vec3, r: f32, t_n: f32, t_d: f32
     if a <= 0.0 {
         return 0.0;
     }
-    if dist > 0.0 {
+    if dist > w.noise {
         let c = n_p.dot(d) / dist;
         if c * c >= t_d {
             return 0.0;
@@ -54,6 +85,7 @@ pub fn reconstruct_ao(inst: &InstanceMirror, x: Vec3, n: Vec3) -> f32 {
         return 1.0;
     }
     let normals = normal_table();
+    let params = WeightParams::of(&d);
     let base = base_cell(inst, x);
     let dims = d.dims.as_ivec3();
     let (mut sum_w, mut sum) = (0.0f32, 0.0f32);
@@ -72,7 +104,7 @@ pub fn reconstruct_ao(inst: &InstanceMirror, x: Vec3, n: Vec3) -> f32 {
                 for w in inst.cell_points(cell) {
                     let p = min + w.frac() * d.cell_size;
                     let n_p = normals[w.fields().normal as usize];
-                    let a = weight(p, n_p, x, n, d.radius, d.t_n, d.t_d);
+                    let a = weight(p, n_p, x, n, &params);
                     sum_w += a;
                     sum += a * w.ao();
                 }

@@ -43,13 +43,17 @@ pub enum DropReason {
     PoolExhausted,
 }
 
-/// Counts of what the table did, cumulative since creation.
+/// What the table holds now (`stored`, `cells`, `dropped`) and how many
+/// drop events happened since creation (the other counters; a dropped point
+/// is retried, and counted again, at each of its updates).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct TableStats {
     /// Points stored now.
     pub stored: u32,
     /// Cells allocated now.
     pub cells: u32,
+    /// Points set but not stored now (dropped for any reason).
+    pub dropped: u32,
     /// Drops because the point was outside the grid.
     pub out_of_grid: u64,
     /// Drops because a bucket was full.
@@ -280,6 +284,18 @@ impl GridTable {
                 limit: self.max_points,
             });
         }
+        let was_dropped = matches!(self.placement(id), Placement::Dropped(_));
+        let placement = self.place(id, local, normal, ao);
+        let is_dropped = matches!(placement, Placement::Dropped(_));
+        match (was_dropped, is_dropped) {
+            (false, true) => self.stats.dropped += 1,
+            (true, false) => self.stats.dropped -= 1,
+            _ => {}
+        }
+        Ok(placement)
+    }
+
+    fn place(&mut self, id: u32, local: Vec3, normal: Vec3, ao: f32) -> Placement {
         if self.points.len() <= id as usize {
             self.points.resize(
                 id as usize + 1,
@@ -293,7 +309,7 @@ impl GridTable {
             self.unlink(id);
             self.stats.out_of_grid += 1;
             self.points[id as usize] = Loc::dropped(DropReason::OutOfGrid);
-            return Ok(self.placement(id));
+            return self.placement(id);
         };
         let frac = (local - self.def.cell_min(cell_pos)) / self.def.cell_size;
         let word = PointWord::encode(frac, normal, ao).0;
@@ -306,12 +322,12 @@ impl GridTable {
                 self.touch_cell(cell);
                 self.words[i] = word;
             }
-            return Ok(self.placement(id));
+            return self.placement(id);
         }
         self.unlink(id);
         let loc = self.insert(id, key, word);
         self.points[id as usize] = loc;
-        Ok(loc.placement())
+        loc.placement()
     }
 
     /// Sets a point only if it differs from what the client holds by more
@@ -348,6 +364,9 @@ impl GridTable {
     /// Removes a point. Returns whether it was stored.
     pub fn remove_point(&mut self, id: u32) -> bool {
         let stored = matches!(self.placement(id), Placement::Stored { .. });
+        if matches!(self.placement(id), Placement::Dropped(_)) {
+            self.stats.dropped -= 1;
+        }
         self.unlink(id);
         if let Some(l) = self.points.get_mut(id as usize) {
             l.cell = ABSENT;

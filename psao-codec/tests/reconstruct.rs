@@ -96,6 +96,21 @@ fn normal_and_direction_tests_reject_points() {
         reconstruct_ao(d.mirror().instance(1).unwrap(), x, Vec3::Y),
         0.0
     );
+    // Within quantization noise (|cell_size|/64) the direction test is
+    // skipped: a point just above x along its normal still counts.
+    let mut t = GridTable::new(1, def, 4).unwrap();
+    t.set_point(0, x, Vec3::Y, 0.0).unwrap();
+    let (q, _) = stored(&t, 0, c);
+    let d = mirror_of(&mut t);
+    let probe = q - Vec3::Y * 0.004; // 0.004 < 0.433/64 = 0.0068
+    assert_eq!(
+        reconstruct_ao(d.mirror().instance(1).unwrap(), probe, Vec3::Y),
+        0.0
+    );
+    assert_eq!(
+        reconstruct_ao(d.mirror().instance(1).unwrap(), q - Vec3::Y * 0.01, Vec3::Y),
+        1.0
+    );
     // Beyond the radius: no weight.
     let mut t = GridTable::new(1, def, 4).unwrap();
     t.set_point(0, x + Vec3::new(0.21, 0.0, 0.0), Vec3::Y, 0.0)

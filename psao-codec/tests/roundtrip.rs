@@ -78,7 +78,7 @@ fn check_all(decoders: &[Decoder], tables: &[GridTable], transforms: &[Option<(u
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(300))]
+    #![proptest_config(ProptestConfig::with_cases(1000))]
 
     #[test]
     fn mirror_equals_table_after_every_frame(
@@ -192,6 +192,8 @@ proptest! {
             let s = t.stats();
             let stored = (0..t.def().cell_pool).map(|c| t.cell_len(c) as u32).sum::<u32>();
             prop_assert_eq!(s.stored, stored);
+            let dropped = (0..120).filter(|&i| matches!(t.placement(i), Placement::Dropped(_))).count() as u32;
+            prop_assert_eq!(s.dropped, dropped);
             prop_assert_eq!(s.cells, (0..t.def().cell_pool).filter(|&c| t.cell_len(c) > 0).count() as u32);
         }
     }

@@ -58,10 +58,14 @@ fn cell_overflow_is_counted_and_retried() {
     assert_eq!(t.stats().stored, 7);
     assert_eq!(t.stats().cell_overflow, 2);
     assert_eq!(t.placement(8), Placement::Dropped(DropReason::CellFull));
+    assert_eq!(t.stats().dropped, 2);
     // Room frees up; the dropped point's next update stores it.
     t.remove_point(0);
     t.set_point(8, a, Vec3::Y, 0.5).unwrap();
     assert!(matches!(t.placement(8), Placement::Stored { .. }));
+    assert_eq!(t.stats().dropped, 1);
+    assert!(!t.remove_point(7), "point 7 is dropped, not stored");
+    assert_eq!(t.stats().dropped, 0);
 }
 
 #[test]

@@ -36,7 +36,7 @@ pub struct Synthetic {
 }
 
 /// Points per square metre.
-pub const DENSITY: f32 = 80.0;
+pub const DENSITY: f32 = 48.0;
 
 /// The grid: 68 x 18 x 68 cells of 0.25 m, 4096 buckets of 8, cells of 7.
 pub fn def() -> InstanceDef {
@@ -62,13 +62,20 @@ impl Synthetic {
         let mut rest = Vec::new();
         let mut normals = Vec::new();
         let mut on_box = Vec::new();
+        // Jittered (stratified) samples: about as even as the paper's
+        // Poisson-disk elimination, so cells rarely overflow.
         let mut area =
             |rest: &mut Vec<Vec3>, origin: Vec3, u: Vec3, v: Vec3, n: Vec3, is_box: bool| {
-                let count = (u.length() * v.length() * DENSITY) as usize;
-                for _ in 0..count {
-                    rest.push(origin + u * rng.next_f32() + v * rng.next_f32());
-                    normals.push(n);
-                    on_box.push(is_box);
+                let nu = (u.length() * DENSITY.sqrt()).round().max(1.0) as usize;
+                let nv = (v.length() * DENSITY.sqrt()).round().max(1.0) as usize;
+                for i in 0..nu {
+                    for j in 0..nv {
+                        let a = (i as f32 + rng.next_f32()) / nu as f32;
+                        let b = (j as f32 + rng.next_f32()) / nv as f32;
+                        rest.push(origin + u * a + v * b);
+                        normals.push(n);
+                        on_box.push(is_box);
+                    }
                 }
             };
         area(
