@@ -154,9 +154,11 @@ pub enum Event {
     },
 }
 
+/// One journal entry: what a write overwrote. Kept small (the instance is
+/// boxed) because one is pushed per touched cell and bucket.
 enum Undo {
-    Instance(u32, Option<InstanceMirror>),
-    Transform(u32, Option<Transform>),
+    Instance(u32, Option<Box<InstanceMirror>>),
+    Transform(u32, Option<Box<Transform>>),
     Words {
         instance: u32,
         start: u32,
@@ -293,6 +295,19 @@ impl Mirror {
         std::mem::take(&mut self.changes)
     }
 
+    /// What changed since the last [`clear_changes`](Self::clear_changes)
+    /// or [`take_changes`](Self::take_changes). A renderer reads this after
+    /// each frame, uploads those ranges, then clears it.
+    pub fn changes(&self) -> &Changes {
+        &self.changes
+    }
+
+    /// Forgets the recorded changes, keeping the list's memory for reuse.
+    pub fn clear_changes(&mut self) {
+        self.changes.all = false;
+        self.changes.items.clear();
+    }
+
     /// Applies a transform that arrived outside a frame (e.g. in a
     /// datagram). Returns whether it replaced the stored one (it does
     /// unless the stored one is newer or equal).
@@ -390,13 +405,13 @@ impl Mirror {
             match u {
                 Undo::Instance(id, old) => {
                     match old {
-                        Some(m) => self.instances.insert(id, m),
+                        Some(m) => self.instances.insert(id, *m),
                         None => self.instances.remove(&id),
                     };
                 }
                 Undo::Transform(id, old) => {
                     if let Some(m) = self.instances.get_mut(&id) {
-                        m.transform = old;
+                        m.transform = old.map(|t| *t);
                     }
                 }
                 Undo::Words {
@@ -461,7 +476,8 @@ impl Mirror {
                     .ok_or(MessageError::UnknownInstance(instance))?;
                 self.bytes -= old.def.mirror_bytes() as u64;
                 if journal {
-                    self.journal.push(Undo::Instance(instance, Some(old)));
+                    self.journal
+                        .push(Undo::Instance(instance, Some(Box::new(old))));
                 }
                 push_change(&mut self.changes, Change::Removed(instance));
                 Ok(())
@@ -481,7 +497,8 @@ impl Mirror {
                     return Ok(());
                 }
                 if journal {
-                    self.journal.push(Undo::Transform(instance, m.transform));
+                    self.journal
+                        .push(Undo::Transform(instance, m.transform.map(Box::new)));
                 }
                 m.transform = Some(Transform {
                     sequence: transform_sequence,
@@ -545,7 +562,8 @@ impl Mirror {
         let old = self.instances.insert(instance, InstanceMirror::new(def));
         self.bytes = needed;
         if journal {
-            self.journal.push(Undo::Instance(instance, old));
+            self.journal
+                .push(Undo::Instance(instance, old.map(Box::new)));
         }
         push_change(&mut self.changes, Change::Defined(instance));
         Ok(())
@@ -773,4 +791,12 @@ fn push_change(changes: &mut Changes, change: Change) {
         return;
     }
     changes.items.push(change);
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn journal_entries_stay_small() {
+        assert!(std::mem::size_of::<super::Undo>() <= 24);
+    }
 }

@@ -110,9 +110,9 @@ impl PointWord {
         dequantize_position(self.fields().position)
     }
 
-    /// Decoded unit normal.
+    /// Decoded unit normal (from [`normal_table`]).
     pub fn normal(self) -> Vec3 {
-        decode_normal(self.fields().normal)
+        normal_table()[((self.0 >> 8) & 0xFF) as usize]
     }
 
     /// Decoded AO in `[0, 1]`.
@@ -184,6 +184,13 @@ pub fn decode_normal(code: u8) -> Vec3 {
         v = (1.0 - ou.abs()) * sign_not_zero(ov);
     }
     Vec3::new(u, v, z).normalize()
+}
+
+/// Decoded unit normals of all 256 normal codes (codes with a nibble of 15
+/// decode as 14, like [`decode_normal`]).
+pub fn normal_table() -> &'static [Vec3; 256] {
+    static TABLE: std::sync::OnceLock<[Vec3; 256]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| std::array::from_fn(|c| decode_normal(c as u8)))
 }
 
 /// Encodes a direction to the octahedral code whose decoded normal is

@@ -1,19 +1,11 @@
 //! CPU reconstruction of AO at a surface point from a mirror (paper eq. 2-4),
 //! in instance-local space.
 
-use std::sync::OnceLock;
-
 use glam::{Affine3A, IVec3, Vec3};
 
 use crate::grid::InstanceDef;
 use crate::mirror::InstanceMirror;
-use crate::point::decode_normal;
-
-/// Decoded unit normals of all 256 normal codes.
-pub fn normal_table() -> &'static [Vec3; 256] {
-    static TABLE: OnceLock<[Vec3; 256]> = OnceLock::new();
-    TABLE.get_or_init(|| std::array::from_fn(|c| decode_normal(c as u8)))
-}
+use crate::point::normal_table;
 
 /// Parameters of eq. 2-3 for one instance.
 #[derive(Clone, Copy, Debug, PartialEq)]
