@@ -171,6 +171,7 @@ fn main() {
             compression,
             zstd_level: level,
             checksum: false,
+            ..Default::default()
         };
         let mut enc = Encoder::new(config);
         let frames = encode_all(&mut enc, &steps);
@@ -289,6 +290,7 @@ fn main() {
             compression,
             zstd_level: level,
             checksum: false,
+            ..Default::default()
         };
         let bytes: usize = encode_all(&mut Encoder::new(config), &steps)
             .iter()

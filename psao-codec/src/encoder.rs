@@ -11,6 +11,7 @@ use crate::compress::{Compression, Compressor};
 use crate::error::EncodeError;
 use crate::grid::InstanceDef;
 use crate::header::{FrameHeader, HEADER_LEN, frame_checksum};
+use crate::limits::Limits;
 use crate::message::{kind, write};
 use crate::point::AO_MASK;
 use crate::table::{DirtySet, GridTable};
@@ -25,6 +26,9 @@ pub struct EncoderConfig {
     pub zstd_level: i32,
     /// Whether frames carry a CRC-32 (for transports without integrity).
     pub checksum: bool,
+    /// The receivers' limits: a frame beyond them is not produced
+    /// ([`EncodeError::ReceiverLimit`]).
+    pub limits: Limits,
 }
 
 impl Default for EncoderConfig {
@@ -39,6 +43,7 @@ impl Default for EncoderConfig {
             },
             zstd_level: 3,
             checksum: true,
+            limits: Limits::default(),
         }
     }
 }
@@ -193,8 +198,9 @@ impl FrameBuilder<'_> {
         self.dirty_set(table, &dirty);
     }
 
-    /// Writes a dirty set already taken from `table` (whose current state
-    /// holds the new words).
+    /// Writes a dirty set already taken from `table`. The table MUST NOT have
+    /// changed since the set was taken: the words it holds now are what the
+    /// frame sends, and the set's old words are what clients hold.
     pub fn dirty_set(&mut self, table: &GridTable, dirty: &DirtySet) {
         let id = table.id();
         let cap = table.def().cell_capacity as usize;
@@ -350,25 +356,61 @@ impl FrameBuilder<'_> {
 
     /// Finishes the frame. A delta with no message is not a frame: it
     /// returns `None` and the sequence does not advance.
+    ///
+    /// A compression that is not compiled in, or that fails, falls back to
+    /// an uncompressed payload. A frame beyond the receivers' limits
+    /// ([`EncoderConfig::limits`]) is an error; if it was a delta, its
+    /// changes are lost to clients, so the encoder skips its sequence
+    /// number: every client then sees a gap and asks for a keyframe instead
+    /// of silently diverging.
     pub fn finish(mut self) -> Result<Option<EncodedFrame>, EncodeError> {
         if !self.keyframe && self.is_empty() {
             return Ok(None);
         }
+        match self.build() {
+            Ok(frame) => Ok(Some(frame)),
+            Err(e) => {
+                if !self.keyframe {
+                    self.encoder.sequence = self.encoder.sequence.wrapping_add(1);
+                }
+                Err(e)
+            }
+        }
+    }
+
+    fn build(&mut self) -> Result<EncodedFrame, EncodeError> {
         let enc = &mut *self.encoder;
         enc.payload.push(kind::END_OF_FRAME);
         self.stats.messages += 1;
+        let limits = enc.config.limits;
+        let within = |what, size: usize, limit: u32| {
+            if size as u64 > limit as u64 {
+                return Err(EncodeError::ReceiverLimit {
+                    what,
+                    size: size as u64,
+                    limit: limit as u64,
+                });
+            }
+            Ok(())
+        };
+        within(
+            "message count",
+            self.stats.messages as usize,
+            limits.max_messages,
+        )?;
+        within("payload bytes", enc.payload.len(), limits.max_payload_bytes)?;
         let payload_len =
             u32::try_from(enc.payload.len()).map_err(|_| EncodeError::FrameTooLarge)?;
         let mut out = vec![0u8; HEADER_LEN];
         let mut compression = enc.config.compression;
         if compression != Compression::None {
-            enc.compressor.compress_into(
+            let compressed = enc.compressor.compress_into(
                 compression,
                 enc.config.zstd_level,
                 &enc.payload,
                 &mut out,
-            )?;
-            if out.len() - HEADER_LEN >= enc.payload.len() {
+            );
+            if compressed.is_err() || out.len() - HEADER_LEN >= enc.payload.len() {
                 out.truncate(HEADER_LEN);
                 compression = Compression::None;
             }
@@ -376,6 +418,7 @@ impl FrameBuilder<'_> {
         if compression == Compression::None {
             out.extend_from_slice(&enc.payload);
         }
+        within("frame bytes", out.len(), limits.max_frame_bytes)?;
         let compressed_len =
             u32::try_from(out.len() - HEADER_LEN).map_err(|_| EncodeError::FrameTooLarge)?;
         let (sequence, base_sequence) = if self.keyframe {
@@ -404,11 +447,11 @@ impl FrameBuilder<'_> {
         enc.sequence = sequence;
         self.stats.payload_bytes = payload_len;
         self.stats.frame_bytes = out.len() as u32;
-        Ok(Some(EncodedFrame {
+        Ok(EncodedFrame {
             bytes: Bytes::from(out),
             sequence,
             keyframe: self.keyframe,
             stats: self.stats,
-        }))
+        })
     }
 }

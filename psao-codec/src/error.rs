@@ -17,8 +17,8 @@ pub enum DefError {
     /// A dimension is zero, or `31 * dx * dy * dz` exceeds `2^32 - 1`.
     #[error("grid dims must be >= 1 with 31*dx*dy*dz <= 2^32-1")]
     Dims,
-    /// `table_log2` above 31.
-    #[error("table_log2 above 31")]
+    /// `table_log2` above 31, or `2^table_log2 * bucket_capacity` above `2^32 - 1`.
+    #[error("table_log2 above 31 or table entries above 2^32-1")]
     TableSize,
     /// Bucket capacity outside `1..=16`.
     #[error("bucket capacity outside 1..=16")]
@@ -26,8 +26,8 @@ pub enum DefError {
     /// Cell capacity outside `1..=8`.
     #[error("cell capacity outside 1..=8")]
     CellCapacity,
-    /// Cell pool of 0 or `2^32 - 1` cells.
-    #[error("cell pool must hold 1..2^32-1 cells")]
+    /// Cell pool of 0 cells, or `cell_pool * cell_capacity` above `2^32 - 1`.
+    #[error("cell pool must be >= 1 with cell_pool * cell_capacity <= 2^32-1")]
     CellPool,
     /// Unknown point format.
     #[error("unknown point format")]
@@ -302,6 +302,17 @@ pub enum EncodeError {
     /// The frame would exceed the spec's 2^32-1 byte payload.
     #[error("frame payload above 2^32-1 bytes")]
     FrameTooLarge,
+    /// The frame would exceed a limit of its receivers
+    /// ([`EncoderConfig::limits`](crate::EncoderConfig::limits)).
+    #[error("{what} {size} above the receivers' limit {limit}")]
+    ReceiverLimit {
+        /// Which limit.
+        what: &'static str,
+        /// The frame's size in that unit.
+        size: u64,
+        /// The limit.
+        limit: u64,
+    },
     /// The compression is not compiled in.
     #[error("compression {0:?} not compiled in")]
     CompressionUnavailable(Compression),

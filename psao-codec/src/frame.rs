@@ -7,16 +7,25 @@ use crate::header::{FrameHeader, HEADER_LEN, frame_checksum};
 use crate::limits::Limits;
 use crate::message::{Message, Reader};
 
-/// A frame whose header, checksum, compression and message syntax are valid.
+/// A frame whose header, checksum, compression and message syntax are
+/// valid. Only [`decode_frame`] makes one.
 #[derive(Clone, Copy, Debug)]
 pub struct FrameView<'a> {
-    /// The header.
-    pub header: FrameHeader,
-    /// The uncompressed payload.
-    pub payload: &'a [u8],
+    header: FrameHeader,
+    payload: &'a [u8],
 }
 
 impl<'a> FrameView<'a> {
+    /// The header.
+    pub fn header(&self) -> &FrameHeader {
+        &self.header
+    }
+
+    /// The uncompressed payload.
+    pub fn payload(&self) -> &'a [u8] {
+        self.payload
+    }
+
     /// The messages with their payload offsets, `EndOfFrame` excluded.
     pub fn messages(&self) -> Messages<'a> {
         Messages {

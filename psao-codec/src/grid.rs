@@ -52,13 +52,15 @@ pub struct InstanceDef {
     /// Number of cells along each axis, each at least 1, with
     /// `31 * dx * dy * dz <= 2^32 - 1` so every key fits 32 bits.
     pub dims: UVec3,
-    /// The hash table has `2^table_log2` buckets.
+    /// The hash table has `2^table_log2` buckets, with
+    /// `2^table_log2 * bucket_capacity <= 2^32 - 1`.
     pub table_log2: u8,
     /// Entries per bucket, `1..=16` (the paper: 8).
     pub bucket_capacity: u8,
     /// Point slots per cell, `1..=8` (the paper: 7).
     pub cell_capacity: u8,
-    /// Number of cells in the cell pool; cell indices are `< cell_pool`.
+    /// Number of cells in the cell pool; cell indices are `< cell_pool`, and
+    /// `cell_pool * cell_capacity <= 2^32 - 1`.
     pub cell_pool: u32,
     /// Point format; v1 knows only [`POINT_FORMAT_PACKED32`].
     pub point_format: u8,
@@ -108,7 +110,9 @@ impl InstanceDef {
         if self.dims.min_element() == 0 || !key_fits(self.dims) {
             return Err(DefError::Dims);
         }
-        if self.table_log2 > MAX_TABLE_LOG2 {
+        // Entry and word indices must fit u32.
+        let entries = (1u64 << self.table_log2.min(63)) * self.bucket_capacity as u64;
+        if self.table_log2 > MAX_TABLE_LOG2 || entries > u32::MAX as u64 {
             return Err(DefError::TableSize);
         }
         if !(1..=MAX_BUCKET_CAPACITY).contains(&self.bucket_capacity) {
@@ -117,7 +121,8 @@ impl InstanceDef {
         if !(1..=MAX_CELL_CAPACITY).contains(&self.cell_capacity) {
             return Err(DefError::CellCapacity);
         }
-        if self.cell_pool == 0 || self.cell_pool == u32::MAX {
+        let words = self.cell_pool as u64 * self.cell_capacity as u64;
+        if self.cell_pool == 0 || words > u32::MAX as u64 {
             return Err(DefError::CellPool);
         }
         if self.point_format != POINT_FORMAT_PACKED32 {

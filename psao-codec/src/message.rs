@@ -393,7 +393,9 @@ impl<'a> Reader<'a> {
                     if c > MAX_BUCKET_CAPACITY {
                         return Err(MessageError::CountTooLarge(c));
                     }
-                    entries += c as usize;
+                    entries = entries
+                        .checked_add(c as usize)
+                        .ok_or(MessageError::Truncated)?;
                 }
                 let keys = self.planar(entries)?;
                 let cells = self.planar(entries)?;
@@ -415,7 +417,7 @@ impl<'a> Reader<'a> {
                     if c == 0 {
                         return Err(MessageError::ZeroMask);
                     }
-                    points += if t == kind::CELLS_FULL {
+                    let n = if t == kind::CELLS_FULL {
                         if c > MAX_CELL_CAPACITY {
                             return Err(MessageError::CountTooLarge(c));
                         }
@@ -423,9 +425,10 @@ impl<'a> Reader<'a> {
                     } else {
                         c.count_ones() as usize
                     };
+                    points = points.checked_add(n).ok_or(MessageError::Truncated)?;
                 }
                 let width = if t == kind::CELLS_AO { 1 } else { 4 };
-                let data = self.bytes(points * width)?;
+                let data = self.bytes(points.checked_mul(width).ok_or(MessageError::Truncated)?)?;
                 let msg = CellsMsg {
                     instance,
                     cells,

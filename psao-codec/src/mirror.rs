@@ -113,7 +113,9 @@ pub enum Change {
     Words(u32, Range<u32>),
 }
 
-/// What changed since the last [`Mirror::take_changes`].
+/// What changed since the last [`Mirror::take_changes`] or
+/// [`Mirror::clear_changes`]. After a rejected frame the list may
+/// over-report (`all` set), never under-report.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Changes {
     /// Everything may have changed (a keyframe, or too many ranges to list).
@@ -183,7 +185,43 @@ pub struct Mirror {
     journal: Vec<Undo>,
     saved_words: Vec<u32>,
     saved_entries: Vec<BucketEntry>,
+    frame: FrameState,
 }
+
+/// What the frame being applied has done so far.
+#[derive(Default)]
+struct FrameState {
+    /// A keyframe: the whole previous state is kept aside, nothing is
+    /// journaled.
+    keyframe: bool,
+    /// Instances defined, redefined or removed by this frame: their
+    /// pre-frame version is already saved (or did not exist), so later
+    /// writes to them need no journal.
+    fresh: std::collections::BTreeSet<u32>,
+    /// Bytes this frame may still journal, and still allocate in
+    /// definitions (each starts at `max_mirror_bytes`).
+    journal_budget: u64,
+    alloc_budget: u64,
+}
+
+impl FrameState {
+    fn start(keyframe: bool, limits: &Limits) -> FrameState {
+        FrameState {
+            keyframe,
+            fresh: Default::default(),
+            journal_budget: limits.max_mirror_bytes,
+            alloc_budget: limits.max_mirror_bytes,
+        }
+    }
+
+    /// Whether writes to `instance` must be journaled.
+    fn journals(&self, instance: u32) -> bool {
+        !self.keyframe && !self.fresh.contains(&instance)
+    }
+}
+
+/// Largest journal buffers kept between frames; larger ones are shrunk.
+const KEEP_JOURNAL_BYTES: usize = 4 << 20;
 
 impl std::fmt::Debug for Mirror {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -337,7 +375,7 @@ impl Mirror {
     /// applies when its base is the mirror's sequence. On error the mirror
     /// is exactly as before.
     pub fn apply(&mut self, frame: &FrameView<'_>, limits: &Limits) -> Result<Event, DecodeError> {
-        let h = frame.header;
+        let h = *frame.header();
         if h.keyframe {
             if let Some(have) = self.sequence
                 && is_newer(have, h.sequence)
@@ -350,7 +388,8 @@ impl Mirror {
             let old = std::mem::take(&mut self.instances);
             let old_bytes = std::mem::replace(&mut self.bytes, 0);
             let old_changes = std::mem::take(&mut self.changes);
-            match self.apply_messages(frame, limits, false) {
+            self.frame = FrameState::start(true, limits);
+            match self.apply_messages(frame, limits) {
                 Ok(()) => {
                     self.changes = Changes {
                         all: true,
@@ -379,19 +418,17 @@ impl Mirror {
                 });
             };
             let _ = have;
-            let mark = (self.changes.all, self.changes.items.len());
+            let mark = ChangeMark::of(&self.changes);
             let bytes = self.bytes;
-            let result = self.apply_messages(frame, limits, true);
+            self.frame = FrameState::start(false, limits);
+            let result = self.apply_messages(frame, limits);
             if let Err(e) = result {
                 self.rollback();
                 self.bytes = bytes;
-                self.changes.all = mark.0;
-                self.changes.items.truncate(mark.1);
+                mark.restore(&mut self.changes);
                 return Err(e);
             }
-            self.journal.clear();
-            self.saved_words.clear();
-            self.saved_entries.clear();
+            self.clear_journal();
         }
         self.sequence = Some(h.sequence);
         Ok(Event::Applied {
@@ -440,45 +477,50 @@ impl Mirror {
                 }
             }
         }
+        self.clear_journal();
+    }
+
+    fn clear_journal(&mut self) {
+        self.journal.clear();
         self.saved_words.clear();
         self.saved_entries.clear();
+        if self.saved_words.capacity() * 4 > KEEP_JOURNAL_BYTES {
+            self.saved_words.shrink_to(KEEP_JOURNAL_BYTES / 4);
+        }
+        if self.saved_entries.capacity() * 8 > KEEP_JOURNAL_BYTES {
+            self.saved_entries.shrink_to(KEEP_JOURNAL_BYTES / 8);
+        }
+        if self.journal.capacity() * std::mem::size_of::<Undo>() > KEEP_JOURNAL_BYTES {
+            self.journal
+                .shrink_to(KEEP_JOURNAL_BYTES / std::mem::size_of::<Undo>());
+        }
+        self.frame.fresh.clear();
     }
 
     fn apply_messages(
         &mut self,
         frame: &FrameView<'_>,
         limits: &Limits,
-        journal: bool,
     ) -> Result<(), DecodeError> {
         for located in frame.messages() {
             let located = located?;
-            self.apply_message(&located, limits, journal)
+            self.apply_message(&located, limits)
                 .map_err(|e| located.error(e))?;
         }
         Ok(())
     }
 
-    fn apply_message(
-        &mut self,
-        at: &Located<'_>,
-        limits: &Limits,
-        journal: bool,
-    ) -> Result<(), MessageError> {
+    fn apply_message(&mut self, at: &Located<'_>, limits: &Limits) -> Result<(), MessageError> {
         match at.message {
             Message::EndOfFrame => Ok(()),
-            Message::DefineInstance { instance, def } => {
-                self.define(instance, def, limits, journal)
-            }
+            Message::DefineInstance { instance, def } => self.define(instance, def, limits),
             Message::RemoveInstance { instance } => {
                 let old = self
                     .instances
                     .remove(&instance)
                     .ok_or(MessageError::UnknownInstance(instance))?;
                 self.bytes -= old.def.mirror_bytes() as u64;
-                if journal {
-                    self.journal
-                        .push(Undo::Instance(instance, Some(Box::new(old))));
-                }
+                self.replaced(instance, Some(old));
                 push_change(&mut self.changes, Change::Removed(instance));
                 Ok(())
             }
@@ -496,7 +538,8 @@ impl Mirror {
                 {
                     return Ok(());
                 }
-                if journal {
+                if self.frame.journals(instance) {
+                    spend(&mut self.frame.journal_budget, 48)?;
                     self.journal
                         .push(Undo::Transform(instance, m.transform.map(Box::new)));
                 }
@@ -507,15 +550,15 @@ impl Mirror {
                 push_change(&mut self.changes, Change::Transform(instance));
                 Ok(())
             }
-            Message::Buckets(msg) => self.buckets(msg, journal),
-            Message::CellsFull(msg) => self.cells(msg, CellOp::Full, journal),
-            Message::CellsXor(msg) => self.cells(msg, CellOp::Xor, journal),
-            Message::CellsAo(msg) => self.cells(msg, CellOp::Ao, journal),
+            Message::Buckets(msg) => self.buckets(msg),
+            Message::CellsFull(msg) => self.cells(msg, CellOp::Full),
+            Message::CellsXor(msg) => self.cells(msg, CellOp::Xor),
+            Message::CellsAo(msg) => self.cells(msg, CellOp::Ao),
             Message::CellsFree { instance, cells } => {
-                let mut state = self.edit(instance, journal)?;
+                let mut state = self.edit(instance)?;
                 for cell in cells.iter() {
                     let range = state.cell_range(cell)?;
-                    state.save_words(range.clone());
+                    state.save_words(range.clone())?;
                     state.words[range].fill(0);
                 }
                 Ok(())
@@ -528,7 +571,6 @@ impl Mirror {
         instance: u32,
         def: InstanceDef,
         limits: &Limits,
-        journal: bool,
     ) -> Result<(), MessageError> {
         let old_bytes = self
             .instances
@@ -559,17 +601,34 @@ impl Mirror {
                 limit: limits.max_mirror_bytes,
             });
         }
+        let alloc = def.mirror_bytes() as u64;
+        if alloc > self.frame.alloc_budget {
+            return Err(MessageError::ResourceLimit {
+                needed: limits.max_mirror_bytes - self.frame.alloc_budget + alloc,
+                limit: limits.max_mirror_bytes,
+            });
+        }
+        self.frame.alloc_budget -= alloc;
         let old = self.instances.insert(instance, InstanceMirror::new(def));
         self.bytes = needed;
-        if journal {
-            self.journal
-                .push(Undo::Instance(instance, old.map(Box::new)));
-        }
+        self.replaced(instance, old);
         push_change(&mut self.changes, Change::Defined(instance));
         Ok(())
     }
 
-    fn edit(&mut self, instance: u32, journal: bool) -> Result<Edit<'_>, MessageError> {
+    /// Records that `instance` was replaced or removed by this frame. Its
+    /// pre-frame version is journaled the first time only; versions the
+    /// frame itself created are simply dropped.
+    fn replaced(&mut self, instance: u32, old: Option<InstanceMirror>) {
+        if self.frame.journals(instance) {
+            self.journal
+                .push(Undo::Instance(instance, old.map(Box::new)));
+        }
+        self.frame.fresh.insert(instance);
+    }
+
+    fn edit(&mut self, instance: u32) -> Result<Edit<'_>, MessageError> {
+        let journal = self.frame.journals(instance);
         let m = self
             .instances
             .get_mut(&instance)
@@ -583,13 +642,14 @@ impl Mirror {
                 undo: &mut self.journal,
                 words: &mut self.saved_words,
                 entries: &mut self.saved_entries,
+                budget: &mut self.frame.journal_budget,
             }),
             changes: &mut self.changes,
         })
     }
 
-    fn buckets(&mut self, msg: BucketsMsg<'_>, journal: bool) -> Result<(), MessageError> {
-        let mut state = self.edit(msg.instance, journal)?;
+    fn buckets(&mut self, msg: BucketsMsg<'_>) -> Result<(), MessageError> {
+        let mut state = self.edit(msg.instance)?;
         let def = state.def;
         let cap = def.bucket_capacity as usize;
         let mut entry = 0usize;
@@ -601,7 +661,7 @@ impl Mirror {
                 return Err(MessageError::BucketOverCapacity { bucket });
             }
             let start = bucket as usize * cap;
-            state.save_entries(start..start + cap);
+            state.save_entries(start..start + cap)?;
             let slots = &mut state.buckets[start..start + cap];
             for i in 0..count as usize {
                 let key = msg.keys.get(entry + i);
@@ -626,8 +686,8 @@ impl Mirror {
         Ok(())
     }
 
-    fn cells(&mut self, msg: CellsMsg<'_>, op: CellOp, journal: bool) -> Result<(), MessageError> {
-        let mut state = self.edit(msg.instance, journal)?;
+    fn cells(&mut self, msg: CellsMsg<'_>, op: CellOp) -> Result<(), MessageError> {
+        let mut state = self.edit(msg.instance)?;
         let cap = state.def.cell_capacity;
         let words = msg.words();
         let mut next = 0usize;
@@ -640,7 +700,7 @@ impl Mirror {
             if beyond {
                 return Err(MessageError::SlotBeyondCapacity { cell });
             }
-            state.save_words(range.clone());
+            state.save_words(range.clone())?;
             let w = &mut state.words[range];
             match op {
                 CellOp::Full => {
@@ -649,13 +709,13 @@ impl Mirror {
                         if slot < per as usize {
                             let listed = words.get(next);
                             next += 1;
-                            if !PointWord(listed).is_allocated() {
+                            let p = PointWord(listed);
+                            if !p.is_allocated() || !p.is_valid() {
                                 return Err(MessageError::InvalidWord { cell, word: listed });
                             }
                             *word = listed;
                         }
                     }
-                    check_cell(cell, w)?;
                 }
                 CellOp::Xor => {
                     for (slot, word) in w.iter_mut().enumerate() {
@@ -695,6 +755,23 @@ enum CellOp {
     Ao,
 }
 
+/// Cost of one journaled write beyond the bytes it overwrites (spec 9): an
+/// upper bound on the size of a journal entry.
+const WRITE_COST: u64 = 32;
+
+/// Charges a write that overwrites `bytes` to a frame's journal budget.
+fn spend(budget: &mut u64, bytes: usize) -> Result<(), MessageError> {
+    let cost = WRITE_COST + bytes as u64;
+    if cost > *budget {
+        return Err(MessageError::ResourceLimit {
+            needed: cost,
+            limit: *budget,
+        });
+    }
+    *budget -= cost;
+    Ok(())
+}
+
 /// Every word valid; allocated words form a prefix (compaction).
 fn check_cell(cell: u32, words: &[u32]) -> Result<(), MessageError> {
     let mut empty_seen = false;
@@ -718,6 +795,14 @@ struct Journal<'a> {
     undo: &'a mut Vec<Undo>,
     words: &'a mut Vec<u32>,
     entries: &'a mut Vec<BucketEntry>,
+    budget: &'a mut u64,
+}
+
+impl Journal<'_> {
+    /// Charges one write that overwrites `bytes` to the frame's budget.
+    fn spend(&mut self, bytes: usize) -> Result<(), MessageError> {
+        spend(self.budget, bytes)
+    }
 }
 
 /// Mutable access to one instance while a message applies, journaling
@@ -740,8 +825,9 @@ impl Edit<'_> {
         Ok(cell as usize * cap..(cell as usize + 1) * cap)
     }
 
-    fn save_words(&mut self, range: Range<usize>) {
+    fn save_words(&mut self, range: Range<usize>) -> Result<(), MessageError> {
         if let Some(j) = &mut self.journal {
+            j.spend(range.len() * 4)?;
             j.undo.push(Undo::Words {
                 instance: self.instance,
                 start: range.start as u32,
@@ -752,10 +838,12 @@ impl Edit<'_> {
         }
         let r = range.start as u32..range.end as u32;
         push_change(self.changes, Change::Words(self.instance, r));
+        Ok(())
     }
 
-    fn save_entries(&mut self, range: Range<usize>) {
+    fn save_entries(&mut self, range: Range<usize>) -> Result<(), MessageError> {
         if let Some(j) = &mut self.journal {
+            j.spend(range.len() * 8)?;
             j.undo.push(Undo::Entries {
                 instance: self.instance,
                 start: range.start as u32,
@@ -766,6 +854,36 @@ impl Edit<'_> {
         }
         let r = range.start as u32..range.end as u32;
         push_change(self.changes, Change::Buckets(self.instance, r));
+        Ok(())
+    }
+}
+
+/// The change list as it was before a delta, to restore on rollback. The
+/// restored list may over-report (never under-report): if the failed frame
+/// overflowed the list into `all`, `all` stays set.
+struct ChangeMark {
+    all: bool,
+    len: usize,
+    last: Option<Change>,
+}
+
+impl ChangeMark {
+    fn of(changes: &Changes) -> ChangeMark {
+        ChangeMark {
+            all: changes.all,
+            len: changes.items.len(),
+            last: changes.items.last().cloned(),
+        }
+    }
+
+    fn restore(self, changes: &mut Changes) {
+        if changes.all && !self.all {
+            return;
+        }
+        changes.items.truncate(self.len);
+        if let (Some(last), Some(slot)) = (self.last, changes.items.last_mut()) {
+            *slot = last;
+        }
     }
 }
 
@@ -797,6 +915,7 @@ fn push_change(changes: &mut Changes, change: Change) {
 mod tests {
     #[test]
     fn journal_entries_stay_small() {
-        assert!(std::mem::size_of::<super::Undo>() <= 24);
+        assert!(std::mem::size_of::<super::Undo>() as u64 <= super::WRITE_COST);
+        assert!(std::mem::size_of::<super::Transform>() <= 52);
     }
 }

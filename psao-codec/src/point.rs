@@ -205,11 +205,12 @@ pub fn encode_normal(n: Vec3) -> u8 {
     let scale = (NORMAL_LEVELS - 1) as f32 / 2.0;
     let fu = ((u + 1.0) * scale).clamp(0.0, 14.0);
     let fv = ((v + 1.0) * scale).clamp(0.0, 14.0);
-    let (u0, v0) = (fu.floor() as u8, fv.floor() as u8);
+    let us = [fu.floor() as u8, fu.ceil() as u8];
+    let vs = [fv.floor() as u8, fv.ceil() as u8];
     let mut best = (f32::NEG_INFINITY, 0u8);
-    for du in 0..2u8 {
-        for dv in 0..2u8 {
-            let code = (u0 + du).min(14) | ((v0 + dv).min(14) << 4);
+    for u in us {
+        for v in vs {
+            let code = u | (v << 4);
             let d = decode_normal(code).dot(n);
             if d > best.0 {
                 best = (d, code);

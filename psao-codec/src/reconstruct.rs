@@ -41,13 +41,15 @@ impl WeightParams {
 #[inline]
 pub fn weight(p: Vec3, n_p: Vec3, x: Vec3, n_x: Vec3, w: &WeightParams) -> f32 {
     let (r, t_n, t_d) = (w.radius, w.t_n, w.t_d);
-    if n_p.dot(n_x) <= t_n {
+    // NaN fails every test and gives weight 0.
+    let facing = n_p.dot(n_x);
+    if facing.is_nan() || facing <= t_n {
         return 0.0;
     }
     let d = p - x;
     let dist = d.length();
     let a = (r - dist) / r;
-    if a <= 0.0 {
+    if a.is_nan() || a <= 0.0 {
         return 0.0;
     }
     if dist > w.noise {
@@ -108,13 +110,19 @@ pub fn reconstruct_ao(inst: &InstanceMirror, x: Vec3, n: Vec3) -> f32 {
 
 /// Maps a world position and unit normal into instance-local space with the
 /// inverse of a local-to-world transform (normals by the transpose of the
-/// linear part, renormalized). Returns `None` for a singular transform.
+/// linear part, renormalized). Returns `None` for a singular or
+/// non-finite transform, or when the result is not finite.
 pub fn world_to_local(local_to_world: &Affine3A, pos: Vec3, normal: Vec3) -> Option<(Vec3, Vec3)> {
-    if local_to_world.matrix3.determinant().abs() <= f32::MIN_POSITIVE {
+    let det = local_to_world.matrix3.determinant();
+    if !det.is_finite() || det.abs() <= f32::MIN_POSITIVE {
         return None;
     }
     let inv = local_to_world.inverse();
     let x = inv.transform_point3(pos);
-    let n = local_to_world.matrix3.transpose().mul_vec3(normal);
-    Some((x, n.normalize_or_zero()))
+    let n = local_to_world
+        .matrix3
+        .transpose()
+        .mul_vec3(normal)
+        .normalize_or_zero();
+    (x.is_finite() && n.is_finite()).then_some((x, n))
 }

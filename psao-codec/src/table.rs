@@ -10,7 +10,7 @@
 
 use glam::Vec3;
 
-use crate::error::EncodeError;
+use crate::error::{DefError, EncodeError};
 use crate::grid::{BucketEntry, InstanceDef, MAX_CELL_CAPACITY};
 use crate::point::{POSITION_QUANTA, PointWord, quantize_ao};
 
@@ -177,6 +177,10 @@ impl GridTable {
     /// make it allocate without bound).
     pub fn new(id: u32, def: InstanceDef, max_points: u32) -> Result<GridTable, EncodeError> {
         def.validate()?;
+        // The top five cell indices mark absent and dropped points.
+        if def.cell_pool >= ABSENT - 5 {
+            return Err(EncodeError::Def(DefError::CellPool));
+        }
         let cells = def.cell_pool as usize;
         Ok(GridTable {
             id,

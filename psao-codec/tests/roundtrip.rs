@@ -126,7 +126,7 @@ proptest! {
                 }
                 Op::Frame { compression, checksum, zstd_level } => {
                     let compression = [Compression::None, Compression::Lz4, Compression::Zstd][compression as usize];
-                    enc.set_config(EncoderConfig { compression, checksum, zstd_level });
+                    enc.set_config(EncoderConfig { compression, checksum, zstd_level, ..Default::default() });
                     let before = enc.sequence();
                     let mut f = enc.delta();
                     for (table, seq, m) in pending_transforms.drain(..) {
