@@ -11,228 +11,12 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use glam::UVec3;
-use psao_codec::point::{PointFields, PointWord};
-use psao_codec::{Decoder, Event, Limits};
+use psao_codec::{Decoder, Event, InstanceDef, Limits};
 
-// ---- raw message builders (spec section 5) ----
+#[path = "../tests/common/raw.rs"]
+mod raw;
 
-fn u32le(out: &mut Vec<u8>, v: u32) {
-    out.extend_from_slice(&v.to_le_bytes());
-}
-
-fn f32le(out: &mut Vec<u8>, v: f32) {
-    out.extend_from_slice(&v.to_le_bytes());
-}
-
-fn varint(out: &mut Vec<u8>, mut v: u32) {
-    while v >= 0x80 {
-        out.push(v as u8 | 0x80);
-        v >>= 7;
-    }
-    out.push(v as u8);
-}
-
-fn index_list(out: &mut Vec<u8>, idx: &[u32]) {
-    let mut next = 0u32;
-    for &i in idx {
-        varint(out, i - next);
-        next = i.wrapping_add(1);
-    }
-}
-
-fn planar(out: &mut Vec<u8>, vals: &[u32]) {
-    for b in 0..4 {
-        out.extend(vals.iter().map(|v| (v >> (8 * b)) as u8));
-    }
-}
-
-/// The grid every vector uses: 4x4x4 cells of 0.5, 8 buckets of 4, cells of 4, pool 16.
-#[derive(Clone, Copy)]
-struct Def {
-    dims: [u32; 3],
-    table_log2: u8,
-    pool: u32,
-}
-
-const DEF: Def = Def {
-    dims: [4, 4, 4],
-    table_log2: 3,
-    pool: 16,
-};
-
-fn define(id: u32, d: Def) -> Vec<u8> {
-    let mut o = vec![0x01];
-    u32le(&mut o, id);
-    for f in [0.0, 0.0, 0.0, 0.5, 0.5, 0.5] {
-        f32le(&mut o, f);
-    }
-    for x in d.dims {
-        u32le(&mut o, x);
-    }
-    o.extend_from_slice(&[d.table_log2, 4, 4, 0]);
-    u32le(&mut o, d.pool);
-    for f in [0.25, 0.1, 0.7] {
-        f32le(&mut o, f);
-    }
-    o
-}
-
-fn remove(id: u32) -> Vec<u8> {
-    let mut o = vec![0x02];
-    u32le(&mut o, id);
-    o
-}
-
-fn transform(id: u32, seq: u32, tx: f32) -> Vec<u8> {
-    let mut o = vec![0x03];
-    u32le(&mut o, id);
-    u32le(&mut o, seq);
-    for f in [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, tx, 2.0, 0.0] {
-        f32le(&mut o, f);
-    }
-    o
-}
-
-fn buckets(id: u32, list: &[(u32, &[(u32, u32)])]) -> Vec<u8> {
-    let mut o = vec![0x04];
-    u32le(&mut o, id);
-    u32le(&mut o, list.len() as u32);
-    index_list(&mut o, &list.iter().map(|b| b.0).collect::<Vec<_>>());
-    o.extend(list.iter().map(|b| b.1.len() as u8));
-    let keys: Vec<u32> = list.iter().flat_map(|b| b.1.iter().map(|e| e.0)).collect();
-    let cells: Vec<u32> = list.iter().flat_map(|b| b.1.iter().map(|e| e.1)).collect();
-    planar(&mut o, &keys);
-    planar(&mut o, &cells);
-    o
-}
-
-fn cells_full(id: u32, list: &[(u32, &[u32])]) -> Vec<u8> {
-    let mut o = vec![0x05];
-    u32le(&mut o, id);
-    u32le(&mut o, list.len() as u32);
-    index_list(&mut o, &list.iter().map(|c| c.0).collect::<Vec<_>>());
-    o.extend(list.iter().map(|c| c.1.len() as u8));
-    planar(
-        &mut o,
-        &list
-            .iter()
-            .flat_map(|c| c.1.iter().copied())
-            .collect::<Vec<_>>(),
-    );
-    o
-}
-
-fn cells_xor(id: u32, list: &[(u32, u8, &[u32])]) -> Vec<u8> {
-    let mut o = vec![0x06];
-    u32le(&mut o, id);
-    u32le(&mut o, list.len() as u32);
-    index_list(&mut o, &list.iter().map(|c| c.0).collect::<Vec<_>>());
-    o.extend(list.iter().map(|c| c.1));
-    planar(
-        &mut o,
-        &list
-            .iter()
-            .flat_map(|c| c.2.iter().copied())
-            .collect::<Vec<_>>(),
-    );
-    o
-}
-
-fn cells_ao(id: u32, list: &[(u32, u8, &[u8])]) -> Vec<u8> {
-    let mut o = vec![0x07];
-    u32le(&mut o, id);
-    u32le(&mut o, list.len() as u32);
-    index_list(&mut o, &list.iter().map(|c| c.0).collect::<Vec<_>>());
-    o.extend(list.iter().map(|c| c.1));
-    o.extend(list.iter().flat_map(|c| c.2.iter().copied()));
-    o
-}
-
-fn free(id: u32, cells: &[u32]) -> Vec<u8> {
-    let mut o = vec![0x08];
-    u32le(&mut o, id);
-    u32le(&mut o, cells.len() as u32);
-    index_list(&mut o, cells);
-    o
-}
-
-const END: [u8; 1] = [0x00];
-
-fn word(pos: [u32; 3], normal: u8, ao: u8) -> u32 {
-    PointWord::pack(PointFields {
-        position: UVec3::from(pos),
-        normal,
-        ao,
-    })
-    .0
-}
-
-// ---- frames (spec section 3) ----
-
-#[derive(Clone)]
-struct Frame {
-    keyframe: bool,
-    checksum: bool,
-    compression: u8,
-    seq: u32,
-    base: u32,
-    messages: Vec<Vec<u8>>,
-    /// Overrides `message_count` (default: number of messages).
-    count: Option<u32>,
-}
-
-fn key(seq: u32, messages: Vec<Vec<u8>>) -> Frame {
-    Frame {
-        keyframe: true,
-        checksum: false,
-        compression: 0,
-        seq,
-        base: seq,
-        messages,
-        count: None,
-    }
-}
-
-fn delta(seq: u32, base: u32, messages: Vec<Vec<u8>>) -> Frame {
-    Frame {
-        keyframe: false,
-        base,
-        ..key(seq, messages)
-    }
-}
-
-impl Frame {
-    fn bytes(&self) -> Vec<u8> {
-        let payload: Vec<u8> = self.messages.concat();
-        let wire = match self.compression {
-            0 => payload.clone(),
-            1 => lz4_flex::block::compress(&payload),
-            _ => zstd::bulk::compress(&payload, 3).expect("zstd"),
-        };
-        let mut h = Vec::with_capacity(32 + wire.len());
-        h.extend_from_slice(b"PSAO");
-        h.push(1);
-        h.push(self.keyframe as u8 | (self.checksum as u8) << 1);
-        h.push(self.compression);
-        h.push(0);
-        u32le(&mut h, self.seq);
-        u32le(&mut h, self.base);
-        u32le(&mut h, self.count.unwrap_or(self.messages.len() as u32));
-        u32le(&mut h, payload.len() as u32);
-        u32le(&mut h, wire.len() as u32);
-        let crc = if self.checksum {
-            let mut c = crc32fast::Hasher::new();
-            c.update(&h);
-            c.update(&wire);
-            c.finalize()
-        } else {
-            0
-        };
-        u32le(&mut h, crc);
-        h.extend_from_slice(&wire);
-        h
-    }
-}
+use raw::*;
 
 // ---- vectors ----
 
@@ -259,26 +43,13 @@ fn with_limit(mut vector: Vector, name: &'static str, value: u64) -> Vector {
     vector
 }
 
-fn set_limit(l: &mut Limits, name: &str, value: u64) {
-    match name {
-        "max_frame_bytes" => l.max_frame_bytes = value as u32,
-        "max_payload_bytes" => l.max_payload_bytes = value as u32,
-        "max_messages" => l.max_messages = value as u32,
-        "max_instances" => l.max_instances = value as u32,
-        "max_table_log2" => l.max_table_log2 = value as u8,
-        "max_cell_pool" => l.max_cell_pool = value as u32,
-        "max_mirror_bytes" => l.max_mirror_bytes = value,
-        other => panic!("unknown limit {other}"),
-    }
-}
-
 /// Keyframe 5 of instance 1 holding one point in cell (1,0,0): key 1,
 /// bucket 1, cell 0.
 fn base_keyframe() -> Frame {
     let mut f = key(
         5,
         vec![
-            define(1, DEF),
+            define(1, &DEF),
             transform(1, 1, 3.0),
             buckets(1, &[(1, &[(1, 0)])]),
             cells_full(1, &[(0, &[W1])]),
@@ -443,16 +214,16 @@ fn vectors() -> Vec<Vector> {
             key(
                 5,
                 vec![
-                    define(1, DEF),
+                    define(1, &DEF),
                     transform(1, 1, 3.0),
                     buckets(1, &[(1, &[(1, 0)])]),
                     cells_full(1, &[(0, &[W1])]),
-                    define(2, DEF),
+                    define(2, &DEF),
                     END.to_vec(),
                 ],
             )
             .bytes(),
-            delta(6, 5, vec![define(1, DEF), remove(2), END.to_vec()]).bytes(),
+            delta(6, 5, vec![define(1, &DEF), remove(2), END.to_vec()]).bytes(),
         ],
     ));
     list.push(v(
@@ -572,7 +343,7 @@ fn vectors() -> Vec<Vector> {
         "Message type 0x09.",
         vec![vec![0x09]],
     ));
-    let mut short = delta(6, 5, vec![define(3, DEF)[..30].to_vec()]);
+    let mut short = delta(6, 5, vec![define(3, &DEF)[..30].to_vec()]);
     short.count = Some(1);
     list.push(v(
         "25-message-truncated",
@@ -632,8 +403,8 @@ fn vectors() -> Vec<Vector> {
         "Dims 0 x 4 x 4.",
         vec![define(
             3,
-            Def {
-                dims: [0, 4, 4],
+            &InstanceDef {
+                dims: UVec3::new(0, 4, 4),
                 ..DEF
             },
         )],
@@ -654,7 +425,7 @@ fn vectors() -> Vec<Vector> {
         v(
             "35-instance-limit",
             "A receiver holding 1 instance gets a keyframe defining 2.",
-            vec![key(1, vec![define(1, DEF), define(2, DEF), END.to_vec()]).bytes()],
+            vec![key(1, vec![define(1, &DEF), define(2, &DEF), END.to_vec()]).bytes()],
         ),
         "max_instances",
         1,
@@ -733,7 +504,7 @@ fn vectors() -> Vec<Vector> {
         vec![key(
             3,
             vec![
-                define(1, DEF),
+                define(1, &DEF),
                 buckets(1, &[(1, &[(1, 0), (993, 1)]), (6, &[(70, 2)])]),
                 cells_full(1, &[(0, &[W1, W2]), (1, &[w3]), (2, &[w4, w5, w6])]),
                 END.to_vec(),
@@ -765,7 +536,7 @@ fn main() {
             writeln!(text, "#   {line}").ok();
         }
         for (name, value) in &vector.limits {
-            set_limit(&mut limits, name, *value);
+            assert!(limits.set(name, *value), "unknown limit {name}");
             writeln!(text, "limit {name} {value}").ok();
         }
         let mut decoder = Decoder::new(limits);

@@ -21,6 +21,38 @@ pub struct Limits {
     pub max_mirror_bytes: u64,
 }
 
+impl Limits {
+    /// Sets a limit by its field name (as used in spec/vectors and in
+    /// configuration). Returns false, changing nothing, for an unknown name
+    /// or a value that does not fit the field.
+    pub fn set(&mut self, name: &str, value: u64) -> bool {
+        let field = match name {
+            "max_frame_bytes" => &mut self.max_frame_bytes,
+            "max_payload_bytes" => &mut self.max_payload_bytes,
+            "max_messages" => &mut self.max_messages,
+            "max_instances" => &mut self.max_instances,
+            "max_cell_pool" => &mut self.max_cell_pool,
+            "max_table_log2" => {
+                let Ok(v) = u8::try_from(value) else {
+                    return false;
+                };
+                self.max_table_log2 = v;
+                return true;
+            }
+            "max_mirror_bytes" => {
+                self.max_mirror_bytes = value;
+                return true;
+            }
+            _ => return false,
+        };
+        let Ok(v) = u32::try_from(value) else {
+            return false;
+        };
+        *field = v;
+        true
+    }
+}
+
 impl Default for Limits {
     fn default() -> Self {
         Limits {

@@ -80,7 +80,9 @@ fn rewriting_the_same_state_is_bounded_by_the_journal_budget() {
     // Each message re-saves all 64 buckets (4 KiB + entries): cheap on the
     // wire, costly in the journal.
     let all: Vec<u32> = (0..def.table_size()).collect();
-    let msgs: Vec<Vec<u8>> = (0..64).map(|_| raw::empty_buckets(1, &all)).collect();
+    let msgs: Vec<Vec<u8>> = (0..64)
+        .map(|_| raw::buckets(1, &all.iter().map(|&b| (b, &[][..])).collect::<Vec<_>>()))
+        .collect();
     let err = d.receive(&raw::frame(false, 2, 1, &msgs)).unwrap_err();
     assert_eq!(err.code(), "resource_limit");
     assert_eq!(d.mirror().describe(), before);

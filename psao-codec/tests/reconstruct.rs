@@ -64,62 +64,35 @@ fn two_points_weighted_mean_matches_hand_computation() {
     assert!(at < ao1 && at > ao0);
 }
 
+/// AO seen at `probe` (normal +Y) when a single point with AO 0 is stored
+/// at `at` with normal `n`.
+fn one_point_ao(at: Vec3, n: Vec3, probe: Vec3) -> f32 {
+    let mut t = GridTable::new(1, small_def(), 4).unwrap();
+    t.set_point(0, at, n, 0.0).unwrap();
+    let d = mirror_of(&mut t);
+    reconstruct_ao(d.mirror().instance(1).unwrap(), probe, Vec3::Y)
+}
+
 #[test]
 fn normal_and_direction_tests_reject_points() {
     let def = small_def();
-    let mut t = GridTable::new(1, def, 4).unwrap();
     let c = UVec3::new(4, 1, 4);
     let x = def.cell_min(c) + Vec3::splat(0.125);
     // A point facing away (n_p . n_x <= T_n).
-    t.set_point(0, x + Vec3::new(0.05, 0.0, 0.0), Vec3::NEG_Y, 0.0)
-        .unwrap();
-    let d = mirror_of(&mut t);
-    assert_eq!(
-        reconstruct_ao(d.mirror().instance(1).unwrap(), x, Vec3::Y),
-        1.0
-    );
+    assert_eq!(one_point_ao(x + Vec3::X * 0.05, Vec3::NEG_Y, x), 1.0);
     // A point straight below along its normal ((n_p . dir)^2 >= T_d).
-    let mut t = GridTable::new(1, def, 4).unwrap();
-    t.set_point(0, x - Vec3::new(0.0, 0.1, 0.0), Vec3::Y, 0.0)
-        .unwrap();
-    let d = mirror_of(&mut t);
-    assert_eq!(
-        reconstruct_ao(d.mirror().instance(1).unwrap(), x, Vec3::Y),
-        1.0
-    );
+    assert_eq!(one_point_ao(x - Vec3::Y * 0.1, Vec3::Y, x), 1.0);
     // The same point beside x, in its tangent plane, counts.
-    let mut t = GridTable::new(1, def, 4).unwrap();
-    t.set_point(0, x + Vec3::new(0.1, 0.0, 0.0), Vec3::Y, 0.0)
-        .unwrap();
-    let d = mirror_of(&mut t);
-    assert_eq!(
-        reconstruct_ao(d.mirror().instance(1).unwrap(), x, Vec3::Y),
-        0.0
-    );
-    // Within quantization noise (|cell_size|/64) the direction test is
-    // skipped: a point just above x along its normal still counts.
+    assert_eq!(one_point_ao(x + Vec3::X * 0.1, Vec3::Y, x), 0.0);
+    // Beyond the radius: no weight.
+    assert_eq!(one_point_ao(x + Vec3::X * 0.21, Vec3::Y, x), 1.0);
+    // Within quantization noise (|cell_size|/64 = 0.0068) the direction
+    // test is skipped: a point just above x along its normal still counts.
     let mut t = GridTable::new(1, def, 4).unwrap();
     t.set_point(0, x, Vec3::Y, 0.0).unwrap();
     let (q, _) = stored(&t, 0, c);
-    let d = mirror_of(&mut t);
-    let probe = q - Vec3::Y * 0.004; // 0.004 < 0.433/64 = 0.0068
-    assert_eq!(
-        reconstruct_ao(d.mirror().instance(1).unwrap(), probe, Vec3::Y),
-        0.0
-    );
-    assert_eq!(
-        reconstruct_ao(d.mirror().instance(1).unwrap(), q - Vec3::Y * 0.01, Vec3::Y),
-        1.0
-    );
-    // Beyond the radius: no weight.
-    let mut t = GridTable::new(1, def, 4).unwrap();
-    t.set_point(0, x + Vec3::new(0.21, 0.0, 0.0), Vec3::Y, 0.0)
-        .unwrap();
-    let d = mirror_of(&mut t);
-    assert_eq!(
-        reconstruct_ao(d.mirror().instance(1).unwrap(), x, Vec3::Y),
-        1.0
-    );
+    assert_eq!(one_point_ao(x, Vec3::Y, q - Vec3::Y * 0.004), 0.0);
+    assert_eq!(one_point_ao(x, Vec3::Y, q - Vec3::Y * 0.01), 1.0);
 }
 
 #[test]

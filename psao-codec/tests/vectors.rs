@@ -19,19 +19,6 @@ fn unhex(s: &str) -> Vec<u8> {
         .collect()
 }
 
-fn set_limit(l: &mut Limits, name: &str, value: u64) {
-    match name {
-        "max_frame_bytes" => l.max_frame_bytes = value as u32,
-        "max_payload_bytes" => l.max_payload_bytes = value as u32,
-        "max_messages" => l.max_messages = value as u32,
-        "max_instances" => l.max_instances = value as u32,
-        "max_table_log2" => l.max_table_log2 = value as u8,
-        "max_cell_pool" => l.max_cell_pool = value as u32,
-        "max_mirror_bytes" => l.max_mirror_bytes = value,
-        other => panic!("unknown limit {other}"),
-    }
-}
-
 /// Replays one vector file; returns the error classes it exercised.
 fn replay(path: &PathBuf) -> BTreeSet<String> {
     let text = std::fs::read_to_string(path).unwrap();
@@ -50,7 +37,7 @@ fn replay(path: &PathBuf) -> BTreeSet<String> {
         match word {
             "limit" => {
                 let (n, v) = rest.split_once(' ').unwrap();
-                set_limit(&mut limits, n, v.parse().unwrap());
+                assert!(limits.set(n, v.parse().unwrap()), "unknown limit {n}");
             }
             "frame" => {
                 let d = decoder.get_or_insert_with(|| Decoder::new(limits));

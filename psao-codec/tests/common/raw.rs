@@ -1,0 +1,254 @@
+//! Raw builders for messages and frames, written straight from
+//! spec/wire-format.md (not with the crate's writer), shared by the tests
+//! and `examples/gen_vectors.rs`.
+#![allow(dead_code, missing_docs)]
+
+use glam::{UVec3, Vec3};
+use psao_codec::InstanceDef;
+use psao_codec::point::{PointFields, PointWord};
+
+pub fn u32le(out: &mut Vec<u8>, v: u32) {
+    out.extend_from_slice(&v.to_le_bytes());
+}
+
+pub fn f32le(out: &mut Vec<u8>, v: f32) {
+    out.extend_from_slice(&v.to_le_bytes());
+}
+
+pub fn varint(out: &mut Vec<u8>, mut v: u32) {
+    while v >= 0x80 {
+        out.push(v as u8 | 0x80);
+        v >>= 7;
+    }
+    out.push(v as u8);
+}
+
+pub fn index_list(out: &mut Vec<u8>, idx: &[u32]) {
+    let mut next = 0u32;
+    for &i in idx {
+        varint(out, i - next);
+        next = i.wrapping_add(1);
+    }
+}
+
+pub fn planar(out: &mut Vec<u8>, vals: &[u32]) {
+    for b in 0..4 {
+        out.extend(vals.iter().map(|v| (v >> (8 * b)) as u8));
+    }
+}
+
+/// The grid of the vectors: 4x4x4 cells of 0.5, 8 buckets of 4, cells of 4, pool 16.
+pub const DEF: InstanceDef = InstanceDef {
+    origin: Vec3::ZERO,
+    cell_size: Vec3::splat(0.5),
+    dims: UVec3::new(4, 4, 4),
+    table_log2: 3,
+    bucket_capacity: 4,
+    cell_capacity: 4,
+    cell_pool: 16,
+    point_format: 0,
+    radius: 0.25,
+    t_n: 0.1,
+    t_d: 0.7,
+};
+
+/// DefineInstance.
+pub fn define(id: u32, d: &InstanceDef) -> Vec<u8> {
+    let mut o = vec![0x01];
+    u32le(&mut o, id);
+    for f in d
+        .origin
+        .to_array()
+        .into_iter()
+        .chain(d.cell_size.to_array())
+    {
+        f32le(&mut o, f);
+    }
+    for x in d.dims.to_array() {
+        u32le(&mut o, x);
+    }
+    o.extend_from_slice(&[
+        d.table_log2,
+        d.bucket_capacity,
+        d.cell_capacity,
+        d.point_format,
+    ]);
+    u32le(&mut o, d.cell_pool);
+    for f in [d.radius, d.t_n, d.t_d] {
+        f32le(&mut o, f);
+    }
+    o
+}
+
+pub fn remove(id: u32) -> Vec<u8> {
+    let mut o = vec![0x02];
+    u32le(&mut o, id);
+    o
+}
+
+/// Transform: identity rotation, translation (tx, 2, 0).
+pub fn transform(id: u32, seq: u32, tx: f32) -> Vec<u8> {
+    let mut o = vec![0x03];
+    u32le(&mut o, id);
+    u32le(&mut o, seq);
+    for f in [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, tx, 2.0, 0.0] {
+        f32le(&mut o, f);
+    }
+    o
+}
+
+pub fn buckets(id: u32, list: &[(u32, &[(u32, u32)])]) -> Vec<u8> {
+    let mut o = vec![0x04];
+    u32le(&mut o, id);
+    u32le(&mut o, list.len() as u32);
+    index_list(&mut o, &list.iter().map(|b| b.0).collect::<Vec<_>>());
+    o.extend(list.iter().map(|b| b.1.len() as u8));
+    let keys: Vec<u32> = list.iter().flat_map(|b| b.1.iter().map(|e| e.0)).collect();
+    let cells: Vec<u32> = list.iter().flat_map(|b| b.1.iter().map(|e| e.1)).collect();
+    planar(&mut o, &keys);
+    planar(&mut o, &cells);
+    o
+}
+
+pub fn cells_full(id: u32, list: &[(u32, &[u32])]) -> Vec<u8> {
+    let mut o = vec![0x05];
+    u32le(&mut o, id);
+    u32le(&mut o, list.len() as u32);
+    index_list(&mut o, &list.iter().map(|c| c.0).collect::<Vec<_>>());
+    o.extend(list.iter().map(|c| c.1.len() as u8));
+    planar(
+        &mut o,
+        &list
+            .iter()
+            .flat_map(|c| c.1.iter().copied())
+            .collect::<Vec<_>>(),
+    );
+    o
+}
+
+pub fn cells_xor(id: u32, list: &[(u32, u8, &[u32])]) -> Vec<u8> {
+    let mut o = vec![0x06];
+    u32le(&mut o, id);
+    u32le(&mut o, list.len() as u32);
+    index_list(&mut o, &list.iter().map(|c| c.0).collect::<Vec<_>>());
+    o.extend(list.iter().map(|c| c.1));
+    planar(
+        &mut o,
+        &list
+            .iter()
+            .flat_map(|c| c.2.iter().copied())
+            .collect::<Vec<_>>(),
+    );
+    o
+}
+
+pub fn cells_ao(id: u32, list: &[(u32, u8, &[u8])]) -> Vec<u8> {
+    let mut o = vec![0x07];
+    u32le(&mut o, id);
+    u32le(&mut o, list.len() as u32);
+    index_list(&mut o, &list.iter().map(|c| c.0).collect::<Vec<_>>());
+    o.extend(list.iter().map(|c| c.1));
+    o.extend(list.iter().flat_map(|c| c.2.iter().copied()));
+    o
+}
+
+pub fn free(id: u32, cells: &[u32]) -> Vec<u8> {
+    let mut o = vec![0x08];
+    u32le(&mut o, id);
+    u32le(&mut o, cells.len() as u32);
+    index_list(&mut o, cells);
+    o
+}
+
+pub const END: [u8; 1] = [0x00];
+
+pub fn word(pos: [u32; 3], normal: u8, ao: u8) -> u32 {
+    PointWord::pack(PointFields {
+        position: UVec3::from(pos),
+        normal,
+        ao,
+    })
+    .0
+}
+
+#[derive(Clone)]
+pub struct Frame {
+    pub keyframe: bool,
+    pub checksum: bool,
+    pub compression: u8,
+    pub seq: u32,
+    pub base: u32,
+    pub messages: Vec<Vec<u8>>,
+    /// Overrides `message_count` (default: number of messages).
+    pub count: Option<u32>,
+}
+
+pub fn key(seq: u32, messages: Vec<Vec<u8>>) -> Frame {
+    Frame {
+        keyframe: true,
+        checksum: false,
+        compression: 0,
+        seq,
+        base: seq,
+        messages,
+        count: None,
+    }
+}
+
+pub fn delta(seq: u32, base: u32, messages: Vec<Vec<u8>>) -> Frame {
+    Frame {
+        keyframe: false,
+        base,
+        ..key(seq, messages)
+    }
+}
+
+impl Frame {
+    pub fn bytes(&self) -> Vec<u8> {
+        let payload: Vec<u8> = self.messages.concat();
+        let wire = match self.compression {
+            0 => payload.clone(),
+            1 => lz4_flex::block::compress(&payload),
+            _ => zstd::bulk::compress(&payload, 3).expect("zstd"),
+        };
+        let mut h = Vec::with_capacity(32 + wire.len());
+        h.extend_from_slice(b"PSAO");
+        h.push(1);
+        h.push(self.keyframe as u8 | (self.checksum as u8) << 1);
+        h.push(self.compression);
+        h.push(0);
+        u32le(&mut h, self.seq);
+        u32le(&mut h, self.base);
+        u32le(&mut h, self.count.unwrap_or(self.messages.len() as u32));
+        u32le(&mut h, payload.len() as u32);
+        u32le(&mut h, wire.len() as u32);
+        let crc = if self.checksum {
+            let mut c = crc32fast::Hasher::new();
+            c.update(&h);
+            c.update(&wire);
+            c.finalize()
+        } else {
+            0
+        };
+        u32le(&mut h, crc);
+        h.extend_from_slice(&wire);
+        h
+    }
+}
+
+/// An undefined message type: makes any frame fail where it stands.
+pub fn invalid() -> Vec<u8> {
+    vec![0x09]
+}
+
+/// An uncompressed frame without checksum; EndOfFrame is appended.
+pub fn frame(keyframe: bool, seq: u32, base: u32, messages: &[Vec<u8>]) -> Vec<u8> {
+    let mut messages = messages.to_vec();
+    messages.push(END.to_vec());
+    let f = if keyframe {
+        key(seq, messages)
+    } else {
+        delta(seq, base, messages)
+    };
+    f.bytes()
+}
