@@ -512,6 +512,35 @@ fn vectors() -> Vec<Vector> {
         )
         .bytes()],
     ));
+    // DEF's mirror is 8*8*4 + 4*16*4 = 512 bytes. Freeing a cell costs
+    // 32 + 4*4 = 48 of the rewrite budget: 10 fit 512, 11 do not.
+    assert_eq!(DEF.mirror_bytes(), 512);
+    list.push(with_limit(
+        v(
+            "48-rewrite-budget",
+            "max_mirror_bytes 512: a delta freeing 10 cells spends 480 of the rewrite budget and applies; freeing 11 spends 528 and fails.",
+            vec![
+                kfb.clone(),
+                delta(6, 5, vec![free(1, &(0..10).collect::<Vec<_>>()), END.to_vec()]).bytes(),
+                delta(7, 6, vec![free(1, &(0..11).collect::<Vec<_>>()), END.to_vec()]).bytes(),
+            ],
+        ),
+        "max_mirror_bytes",
+        512,
+    ));
+    list.push(with_limit(
+        v(
+            "49-allocation-budget",
+            "max_mirror_bytes 1000: one redefinition spends 512 of the allocation budget and applies; two in one delta spend 1024 and fail at the second.",
+            vec![
+                kfb.clone(),
+                delta(6, 5, vec![define(1, &DEF), END.to_vec()]).bytes(),
+                delta(7, 6, vec![define(1, &DEF), define(1, &DEF), END.to_vec()]).bytes(),
+            ],
+        ),
+        "max_mirror_bytes",
+        1000,
+    ));
     assert_eq!(W1, word([1, 1, 3], 0x77, 200));
     assert_eq!(W2, word([0, 0, 0], 0x74, 64));
     list

@@ -539,7 +539,7 @@ impl Mirror {
                     return Ok(());
                 }
                 if self.frame.journals(instance) {
-                    spend(&mut self.frame.journal_budget, 48)?;
+                    spend(&mut self.frame.journal_budget, 48)?; // 32 + 48 = 80
                     self.journal
                         .push(Undo::Transform(instance, m.transform.map(Box::new)));
                 }
