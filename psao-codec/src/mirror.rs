@@ -11,9 +11,10 @@ use std::ops::Range;
 
 use crate::error::{DecodeError, MessageError};
 use crate::frame::{FrameView, Located};
+use crate::grid::MAX_CELL_CAPACITY;
 use crate::grid::{BucketEntry, InstanceDef};
 use crate::limits::Limits;
-use crate::message::{BucketsMsg, CellsMsg, Message};
+use crate::message::{BucketsMsg, CellsMsg, Message, Reader};
 use crate::point::PointWord;
 use crate::sequence::is_newer;
 
@@ -172,6 +173,14 @@ enum Undo {
         start: u32,
         len: u8,
         saved: u32,
+    },
+    /// The first `applied` cells of the `CellsXor` or `CellsAo` message at
+    /// payload `offset`: undone by applying the message's inverse (XOR is
+    /// its own inverse; AO deltas are subtracted), so nothing is copied.
+    Inverse {
+        instance: u32,
+        offset: u32,
+        applied: u32,
     },
 }
 
@@ -423,7 +432,7 @@ impl Mirror {
             self.frame = FrameState::start(false, limits);
             let result = self.apply_messages(frame, limits);
             if let Err(e) = result {
-                self.rollback();
+                self.rollback(frame.payload());
                 self.bytes = bytes;
                 mark.restore(&mut self.changes);
                 return Err(e);
@@ -437,9 +446,18 @@ impl Mirror {
         })
     }
 
-    fn rollback(&mut self) {
+    fn rollback(&mut self, payload: &[u8]) {
         while let Some(u) = self.journal.pop() {
             match u {
+                Undo::Inverse {
+                    instance,
+                    offset,
+                    applied,
+                } => {
+                    if let Some(m) = self.instances.get_mut(&instance) {
+                        undo_cells(m, payload, offset as usize, applied as usize);
+                    }
+                }
                 Undo::Instance(id, old) => {
                     match old {
                         Some(m) => self.instances.insert(id, *m),
@@ -551,9 +569,9 @@ impl Mirror {
                 Ok(())
             }
             Message::Buckets(msg) => self.buckets(msg),
-            Message::CellsFull(msg) => self.cells(msg, CellOp::Full),
-            Message::CellsXor(msg) => self.cells(msg, CellOp::Xor),
-            Message::CellsAo(msg) => self.cells(msg, CellOp::Ao),
+            Message::CellsFull(msg) => self.cells(msg, CellOp::Full, at.offset),
+            Message::CellsXor(msg) => self.cells(msg, CellOp::Xor, at.offset),
+            Message::CellsAo(msg) => self.cells(msg, CellOp::Ao, at.offset),
             Message::CellsFree { instance, cells } => {
                 let mut state = self.edit(instance)?;
                 for cell in cells.iter() {
@@ -686,65 +704,146 @@ impl Mirror {
         Ok(())
     }
 
-    fn cells(&mut self, msg: CellsMsg<'_>, op: CellOp) -> Result<(), MessageError> {
+    fn cells(&mut self, msg: CellsMsg<'_>, op: CellOp, offset: u64) -> Result<(), MessageError> {
         let mut state = self.edit(msg.instance)?;
-        let cap = state.def.cell_capacity;
-        let words = msg.words();
-        let mut next = 0usize;
-        for (cell, &per) in msg.cells.iter().zip(msg.per_cell) {
-            let range = state.cell_range(cell)?;
-            let beyond = match op {
-                CellOp::Full => per > cap,
-                CellOp::Xor | CellOp::Ao => (per as u16) >> cap != 0,
-            };
-            if beyond {
-                return Err(MessageError::SlotBeyondCapacity { cell });
-            }
+        // XOR and AO deltas are undone by their inverse: one journal entry
+        // for the whole message, updated with how many cells applied.
+        let inverse = match op {
+            CellOp::Full => None,
+            CellOp::Xor | CellOp::Ao => state.journal.as_mut().map(|j| {
+                j.undo.push(Undo::Inverse {
+                    instance: msg.instance,
+                    offset: offset as u32,
+                    applied: 0,
+                });
+                j.undo.len() - 1
+            }),
+        };
+        let mut applied = 0u32;
+        let result = apply_cells(&mut state, &msg, op, inverse.is_some(), &mut applied);
+        if let (Some(i), Some(j)) = (inverse, state.journal.as_mut())
+            && let Some(Undo::Inverse { applied: a, .. }) = j.undo.get_mut(i)
+        {
+            *a = applied;
+        }
+        result
+    }
+}
+
+/// Applies the cells of one message, counting in `applied` the cells
+/// written. With `inverse`, XOR and AO cells are charged but not saved, and
+/// each cell is checked before it is written, so `applied` whole cells are
+/// exactly what an inverse must undo.
+fn apply_cells(
+    state: &mut Edit<'_>,
+    msg: &CellsMsg<'_>,
+    op: CellOp,
+    inverse: bool,
+    applied: &mut u32,
+) -> Result<(), MessageError> {
+    let cap = state.def.cell_capacity;
+    let words = msg.words();
+    let mut next = 0usize;
+    for (cell, &per) in msg.cells.iter().zip(msg.per_cell) {
+        let range = state.cell_range(cell)?;
+        let beyond = match op {
+            CellOp::Full => per > cap,
+            CellOp::Xor | CellOp::Ao => (per as u16) >> cap != 0,
+        };
+        if beyond {
+            return Err(MessageError::SlotBeyondCapacity { cell });
+        }
+        if inverse {
+            state.charge_words(range.clone())?;
+        } else {
             state.save_words(range.clone())?;
-            let w = &mut state.words[range];
-            match op {
-                CellOp::Full => {
-                    for (slot, word) in w.iter_mut().enumerate() {
-                        *word = 0;
-                        if slot < per as usize {
-                            let listed = words.get(next);
-                            next += 1;
-                            let p = PointWord(listed);
-                            if !p.is_allocated() || !p.is_valid() {
-                                return Err(MessageError::InvalidWord { cell, word: listed });
-                            }
-                            *word = listed;
+        }
+        let w = &mut state.words[range];
+        match op {
+            CellOp::Full => {
+                for (slot, word) in w.iter_mut().enumerate() {
+                    *word = 0;
+                    if slot < per as usize {
+                        let listed = words.get(next);
+                        next += 1;
+                        let p = PointWord(listed);
+                        if !p.is_allocated() || !p.is_valid() {
+                            return Err(MessageError::InvalidWord { cell, word: listed });
                         }
+                        *word = listed;
                     }
                 }
-                CellOp::Xor => {
-                    for (slot, word) in w.iter_mut().enumerate() {
-                        if per & (1 << slot) != 0 {
-                            *word ^= words.get(next);
-                            next += 1;
-                        }
-                    }
-                    check_cell(cell, w)?;
+            }
+            CellOp::Xor => {
+                let mut buf = [0u32; MAX_CELL_CAPACITY as usize];
+                let new = &mut buf[..w.len()];
+                new.copy_from_slice(w);
+                let mut mask = per;
+                while mask != 0 {
+                    let slot = mask.trailing_zeros() as usize;
+                    new[slot] ^= words.get(next);
+                    next += 1;
+                    mask &= mask - 1;
                 }
-                CellOp::Ao => {
-                    for (slot, word) in w.iter_mut().enumerate() {
-                        if per & (1 << slot) != 0 {
-                            let p = PointWord(*word);
-                            if !p.is_allocated() {
-                                return Err(MessageError::AoToEmptySlot {
-                                    cell,
-                                    slot: slot as u8,
-                                });
-                            }
-                            let ao = (p.0 as u8).wrapping_add(msg.data[next]);
-                            *word = p.with_ao(ao).0;
-                            next += 1;
-                        }
+                check_cell(cell, new)?;
+                w.copy_from_slice(new);
+            }
+            CellOp::Ao => {
+                let mut mask = per;
+                while mask != 0 {
+                    let slot = mask.trailing_zeros();
+                    if !PointWord(w[slot as usize]).is_allocated() {
+                        return Err(MessageError::AoToEmptySlot {
+                            cell,
+                            slot: slot as u8,
+                        });
                     }
+                    mask &= mask - 1;
+                }
+                let mut mask = per;
+                while mask != 0 {
+                    let slot = mask.trailing_zeros() as usize;
+                    let p = PointWord(w[slot]);
+                    w[slot] = p.with_ao((p.0 as u8).wrapping_add(msg.data[next])).0;
+                    next += 1;
+                    mask &= mask - 1;
                 }
             }
         }
-        Ok(())
+        *applied += 1;
+    }
+    Ok(())
+}
+
+/// Undoes the first `applied` cells of the `CellsXor` or `CellsAo` message
+/// at `offset` of `payload` (already checked when it applied).
+fn undo_cells(m: &mut InstanceMirror, payload: &[u8], offset: usize, applied: usize) {
+    let Some(Ok(message)) = payload.get(offset..).map(|p| Reader::new(p).message()) else {
+        return;
+    };
+    let cap = m.def.cell_capacity as usize;
+    let (msg, xor) = match message {
+        Message::CellsXor(msg) => (msg, true),
+        Message::CellsAo(msg) => (msg, false),
+        _ => return,
+    };
+    let words = msg.words();
+    let mut next = 0usize;
+    for (cell, &mask) in msg.cells.iter().zip(msg.per_cell).take(applied) {
+        let base = cell as usize * cap;
+        for slot in 0..cap {
+            if mask & (1 << slot) == 0 {
+                continue;
+            }
+            let w = &mut m.words[base + slot];
+            if xor {
+                *w ^= words.get(next);
+            } else {
+                let p = PointWord(*w);
+                *w = p.with_ao((p.0 as u8).wrapping_sub(msg.data[next])).0;
+            }
+            next += 1;
+        }
     }
 }
 
@@ -835,6 +934,17 @@ impl Edit<'_> {
                 saved: j.words.len() as u32,
             });
             j.words.extend_from_slice(&self.words[range.clone()]);
+        }
+        let r = range.start as u32..range.end as u32;
+        push_change(self.changes, Change::Words(self.instance, r));
+        Ok(())
+    }
+
+    /// Charges a cell write that an inverse will undo: budget and change
+    /// list, no copy.
+    fn charge_words(&mut self, range: Range<usize>) -> Result<(), MessageError> {
+        if let Some(j) = &mut self.journal {
+            j.spend(range.len() * 4)?;
         }
         let r = range.start as u32..range.end as u32;
         push_change(self.changes, Change::Words(self.instance, r));

@@ -217,3 +217,60 @@ fn reconstruction_never_returns_nan() {
     let huge = glam::Affine3A::from_scale(Vec3::splat(1e-20));
     assert!(world_to_local(&huge, Vec3::ONE, Vec3::Y).is_none());
 }
+
+#[test]
+fn xor_and_ao_deltas_roll_back_by_their_inverse() {
+    // A mirror with points in several cells, through a real keyframe.
+    let mut table = GridTable::new(1, small_def(), 64).unwrap();
+    for i in 0..40u32 {
+        let p = Vec3::new(
+            -0.95 + (i % 8) as f32 * 0.25,
+            0.1 + (i / 8) as f32 * 0.2,
+            0.3,
+        );
+        table.set_point(i, p, Vec3::Y, i as f32 / 40.0).unwrap();
+    }
+    table.take_dirty();
+    let mut enc = Encoder::new(EncoderConfig::default());
+    let mut kf = enc.keyframe();
+    kf.snapshot(&table).unwrap();
+    let mut d = Decoder::new(Limits::default());
+    d.receive(&kf.finish().unwrap().unwrap().bytes).unwrap();
+    let before = d.mirror().describe();
+    // A real delta moving AO and normals of many points, with an invalid
+    // message appended: its XOR and AO messages apply, then all roll back.
+    for i in 0..40u32 {
+        let p = Vec3::new(
+            -0.95 + (i % 8) as f32 * 0.25,
+            0.1 + (i / 8) as f32 * 0.2,
+            0.3,
+        );
+        let n = if i % 3 == 0 { Vec3::X } else { Vec3::Y };
+        table.set_point(i, p, n, 1.0 - i as f32 / 40.0).unwrap();
+    }
+    let mut f = enc.delta();
+    f.changes(&mut table);
+    let good = f.finish().unwrap().unwrap();
+    assert!(
+        good.stats.cells_xor > 0 && good.stats.cells_ao > 0,
+        "{:?}",
+        good.stats
+    );
+    // Re-frame its payload with a message that fails when it applies (a
+    // state-layer error: a syntax error would stop the frame before any
+    // message applied).
+    let h = FrameHeader::parse(&good.bytes).unwrap();
+    assert_eq!(h.compression, Compression::Zstd);
+    let payload = zstd::bulk::decompress(&good.bytes[HEADER_LEN..], 1 << 20).unwrap();
+    let body = payload[..payload.len() - 1].to_vec();
+    let bad = raw::frame(false, 1, 0, &[body.clone(), raw::remove(999)]);
+    // raw::frame counts messages by slices: fix the count in the header.
+    let mut bad = bad;
+    bad[16..20].copy_from_slice(&(h.message_count + 1).to_le_bytes());
+    let err = d.receive(&bad).unwrap_err();
+    assert_eq!(err.code(), "unknown_instance", "{err}");
+    assert_eq!(d.mirror().describe(), before);
+    // The good frame still applies on top.
+    d.receive(&good.bytes).unwrap();
+    assert_eq!(d.mirror().instance(1).unwrap().words(), table.words());
+}
