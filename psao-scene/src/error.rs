@@ -1,0 +1,93 @@
+//! Errors of scene construction and processing.
+
+use thiserror::Error;
+
+/// What was wrong with a scene, mesh or parameter.
+#[derive(Clone, Debug, PartialEq, Error)]
+pub enum SceneError {
+    /// A mesh's index count is not a multiple of 3.
+    #[error("mesh {mesh}: {len} indices is not a multiple of 3")]
+    IndexCount {
+        /// Mesh index.
+        mesh: usize,
+        /// Number of indices.
+        len: usize,
+    },
+    /// A triangle refers to a vertex that does not exist.
+    #[error("mesh {mesh}: triangle {triangle} refers to vertex {index} of {vertices}")]
+    IndexOutOfRange {
+        /// Mesh index.
+        mesh: usize,
+        /// Triangle index.
+        triangle: usize,
+        /// The bad vertex index.
+        index: u32,
+        /// Number of vertices.
+        vertices: usize,
+    },
+    /// Positions and normals differ in length.
+    #[error("mesh {mesh}: {positions} positions but {normals} normals")]
+    NormalCount {
+        /// Mesh index.
+        mesh: usize,
+        /// Positions.
+        positions: usize,
+        /// Normals.
+        normals: usize,
+    },
+    /// A vertex position or normal is NaN or infinite.
+    #[error("mesh {mesh}: vertex {vertex} is not finite")]
+    NonFiniteVertex {
+        /// Mesh index.
+        mesh: usize,
+        /// Vertex index.
+        vertex: usize,
+    },
+    /// An instance refers to a mesh that does not exist.
+    #[error("instance {instance} refers to mesh {mesh} of {meshes}")]
+    MeshOutOfRange {
+        /// Instance index.
+        instance: usize,
+        /// The bad mesh index.
+        mesh: usize,
+        /// Number of meshes.
+        meshes: usize,
+    },
+    /// An instance transform is not finite or is singular.
+    #[error("instance {instance}: transform is not finite or not invertible")]
+    BadTransform {
+        /// Instance index.
+        instance: usize,
+    },
+    /// A parameter is out of its range.
+    #[error("parameter `{name}` = {value} is out of range: {rule}")]
+    Parameter {
+        /// Parameter name.
+        name: &'static str,
+        /// Its value.
+        value: f64,
+        /// The rule it breaks.
+        rule: &'static str,
+    },
+    /// The grid would need more cells than a 32-bit key allows.
+    #[error("instance {instance}: grid too large for 32-bit keys even at the coarsest cell size")]
+    GridTooLarge {
+        /// Instance index.
+        instance: usize,
+    },
+}
+
+/// Checks `value` is finite and within `min..=max`.
+pub(crate) fn check_param(
+    name: &'static str,
+    value: f64,
+    min: f64,
+    max: f64,
+    rule: &'static str,
+) -> Result<(), SceneError> {
+    if value.is_finite() && value >= min && value <= max {
+        Ok(())
+    } else {
+        Err(SceneError::Parameter { name, value, rule })
+    }
+}

@@ -1,0 +1,103 @@
+//! Grid layout (paper 3.2): cell size and dims from an instance's local
+//! bounds and point density, hash table sized as the paper does.
+
+use glam::{UVec3, Vec3};
+use psao_codec::{InstanceDef, POINT_FORMAT_PACKED32, key_fits};
+
+use crate::error::SceneError;
+
+/// Choices for [`layout`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LayoutParams {
+    /// Points a cell crossed by a flat surface should hold on average
+    /// (slots are `cell_capacity`; the paper's 7).
+    pub points_per_cell: f32,
+    /// Slots per cell.
+    pub cell_capacity: u8,
+    /// Entries per bucket.
+    pub bucket_capacity: u8,
+    /// Empty cells added around the bounds on every side (room for motion).
+    pub margin_cells: u32,
+    /// Normal threshold T_n.
+    pub t_n: f32,
+    /// Direction threshold T_d.
+    pub t_d: f32,
+}
+
+impl Default for LayoutParams {
+    fn default() -> Self {
+        LayoutParams {
+            points_per_cell: 4.0,
+            cell_capacity: 7,
+            bucket_capacity: 8,
+            margin_cells: 1,
+            t_n: 0.1,
+            t_d: 0.7,
+        }
+    }
+}
+
+/// Lays out the grid of one instance: `bounds` are its local bounds,
+/// `area` its surface area (both sides counted for a double-sided mesh),
+/// `points` how many points it holds, `radius` their Poisson radius.
+///
+/// The cell edge `c` makes a flat surface put `points_per_cell` points in a
+/// cell it crosses (`density * c^2`), and is at least `2 * radius` so the
+/// 2x2x2 neighbourhood covers the interpolation radius. The table holds
+/// `4 x expected cells / 8` buckets (rounded up to a power of two), as in
+/// the paper; the pool holds twice the expected cells.
+pub fn layout(
+    instance: usize,
+    bounds: (Vec3, Vec3),
+    area: f32,
+    points: usize,
+    radius: f32,
+    p: &LayoutParams,
+) -> Result<InstanceDef, SceneError> {
+    let density = points.max(1) as f32 / area.max(f32::MIN_POSITIVE);
+    let mut c = (p.points_per_cell / density).sqrt().max(2.0 * radius);
+    if !c.is_finite() || c <= 0.0 {
+        c = (bounds.1 - bounds.0).max_element().max(1e-3);
+    }
+    let extent = (bounds.1 - bounds.0).max(Vec3::ZERO);
+    let margin = p.margin_cells as f32;
+    let mut dims;
+    let mut tries = 0;
+    loop {
+        let d = (extent / c).floor() + 1.0 + 2.0 * margin;
+        dims = UVec3::new(d.x as u32, d.y as u32, d.z as u32).max(UVec3::ONE);
+        if d.max_element() < u32::MAX as f32 && key_fits(dims) {
+            break;
+        }
+        c *= 1.25;
+        tries += 1;
+        if tries > 200 {
+            return Err(SceneError::GridTooLarge { instance });
+        }
+    }
+    let expected_cells = ((area / (c * c)) * 1.5).ceil().max(1.0) as u64;
+    let buckets = (4 * expected_cells)
+        .div_ceil(p.bucket_capacity as u64)
+        .max(1);
+    let table_log2 = (64 - (buckets - 1).leading_zeros()).min(22) as u8;
+    let total_cells = dims.x as u64 * dims.y as u64 * dims.z as u64;
+    let cell_pool = (2 * expected_cells)
+        .clamp(16, total_cells.max(16))
+        .min(1 << 24) as u32;
+    let def = InstanceDef {
+        origin: bounds.0 - Vec3::splat(margin * c),
+        cell_size: Vec3::splat(c),
+        dims,
+        table_log2,
+        bucket_capacity: p.bucket_capacity,
+        cell_capacity: p.cell_capacity,
+        cell_pool,
+        point_format: POINT_FORMAT_PACKED32,
+        radius: radius.max(f32::MIN_POSITIVE),
+        t_n: p.t_n,
+        t_d: p.t_d,
+    };
+    def.validate()
+        .map_err(|_| SceneError::GridTooLarge { instance })?;
+    Ok(def)
+}

@@ -1,0 +1,182 @@
+//! Point generation (paper 3.1): points spawned uniformly over a mesh's
+//! surface, then weighted sample elimination (Yuksel 2015) down to half.
+
+use std::collections::{BinaryHeap, HashMap};
+
+use glam::{IVec3, Vec3};
+
+use crate::error::{SceneError, check_param};
+use crate::random::uniform;
+use crate::scene::Mesh;
+
+/// Points of one mesh, in its local space.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PointSet {
+    /// Positions.
+    pub positions: Vec<Vec3>,
+    /// Unit normals (the surface side the point belongs to).
+    pub normals: Vec<Vec3>,
+    /// The Poisson radius `r_max` of the elimination: the client's
+    /// interpolation radius r (paper eq. 2).
+    pub radius: f32,
+}
+
+impl PointSet {
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.positions.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.positions.is_empty()
+    }
+}
+
+/// Spawns `density` points per unit area over `mesh` (both sides of a
+/// double-sided mesh, each with its own normal), then eliminates half of
+/// them per side by weighted sample elimination. Deterministic for a seed.
+pub fn generate_points(mesh: &Mesh, density: f32, seed: u64) -> Result<PointSet, SceneError> {
+    check_param(
+        "density",
+        density as f64,
+        1e-6,
+        1e7,
+        "points per unit area in (0, 1e7]",
+    )?;
+    mesh.validate(0)?;
+    let area = mesh.area();
+    let spawned = (area * density).round() as usize;
+    if spawned < 2 || area <= 0.0 {
+        return Ok(PointSet::default());
+    }
+    let sides: &[f32] = if mesh.double_sided {
+        &[1.0, -1.0]
+    } else {
+        &[1.0]
+    };
+    let mut out = PointSet::default();
+    for (s, &sign) in sides.iter().enumerate() {
+        let (pos, nrm) = spawn(mesh, spawned, seed ^ ((s as u64) << 40));
+        let keep = spawned / 2;
+        let (kept, radius) = eliminate(&pos, keep, area);
+        out.radius = radius;
+        for i in kept {
+            out.positions.push(pos[i]);
+            out.normals.push(nrm[i] * sign);
+        }
+    }
+    Ok(out)
+}
+
+/// `count` points uniform over the mesh's area, with interpolated normals.
+fn spawn(mesh: &Mesh, count: usize, seed: u64) -> (Vec<Vec3>, Vec<Vec3>) {
+    let tris = mesh.triangle_count();
+    let mut cdf = Vec::with_capacity(tris);
+    let mut total = 0.0f64;
+    for t in 0..tris {
+        let [a, b, c] = mesh.triangle(t);
+        total += (b - a).cross(c - a).length() as f64 * 0.5;
+        cdf.push(total);
+    }
+    let mut pos = Vec::with_capacity(count);
+    let mut nrm = Vec::with_capacity(count);
+    for k in 0..count as u32 {
+        let pick = uniform(seed, 0, k) as f64 * total;
+        let t = cdf.partition_point(|&c| c <= pick).min(tris - 1);
+        let (r1, r2) = (uniform(seed, 1, k).sqrt(), uniform(seed, 2, k));
+        let (wa, wb, wc) = (1.0 - r1, r1 * (1.0 - r2), r1 * r2);
+        let i = &mesh.indices[3 * t..3 * t + 3];
+        let [a, b, c] = mesh.triangle(t);
+        pos.push(a * wa + b * wb + c * wc);
+        let n = mesh.normals[i[0] as usize] * wa
+            + mesh.normals[i[1] as usize] * wb
+            + mesh.normals[i[2] as usize] * wc;
+        let face = (b - a).cross(c - a).normalize_or_zero();
+        nrm.push(n.try_normalize().unwrap_or(face));
+    }
+    (pos, nrm)
+}
+
+/// Weighted sample elimination of `points` (spread over `area`) down to
+/// `keep`. Returns the kept indices and `r_max = sqrt(area / (2 sqrt(3) keep))`.
+pub fn eliminate(points: &[Vec3], keep: usize, area: f32) -> (Vec<usize>, f32) {
+    let n = points.len();
+    let keep = keep.min(n);
+    if keep == 0 {
+        return (Vec::new(), 0.0);
+    }
+    let r_max = (area / (2.0 * 3f32.sqrt() * keep as f32)).sqrt();
+    let reach = 2.0 * r_max;
+    // Weight limiting (Yuksel 2015, beta = 0.65, gamma = 1.5).
+    let r_min = reach * (1.0 - (keep as f32 / n as f32).powf(1.5)) * 0.65;
+    let weight = |d: f32| (1.0 - d.max(r_min) / reach).max(0.0).powi(8);
+
+    let neighbours = neighbour_lists(points, reach);
+    let mut w: Vec<f32> = (0..n)
+        .map(|i| neighbours.of(i).iter().map(|&(_, d)| weight(d)).sum())
+        .collect();
+    let mut heap: BinaryHeap<(u32, u32)> = (0..n).map(|i| (w[i].to_bits(), i as u32)).collect();
+    let mut removed = vec![false; n];
+    let mut left = n;
+    while left > keep {
+        let Some((bits, i)) = heap.pop() else { break };
+        let i = i as usize;
+        if removed[i] || bits != w[i].to_bits() {
+            continue;
+        }
+        removed[i] = true;
+        left -= 1;
+        for &(j, d) in neighbours.of(i) {
+            let j = j as usize;
+            if !removed[j] {
+                w[j] = (w[j] - weight(d)).max(0.0);
+                heap.push((w[j].to_bits(), j as u32));
+            }
+        }
+    }
+    ((0..n).filter(|&i| !removed[i]).collect(), r_max)
+}
+
+/// Neighbours within `reach` of every point, in CSR form.
+struct Neighbours {
+    start: Vec<usize>,
+    items: Vec<(u32, f32)>,
+}
+
+impl Neighbours {
+    fn of(&self, i: usize) -> &[(u32, f32)] {
+        &self.items[self.start[i]..self.start[i + 1]]
+    }
+}
+
+fn neighbour_lists(points: &[Vec3], reach: f32) -> Neighbours {
+    let cell = |p: Vec3| (p / reach).floor().as_ivec3();
+    let mut grid: HashMap<IVec3, Vec<u32>> = HashMap::new();
+    for (i, &p) in points.iter().enumerate() {
+        grid.entry(cell(p)).or_default().push(i as u32);
+    }
+    let mut start = Vec::with_capacity(points.len() + 1);
+    let mut items = Vec::new();
+    for (i, &p) in points.iter().enumerate() {
+        start.push(items.len());
+        let c = cell(p);
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let Some(list) = grid.get(&(c + IVec3::new(dx, dy, dz))) else {
+                        continue;
+                    };
+                    for &j in list {
+                        let d = points[j as usize].distance(p);
+                        if j as usize != i && d < reach {
+                            items.push((j, d));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    start.push(items.len());
+    Neighbours { start, items }
+}

@@ -1,0 +1,198 @@
+//! Static scene model: meshes and their instances.
+
+use glam::{Affine3A, Vec3};
+
+use crate::error::SceneError;
+
+/// A triangle mesh in its own (instance-local) space.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Mesh {
+    /// Vertex positions.
+    pub positions: Vec<Vec3>,
+    /// Vertex normals (unit length), one per position.
+    pub normals: Vec<Vec3>,
+    /// Triangle vertex indices, three per triangle, counter-clockwise front.
+    pub indices: Vec<u32>,
+    /// Whether both sides are surfaces (points are spawned on both).
+    pub double_sided: bool,
+}
+
+impl Mesh {
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.indices.len() / 3
+    }
+
+    /// The corners of triangle `t`.
+    pub fn triangle(&self, t: usize) -> [Vec3; 3] {
+        let i = &self.indices[3 * t..3 * t + 3];
+        [
+            self.positions[i[0] as usize],
+            self.positions[i[1] as usize],
+            self.positions[i[2] as usize],
+        ]
+    }
+
+    /// Total surface area (one side).
+    pub fn area(&self) -> f32 {
+        (0..self.triangle_count())
+            .map(|t| {
+                let [a, b, c] = self.triangle(t);
+                (b - a).cross(c - a).length() * 0.5
+            })
+            .sum()
+    }
+
+    /// Local bounding box `(min, max)`; `None` without vertices.
+    pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
+        let first = *self.positions.first()?;
+        Some(
+            self.positions
+                .iter()
+                .fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p))),
+        )
+    }
+
+    /// Checks indices, counts and finiteness. `mesh` names it in errors.
+    pub fn validate(&self, mesh: usize) -> Result<(), SceneError> {
+        if self.indices.len() % 3 != 0 {
+            return Err(SceneError::IndexCount {
+                mesh,
+                len: self.indices.len(),
+            });
+        }
+        if self.normals.len() != self.positions.len() {
+            return Err(SceneError::NormalCount {
+                mesh,
+                positions: self.positions.len(),
+                normals: self.normals.len(),
+            });
+        }
+        if let Some(vertex) = (0..self.positions.len())
+            .find(|&v| !self.positions[v].is_finite() || !self.normals[v].is_finite())
+        {
+            return Err(SceneError::NonFiniteVertex { mesh, vertex });
+        }
+        if let Some(k) = self
+            .indices
+            .iter()
+            .position(|&i| i as usize >= self.positions.len())
+        {
+            return Err(SceneError::IndexOutOfRange {
+                mesh,
+                triangle: k / 3,
+                index: self.indices[k],
+                vertices: self.positions.len(),
+            });
+        }
+        Ok(())
+    }
+
+    /// An axis-aligned box `[min, max]`, normals facing out, 12 triangles.
+    pub fn cuboid(min: Vec3, max: Vec3) -> Mesh {
+        let mut m = Mesh::default();
+        let c = [min, max];
+        for axis in 0..3 {
+            for side in 0..2 {
+                let n = Vec3::AXES[axis] * if side == 0 { -1.0 } else { 1.0 };
+                let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+                let corner = |a: usize, b: usize| {
+                    let mut p = Vec3::ZERO;
+                    p[axis] = c[side][axis];
+                    p[u] = c[a][u];
+                    p[v] = c[b][v];
+                    p
+                };
+                let quad = [corner(0, 0), corner(1, 0), corner(1, 1), corner(0, 1)];
+                m.push_quad(quad, n);
+            }
+        }
+        m
+    }
+
+    /// A rectangle with corner `origin` and edges `u`, `v`; its front faces
+    /// `u x v`.
+    pub fn quad(origin: Vec3, u: Vec3, v: Vec3) -> Mesh {
+        let mut m = Mesh::default();
+        let n = u.cross(v).normalize();
+        m.push_quad([origin, origin + u, origin + u + v, origin + v], n);
+        m
+    }
+
+    /// Appends a planar quad (two triangles) wound to face `n`.
+    fn push_quad(&mut self, q: [Vec3; 4], n: Vec3) {
+        let base = self.positions.len() as u32;
+        let facing = (q[1] - q[0]).cross(q[2] - q[0]).dot(n) >= 0.0;
+        self.positions.extend_from_slice(&q);
+        self.normals.extend_from_slice(&[n; 4]);
+        let order: [u32; 6] = if facing {
+            [0, 1, 2, 0, 2, 3]
+        } else {
+            [0, 2, 1, 0, 3, 2]
+        };
+        self.indices.extend(order.iter().map(|i| base + i));
+    }
+}
+
+/// A placed copy of a mesh.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Instance {
+    /// Index into [`Scene::meshes`].
+    pub mesh: usize,
+    /// Instance-local to world transform.
+    pub transform: Affine3A,
+}
+
+/// Meshes and instances.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Scene {
+    /// Meshes in their local space.
+    pub meshes: Vec<Mesh>,
+    /// Placed instances.
+    pub instances: Vec<Instance>,
+}
+
+impl Scene {
+    /// Adds a mesh with one instance at `transform`; returns the instance index.
+    pub fn add(&mut self, mesh: Mesh, transform: Affine3A) -> usize {
+        self.meshes.push(mesh);
+        self.instances.push(Instance {
+            mesh: self.meshes.len() - 1,
+            transform,
+        });
+        self.instances.len() - 1
+    }
+
+    /// Checks every mesh and instance.
+    pub fn validate(&self) -> Result<(), SceneError> {
+        for (i, m) in self.meshes.iter().enumerate() {
+            m.validate(i)?;
+        }
+        for (i, inst) in self.instances.iter().enumerate() {
+            if inst.mesh >= self.meshes.len() {
+                return Err(SceneError::MeshOutOfRange {
+                    instance: i,
+                    mesh: inst.mesh,
+                    meshes: self.meshes.len(),
+                });
+            }
+            let det = inst.transform.matrix3.determinant();
+            if !inst.transform.is_finite() || !det.is_finite() || det.abs() < 1e-12 {
+                return Err(SceneError::BadTransform { instance: i });
+            }
+        }
+        Ok(())
+    }
+
+    /// Every instance's triangles in world space, in instance order.
+    pub fn world_triangles(&self) -> Vec<[Vec3; 3]> {
+        let mut out = Vec::new();
+        for inst in &self.instances {
+            let m = &self.meshes[inst.mesh];
+            for t in 0..m.triangle_count() {
+                out.push(m.triangle(t).map(|p| inst.transform.transform_point3(p)));
+            }
+        }
+        out
+    }
+}

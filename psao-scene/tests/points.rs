@@ -1,0 +1,193 @@
+//! Point generation, elimination and grid layout.
+
+use glam::{Affine3A, Vec3};
+use psao_codec::{GridTable, Placement};
+use psao_scene::*;
+
+fn nearest(points: &[Vec3]) -> Vec<f32> {
+    points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            points
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != i)
+                .map(|(_, q)| p.distance(*q))
+                .fold(f32::INFINITY, f32::min)
+        })
+        .collect()
+}
+
+fn plane() -> Mesh {
+    Mesh::quad(Vec3::ZERO, Vec3::X * 4.0, Vec3::Y * 2.0)
+}
+
+#[test]
+fn counts_positions_and_normals() {
+    let m = plane();
+    let p = generate_points(&m, 100.0, 3).unwrap();
+    assert_eq!(p.len(), 400, "8 m^2 x 100 spawned, half kept");
+    assert!(p.positions.iter().all(|q| q.z == 0.0
+        && q.x >= 0.0
+        && q.x <= 4.0
+        && q.y >= 0.0
+        && q.y <= 2.0));
+    assert!(p.normals.iter().all(|n| (*n - Vec3::Z).length() < 1e-6));
+    let r = (8.0f32 / (2.0 * 3f32.sqrt() * 400.0)).sqrt();
+    assert!((p.radius - r).abs() < 1e-6);
+
+    let mut two = plane();
+    two.double_sided = true;
+    let q = generate_points(&two, 100.0, 3).unwrap();
+    assert_eq!(q.len(), 800);
+    assert_eq!(q.normals.iter().filter(|n| n.z < 0.0).count(), 400);
+}
+
+#[test]
+fn elimination_spreads_points_apart() {
+    let m = plane();
+    // The same spawn with and without elimination: compare with the first
+    // half of a uniform set of the same size (a random subset).
+    let kept = generate_points(&m, 200.0, 11).unwrap();
+    let uniform_set: Vec<Vec3> = (0..800u32)
+        .map(|k| Vec3::new(uniform(99, 0, k) * 4.0, uniform(99, 1, k) * 2.0, 0.0))
+        .collect();
+    let half = &uniform_set[..kept.len()];
+    let (nk, nu) = (nearest(&kept.positions), nearest(half));
+    let min = |v: &[f32]| v.iter().copied().fold(f32::INFINITY, f32::min);
+    let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
+    assert!(
+        min(&nk) > 3.0 * min(&nu),
+        "min NN {} vs {}",
+        min(&nk),
+        min(&nu)
+    );
+    assert!(
+        mean(&nk) > 1.2 * mean(&nu),
+        "mean NN {} vs {}",
+        mean(&nk),
+        mean(&nu)
+    );
+    // Most kept points are at least the Poisson radius apart.
+    let close = nk.iter().filter(|&&d| d < 0.75 * kept.radius).count();
+    assert!(
+        close * 20 < nk.len(),
+        "{close} of {} closer than 0.75 r",
+        nk.len()
+    );
+}
+
+#[test]
+fn generation_is_deterministic_and_checks_its_input() {
+    let m = plane();
+    assert_eq!(
+        generate_points(&m, 50.0, 1).unwrap(),
+        generate_points(&m, 50.0, 1).unwrap()
+    );
+    assert_ne!(
+        generate_points(&m, 50.0, 1).unwrap(),
+        generate_points(&m, 50.0, 2).unwrap()
+    );
+    for d in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+        assert!(matches!(
+            generate_points(&m, d, 1),
+            Err(SceneError::Parameter {
+                name: "density",
+                ..
+            })
+        ));
+    }
+    let mut bad = plane();
+    bad.indices.push(9);
+    assert!(matches!(
+        generate_points(&bad, 10.0, 1),
+        Err(SceneError::IndexCount { .. })
+    ));
+    let mut bad = plane();
+    bad.indices[1] = 40;
+    assert!(matches!(
+        generate_points(&bad, 10.0, 1),
+        Err(SceneError::IndexOutOfRange { index: 40, .. })
+    ));
+    let mut bad = plane();
+    bad.positions[0].x = f32::NAN;
+    assert!(matches!(
+        generate_points(&bad, 10.0, 1),
+        Err(SceneError::NonFiniteVertex { vertex: 0, .. })
+    ));
+    // Zero-area geometry gives no points, not an error.
+    let flat = Mesh {
+        positions: vec![Vec3::ZERO, Vec3::X, Vec3::X * 2.0],
+        normals: vec![Vec3::Z; 3],
+        indices: vec![0, 1, 2],
+        double_sided: false,
+    };
+    assert!(generate_points(&flat, 10.0, 1).unwrap().is_empty());
+    // A quad with parallel edges has no normal: refused, not NaN points.
+    let degenerate = Mesh::quad(Vec3::ZERO, Vec3::X, Vec3::X);
+    assert!(matches!(
+        generate_points(&degenerate, 10.0, 1),
+        Err(SceneError::NonFiniteVertex { .. })
+    ));
+}
+
+#[test]
+fn layout_holds_every_point_of_a_box() {
+    let m = Mesh::cuboid(Vec3::new(-1.0, 0.0, -2.0), Vec3::new(1.0, 0.5, 2.0));
+    let pts = generate_points(&m, 400.0, 5).unwrap();
+    let def = layout(
+        0,
+        m.bounds().unwrap(),
+        m.area(),
+        pts.len(),
+        pts.radius,
+        &LayoutParams::default(),
+    )
+    .unwrap();
+    assert!(def.cell_size.min_element() >= 2.0 * pts.radius);
+    let mut table = GridTable::new(0, def, pts.len() as u32).unwrap();
+    for (i, (p, n)) in pts.positions.iter().zip(&pts.normals).enumerate() {
+        table.set_point(i as u32, *p, *n, 1.0).unwrap();
+    }
+    let s = table.stats();
+    assert_eq!(s.out_of_grid, 0);
+    assert_eq!(s.bucket_overflow + s.pool_exhausted, 0, "{s:?}");
+    // Box edges and corners crowd cells: a few drops, counted.
+    assert!(
+        s.dropped as usize * 50 < pts.len(),
+        "{s:?} of {}",
+        pts.len()
+    );
+    assert!(matches!(table.placement(0), Placement::Stored { .. }));
+}
+
+#[test]
+fn scene_validation_names_the_problem() {
+    let mut s = Scene::default();
+    s.add(plane(), Affine3A::IDENTITY);
+    assert!(s.validate().is_ok());
+    s.instances.push(Instance {
+        mesh: 5,
+        transform: Affine3A::IDENTITY,
+    });
+    assert_eq!(
+        s.validate(),
+        Err(SceneError::MeshOutOfRange {
+            instance: 1,
+            mesh: 5,
+            meshes: 1
+        })
+    );
+    s.instances[1] = Instance {
+        mesh: 0,
+        transform: Affine3A::from_scale(Vec3::new(1.0, 0.0, 1.0)),
+    };
+    assert_eq!(s.validate(), Err(SceneError::BadTransform { instance: 1 }));
+    let world = {
+        let mut t = Scene::default();
+        t.add(plane(), Affine3A::from_translation(Vec3::Z * 3.0));
+        t.world_triangles()
+    };
+    assert!(world.iter().flatten().all(|p| p.z == 3.0));
+}
