@@ -20,6 +20,9 @@ use rayon::prelude::*;
 
 use crate::random::uniform;
 
+/// Fractional part of the golden ratio.
+const GOLDEN: f32 = 0.618_034;
+
 /// Which AO estimator to use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Estimator {
@@ -127,6 +130,7 @@ impl AoTracer {
         let n = normal.try_normalize().unwrap_or(Vec3::Z);
         let (t1, t2) = n.any_orthonormal_pair();
         let origin = Vec3A::from(point + n * p.bias);
+        let shift = uniform(p.seed, id, u32::MAX);
         let mut sum = 0.0f32;
         for k in 0..p.rays {
             // Stratified in r1 (one stratum per ray), random within.
@@ -150,7 +154,11 @@ impl AoTracer {
                     sum += t / p.radius;
                 }
                 Estimator::LaineKarras => {
-                    let len = uniform(p.seed, id, 3 * k + 2) * p.radius;
+                    // Lengths from a golden-ratio sequence, rotated per
+                    // point: evenly spread over [0, 1) and uncorrelated
+                    // with the direction strata.
+                    let u = (k as f32 * GOLDEN + shift).fract();
+                    let len = u * p.radius;
                     let ray = Ray::new(origin, dir, 0.0, len);
                     if bvh.ray_traverse_miss(ray, |r, id| {
                         self.tris[bvh.primitive_indices[id] as usize].intersect(r)

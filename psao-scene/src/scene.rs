@@ -119,6 +119,43 @@ impl Mesh {
         m
     }
 
+    /// The same surface with every triangle split into four at its edge
+    /// midpoints, `levels` times (4^levels as many triangles). Normals are
+    /// interpolated and renormalized.
+    pub fn subdivided(&self, levels: u32) -> Mesh {
+        let mut m = self.clone();
+        for _ in 0..levels {
+            let mut next = Mesh {
+                double_sided: m.double_sided,
+                ..Mesh::default()
+            };
+            for t in 0..m.triangle_count() {
+                let i = [0, 1, 2].map(|k| m.indices[3 * t + k] as usize);
+                let p = i.map(|k| m.positions[k]);
+                let n = i.map(|k| m.normals[k]);
+                let mid =
+                    |a: usize, b: usize| ((p[a] + p[b]) * 0.5, (n[a] + n[b]).normalize_or(n[a]));
+                let (ab, bc, ca) = (mid(0, 1), mid(1, 2), mid(2, 0));
+                let corners = [(p[0], n[0]), (p[1], n[1]), (p[2], n[2])];
+                for tri in [
+                    [corners[0], ab, ca],
+                    [ab, corners[1], bc],
+                    [ca, bc, corners[2]],
+                    [ab, bc, ca],
+                ] {
+                    let base = next.positions.len() as u32;
+                    for (q, nq) in tri {
+                        next.positions.push(q);
+                        next.normals.push(nq);
+                    }
+                    next.indices.extend([base, base + 1, base + 2]);
+                }
+            }
+            m = next;
+        }
+        m
+    }
+
     /// Appends a planar quad (two triangles) wound to face `n`.
     fn push_quad(&mut self, q: [Vec3; 4], n: Vec3) {
         let base = self.positions.len() as u32;

@@ -191,3 +191,13 @@ fn scene_validation_names_the_problem() {
     };
     assert!(world.iter().flatten().all(|p| p.z == 3.0));
 }
+
+#[test]
+fn subdivision_keeps_the_surface() {
+    let m = Mesh::cuboid(Vec3::ZERO, Vec3::new(1.0, 2.0, 3.0));
+    let s = m.subdivided(2);
+    assert_eq!(s.triangle_count(), m.triangle_count() * 16);
+    assert!((s.area() - m.area()).abs() < 1e-4);
+    assert_eq!(s.bounds(), m.bounds());
+    assert!(s.validate(0).is_ok());
+}
