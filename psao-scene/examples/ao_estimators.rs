@@ -65,25 +65,25 @@ fn main() {
                 .map(|n| inst.transform.transform_vector3(*n).normalize()),
         );
     }
-    let tracer = AoTracer::new(&scene.world_triangles());
+    let triangles = scene.world_triangles().expect("valid scene");
+    let tracer = AoTracer::new(&triangles);
     let base = AoParams {
         seed: 1,
         ..AoParams::default()
     };
     let t = Instant::now();
-    let reference = tracer.trace(
-        &pts,
-        &nrm,
-        &AoParams {
-            rays: 4096,
-            seed: 999,
-            ..base
-        },
-    );
+    let reference_params = AoParams {
+        rays: 4096,
+        seed: 999,
+        ..base
+    };
+    let reference = tracer
+        .trace(&pts, &nrm, &reference_params)
+        .expect("valid parameters");
     println!(
         "{} points, {} triangles, {} threads; reference: closest hit, 4096 rays/point, {:.1} s",
         pts.len(),
-        scene.world_triangles().len(),
+        triangles.len(),
         rayon::current_num_threads(),
         t.elapsed().as_secs_f64()
     );
@@ -107,7 +107,7 @@ fn main() {
             let mut result = AoResult::default();
             for _ in 0..3 {
                 let t = Instant::now();
-                result = tracer.trace(&pts, &nrm, &p);
+                result = tracer.trace(&pts, &nrm, &p).expect("valid parameters");
                 times.push(t.elapsed().as_secs_f64());
             }
             times.sort_by(f64::total_cmp);

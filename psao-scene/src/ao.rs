@@ -18,10 +18,14 @@ use obvhs::ray::{Ray, RayHit};
 use obvhs::triangle::Triangle;
 use rayon::prelude::*;
 
-use crate::random::uniform;
+use crate::error::{SceneError, check_param};
+use crate::random::{hash, uniform};
 
-/// Fractional part of the golden ratio.
-const GOLDEN: f32 = 0.618_034;
+/// The golden ratio's fractional part in 32-bit fixed point.
+const GOLDEN: u32 = 0x9E37_79B9;
+
+/// Most rays per point.
+pub const MAX_RAYS: u32 = 1 << 20;
 
 /// Which AO estimator to use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -46,6 +50,34 @@ pub struct AoParams {
     pub estimator: Estimator,
     /// Seed of the ray directions (and lengths).
     pub seed: u64,
+}
+
+impl AoParams {
+    /// Checks radius (finite, > 0), bias (finite, >= 0) and rays
+    /// (at most [`MAX_RAYS`]).
+    pub fn validate(&self) -> Result<(), SceneError> {
+        check_param(
+            "radius",
+            self.radius as f64,
+            1e-30,
+            1e30,
+            "finite and positive",
+        )?;
+        check_param(
+            "bias",
+            self.bias as f64,
+            0.0,
+            1e30,
+            "finite and not negative",
+        )?;
+        check_param(
+            "rays",
+            self.rays as f64,
+            0.0,
+            MAX_RAYS as f64,
+            "at most 2^20",
+        )
+    }
 }
 
 impl Default for AoParams {
@@ -104,33 +136,63 @@ impl AoTracer {
         AoTracer { bvh, tris }
     }
 
-    /// AO at points with unit normals. Rays are traced in parallel over
-    /// points sorted along a Morton curve (coherent rays); the result does
-    /// not depend on the thread count.
-    pub fn trace(&self, points: &[Vec3], normals: &[Vec3], p: &AoParams) -> AoResult {
-        let n = points.len().min(normals.len());
-        let order = morton_order(&points[..n]);
-        let mut sorted: Vec<(usize, f32)> = order
-            .par_iter()
-            .map(|&i| (i, self.point_ao(i as u32, points[i], normals[i], p)))
-            .collect();
-        sorted.sort_unstable_by_key(|x| x.0);
-        AoResult {
-            ao: sorted.into_iter().map(|x| x.1).collect(),
-            rays: n as u64 * p.rays as u64,
-        }
+    /// AO at points with unit normals; point `i` draws its random numbers
+    /// as point id `i`. See [`trace_ids`](Self::trace_ids).
+    pub fn trace(
+        &self,
+        points: &[Vec3],
+        normals: &[Vec3],
+        p: &AoParams,
+    ) -> Result<AoResult, SceneError> {
+        let ids: Vec<u32> = (0..points.len() as u32).collect();
+        self.trace_ids(&ids, points, normals, p)
     }
 
-    /// AO at one point; `id` selects its random numbers.
-    pub fn point_ao(&self, id: u32, point: Vec3, normal: Vec3, p: &AoParams) -> f32 {
+    /// AO at points with unit normals and stable ids (a point's random
+    /// numbers depend on its id, so re-tracing a subset gives each point
+    /// the same rays). Rays are traced in parallel over points sorted along
+    /// a Morton curve (coherent rays); the result does not depend on the
+    /// thread count. A non-finite point is reported open (1).
+    pub fn trace_ids(
+        &self,
+        ids: &[u32],
+        points: &[Vec3],
+        normals: &[Vec3],
+        p: &AoParams,
+    ) -> Result<AoResult, SceneError> {
+        p.validate()?;
+        if points.len() != normals.len() || points.len() != ids.len() {
+            return Err(SceneError::LengthMismatch {
+                points: points.len(),
+                normals: normals.len().min(ids.len()),
+            });
+        }
+        let order = morton_order(points);
+        let mut sorted: Vec<(usize, f32)> = order
+            .par_iter()
+            .map(|&i| (i, self.point_ao(ids[i], points[i], normals[i], p)))
+            .collect();
+        sorted.sort_unstable_by_key(|x| x.0);
+        Ok(AoResult {
+            ao: sorted.into_iter().map(|x| x.1).collect(),
+            rays: points.len() as u64 * p.rays as u64,
+        })
+    }
+
+    /// AO at one point; `id` selects its random numbers. `p` must be
+    /// valid ([`AoParams::validate`]).
+    fn point_ao(&self, id: u32, point: Vec3, normal: Vec3, p: &AoParams) -> f32 {
         let Some(bvh) = &self.bvh else { return 1.0 };
         if p.rays == 0 || !point.is_finite() {
             return 1.0;
         }
         let n = normal.try_normalize().unwrap_or(Vec3::Z);
         let (t1, t2) = n.any_orthonormal_pair();
-        let origin = Vec3A::from(point + n * p.bias);
-        let shift = uniform(p.seed, id, u32::MAX);
+        // The offset grows with the coordinates so it stays above f32
+        // rounding far from the origin.
+        let bias = p.bias + point.abs().max_element() * (1.0 / (1u32 << 21) as f32);
+        let origin = Vec3A::from(point + n * bias);
+        let shift = hash(p.seed as u32 ^ hash(id ^ hash((p.seed >> 32) as u32)));
         let mut sum = 0.0f32;
         for k in 0..p.rays {
             // Stratified in r1 (one stratum per ray), random within.
@@ -157,7 +219,8 @@ impl AoTracer {
                     // Lengths from a golden-ratio sequence, rotated per
                     // point: evenly spread over [0, 1) and uncorrelated
                     // with the direction strata.
-                    let u = (k as f32 * GOLDEN + shift).fract();
+                    let u = (k.wrapping_mul(GOLDEN).wrapping_add(shift) >> 8) as f32
+                        / (1u32 << 24) as f32;
                     let len = u * p.radius;
                     let ray = Ray::new(origin, dir, 0.0, len);
                     if bvh.ray_traverse_miss(ray, |r, id| {

@@ -69,7 +69,24 @@ pub enum SceneError {
         /// The rule it breaks.
         rule: &'static str,
     },
-    /// The grid would need more cells than a 32-bit key allows.
+    /// The laid-out grid breaks a rule of the wire format.
+    #[error("instance {instance}: grid definition rejected: {error}")]
+    Grid {
+        /// Instance index.
+        instance: usize,
+        /// The rule.
+        error: psao_codec::DefError,
+    },
+    /// Points and normals differ in length.
+    #[error("{points} points but {normals} normals")]
+    LengthMismatch {
+        /// Points.
+        points: usize,
+        /// Normals.
+        normals: usize,
+    },
+    /// The grid would need more cells than a 32-bit key allows, or a table
+    /// or pool beyond the receivers' default limits.
     #[error("instance {instance}: grid too large for 32-bit keys even at the coarsest cell size")]
     GridTooLarge {
         /// Instance index.

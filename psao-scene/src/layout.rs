@@ -2,9 +2,9 @@
 //! bounds and point density, hash table sized as the paper does.
 
 use glam::{UVec3, Vec3};
-use psao_codec::{InstanceDef, POINT_FORMAT_PACKED32, key_fits};
+use psao_codec::{InstanceDef, Limits, POINT_FORMAT_PACKED32, key_fits};
 
-use crate::error::SceneError;
+use crate::error::{SceneError, check_param};
 
 /// Choices for [`layout`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -54,12 +54,55 @@ pub fn layout(
     radius: f32,
     p: &LayoutParams,
 ) -> Result<InstanceDef, SceneError> {
-    let density = points.max(1) as f32 / area.max(f32::MIN_POSITIVE);
-    let mut c = (p.points_per_cell / density).sqrt().max(2.0 * radius);
-    if !c.is_finite() || c <= 0.0 {
-        c = (bounds.1 - bounds.0).max_element().max(1e-3);
+    check_param(
+        "points_per_cell",
+        p.points_per_cell as f64,
+        0.01,
+        1e6,
+        "in [0.01, 1e6]",
+    )?;
+    check_param(
+        "cell_capacity",
+        p.cell_capacity as f64,
+        1.0,
+        8.0,
+        "in 1..=8",
+    )?;
+    check_param(
+        "bucket_capacity",
+        p.bucket_capacity as f64,
+        1.0,
+        16.0,
+        "in 1..=16",
+    )?;
+    check_param(
+        "margin_cells",
+        p.margin_cells as f64,
+        0.0,
+        1e3,
+        "at most 1000",
+    )?;
+    check_param("radius", radius as f64, 1e-30, 1e30, "finite and positive")?;
+    check_param("area", area as f64, 0.0, 1e30, "finite and not negative")?;
+    if !bounds.0.is_finite() || !bounds.1.is_finite() {
+        return Err(SceneError::Parameter {
+            name: "bounds",
+            value: f64::NAN,
+            rule: "finite",
+        });
     }
     let extent = (bounds.1 - bounds.0).max(Vec3::ZERO);
+    let density = points.max(1) as f32 / area.max(f32::MIN_POSITIVE);
+    // No finer than 10^6 cells along the longest side (the key rule allows
+    // far fewer cells in total anyway); the loop below coarsens further.
+    let floor = extent.max_element() * 1e-6;
+    let mut c = (p.points_per_cell / density)
+        .sqrt()
+        .max(2.0 * radius)
+        .max(floor);
+    if !c.is_finite() || c <= 0.0 {
+        c = extent.max_element().max(1e-3);
+    }
     let margin = p.margin_cells as f32;
     let mut dims;
     let mut tries = 0;
@@ -75,15 +118,21 @@ pub fn layout(
             return Err(SceneError::GridTooLarge { instance });
         }
     }
-    let expected_cells = ((area / (c * c)) * 1.5).ceil().max(1.0) as u64;
+    let expected_cells = ((area as f64 / (c as f64 * c as f64)) * 1.5)
+        .ceil()
+        .max(1.0) as u64;
     let buckets = (4 * expected_cells)
         .div_ceil(p.bucket_capacity as u64)
         .max(1);
-    let table_log2 = (64 - (buckets - 1).leading_zeros()).min(22) as u8;
+    let table_log2 = 64 - (buckets - 1).leading_zeros();
     let total_cells = dims.x as u64 * dims.y as u64 * dims.z as u64;
-    let cell_pool = (2 * expected_cells)
-        .clamp(16, total_cells.max(16))
-        .min(1 << 24) as u32;
+    let cell_pool = (2 * expected_cells).clamp(16, total_cells.max(16));
+    // Receivers with default limits must accept the instance.
+    let limits = Limits::default();
+    if table_log2 > limits.max_table_log2 as u32 || cell_pool > limits.max_cell_pool as u64 {
+        return Err(SceneError::GridTooLarge { instance });
+    }
+    let (table_log2, cell_pool) = (table_log2 as u8, cell_pool as u32);
     let def = InstanceDef {
         origin: bounds.0 - Vec3::splat(margin * c),
         cell_size: Vec3::splat(c),
@@ -93,11 +142,11 @@ pub fn layout(
         cell_capacity: p.cell_capacity,
         cell_pool,
         point_format: POINT_FORMAT_PACKED32,
-        radius: radius.max(f32::MIN_POSITIVE),
+        radius,
         t_n: p.t_n,
         t_d: p.t_d,
     };
     def.validate()
-        .map_err(|_| SceneError::GridTooLarge { instance })?;
+        .map_err(|error| SceneError::Grid { instance, error })?;
     Ok(def)
 }

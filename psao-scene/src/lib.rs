@@ -17,9 +17,9 @@ mod points;
 mod random;
 mod scene;
 
-pub use ao::{AoParams, AoResult, AoTracer, Estimator, morton_order};
+pub use ao::{AoParams, AoResult, AoTracer, Estimator, MAX_RAYS, morton_order};
 pub use error::SceneError;
 pub use layout::{LayoutParams, layout};
-pub use points::{PointSet, eliminate, generate_points};
+pub use points::{MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
 pub use random::{hash, uniform};
 pub use scene::{Instance, Mesh, Scene};

@@ -33,6 +33,9 @@ impl PointSet {
     }
 }
 
+/// Most points [`generate_points`] spawns for one mesh side.
+pub const MAX_SPAWNED_POINTS: usize = 1 << 26;
+
 /// Spawns `density` points per unit area over `mesh` (both sides of a
 /// double-sided mesh, each with its own normal), then eliminates half of
 /// them per side by weighted sample elimination. Deterministic for a seed.
@@ -46,8 +49,16 @@ pub fn generate_points(mesh: &Mesh, density: f32, seed: u64) -> Result<PointSet,
     )?;
     mesh.validate(0)?;
     let area = mesh.area();
-    let spawned = (area * density).round() as usize;
-    if spawned < 2 || area <= 0.0 {
+    let spawned = area as f64 * density as f64;
+    check_param(
+        "area x density",
+        spawned,
+        0.0,
+        MAX_SPAWNED_POINTS as f64,
+        "spawned points per side at most 2^26 (finite area)",
+    )?;
+    let spawned = spawned.round() as usize;
+    if spawned < 2 {
         return Ok(PointSet::default());
     }
     let sides: &[f32] = if mesh.double_sided {
@@ -59,7 +70,7 @@ pub fn generate_points(mesh: &Mesh, density: f32, seed: u64) -> Result<PointSet,
     for (s, &sign) in sides.iter().enumerate() {
         let (pos, nrm) = spawn(mesh, spawned, seed ^ ((s as u64) << 40));
         let keep = spawned / 2;
-        let (kept, radius) = eliminate(&pos, keep, area);
+        let (kept, radius) = eliminate(&pos, &nrm, keep, area);
         out.radius = radius;
         for i in kept {
             out.positions.push(pos[i]);
@@ -98,13 +109,20 @@ fn spawn(mesh: &Mesh, count: usize, seed: u64) -> (Vec<Vec3>, Vec<Vec3>) {
     (pos, nrm)
 }
 
-/// Weighted sample elimination of `points` (spread over `area`) down to
-/// `keep`. Returns the kept indices and `r_max = sqrt(area / (2 sqrt(3) keep))`.
-pub fn eliminate(points: &[Vec3], keep: usize, area: f32) -> (Vec<usize>, f32) {
-    let n = points.len();
+/// Weighted sample elimination of `points` with unit `normals` (spread
+/// over `area`) down to `keep`. Points whose normals face away from each
+/// other (opposite faces of thin geometry) do not count as neighbours.
+/// Returns the kept indices and `r_max = sqrt(area / (2 sqrt(3) keep))`.
+/// At most [`MAX_SPAWNED_POINTS`] points are considered; a non-finite or
+/// non-positive `area` keeps the first `keep` points.
+pub fn eliminate(points: &[Vec3], normals: &[Vec3], keep: usize, area: f32) -> (Vec<usize>, f32) {
+    let n = points.len().min(normals.len()).min(MAX_SPAWNED_POINTS);
     let keep = keep.min(n);
     if keep == 0 {
         return (Vec::new(), 0.0);
+    }
+    if !area.is_finite() || area <= 0.0 {
+        return ((0..keep).collect(), 0.0);
     }
     let r_max = (area / (2.0 * 3f32.sqrt() * keep as f32)).sqrt();
     let reach = 2.0 * r_max;
@@ -112,17 +130,25 @@ pub fn eliminate(points: &[Vec3], keep: usize, area: f32) -> (Vec<usize>, f32) {
     let r_min = reach * (1.0 - (keep as f32 / n as f32).powf(1.5)) * 0.65;
     let weight = |d: f32| (1.0 - d.max(r_min) / reach).max(0.0).powi(8);
 
-    let neighbours = neighbour_lists(points, reach);
+    let neighbours = neighbour_lists(&points[..n], &normals[..n], reach);
+    // Start from +0.0: an empty float sum is -0.0, whose bits would sort
+    // above every positive weight and eliminate isolated points first.
     let mut w: Vec<f32> = (0..n)
-        .map(|i| neighbours.of(i).iter().map(|&(_, d)| weight(d)).sum())
+        .map(|i| {
+            neighbours
+                .of(i)
+                .iter()
+                .fold(0.0, |a, &(_, d)| a + weight(d))
+        })
         .collect();
-    let mut heap: BinaryHeap<(u32, u32)> = (0..n).map(|i| (w[i].to_bits(), i as u32)).collect();
+    let key = |w: f32| (w + 0.0).to_bits();
+    let mut heap: BinaryHeap<(u32, u32)> = (0..n).map(|i| (key(w[i]), i as u32)).collect();
     let mut removed = vec![false; n];
     let mut left = n;
     while left > keep {
         let Some((bits, i)) = heap.pop() else { break };
         let i = i as usize;
-        if removed[i] || bits != w[i].to_bits() {
+        if removed[i] || bits != key(w[i]) {
             continue;
         }
         removed[i] = true;
@@ -131,7 +157,7 @@ pub fn eliminate(points: &[Vec3], keep: usize, area: f32) -> (Vec<usize>, f32) {
             let j = j as usize;
             if !removed[j] {
                 w[j] = (w[j] - weight(d)).max(0.0);
-                heap.push((w[j].to_bits(), j as u32));
+                heap.push((key(w[j]), j as u32));
             }
         }
     }
@@ -150,7 +176,7 @@ impl Neighbours {
     }
 }
 
-fn neighbour_lists(points: &[Vec3], reach: f32) -> Neighbours {
+fn neighbour_lists(points: &[Vec3], normals: &[Vec3], reach: f32) -> Neighbours {
     let cell = |p: Vec3| (p / reach).floor().as_ivec3();
     let mut grid: HashMap<IVec3, Vec<u32>> = HashMap::new();
     for (i, &p) in points.iter().enumerate() {
@@ -169,7 +195,8 @@ fn neighbour_lists(points: &[Vec3], reach: f32) -> Neighbours {
                     };
                     for &j in list {
                         let d = points[j as usize].distance(p);
-                        if j as usize != i && d < reach {
+                        let facing = normals[j as usize].dot(normals[i]) > 0.0;
+                        if j as usize != i && d < reach && facing {
                             items.push((j, d));
                         }
                     }

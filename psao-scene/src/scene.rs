@@ -221,8 +221,10 @@ impl Scene {
         Ok(())
     }
 
-    /// Every instance's triangles in world space, in instance order.
-    pub fn world_triangles(&self) -> Vec<[Vec3; 3]> {
+    /// Every instance's triangles in world space, in instance order, after
+    /// [`validate`](Self::validate).
+    pub fn world_triangles(&self) -> Result<Vec<[Vec3; 3]>, SceneError> {
+        self.validate()?;
         let mut out = Vec::new();
         for inst in &self.instances {
             let m = &self.meshes[inst.mesh];
@@ -230,6 +232,6 @@ impl Scene {
                 out.push(m.triangle(t).map(|p| inst.transform.transform_point3(p)));
             }
         }
-        out
+        Ok(out)
     }
 }
