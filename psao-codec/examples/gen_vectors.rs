@@ -11,7 +11,7 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use glam::UVec3;
-use psao_codec::{Decoder, Event, InstanceDef, Limits};
+use psao_codec::{Decoder, InstanceDef, Limits};
 
 #[path = "../tests/common/raw.rs"]
 mod raw;
@@ -571,17 +571,7 @@ fn main() {
         let mut decoder = Decoder::new(limits);
         for frame in &vector.frames {
             writeln!(text, "frame {}", hex(frame)).ok();
-            let expect = match decoder.receive(frame) {
-                Ok(Event::Applied { sequence, keyframe }) => {
-                    format!(
-                        "applied {sequence} {}",
-                        if keyframe { "keyframe" } else { "delta" }
-                    )
-                }
-                Ok(Event::Stale { .. }) => "stale".to_string(),
-                Ok(Event::NeedKeyframe { .. }) => "need_keyframe".to_string(),
-                Err(e) => format!("error {}", e.code()),
-            };
+            let expect = outcome(&decoder.receive(frame));
             writeln!(text, "expect {expect}").ok();
         }
         writeln!(text, "state").ok();

@@ -2,10 +2,12 @@
 //! outcome and the mirror must end in the recorded state. Also checks that
 //! every error class of the spec has a vector.
 
+mod common;
+
 use std::collections::BTreeSet;
 use std::path::PathBuf;
 
-use psao_codec::{Decoder, Event, Limits};
+use psao_codec::{Decoder, Limits};
 
 fn spec_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../spec")
@@ -41,20 +43,11 @@ fn replay(path: &PathBuf) -> BTreeSet<String> {
             }
             "frame" => {
                 let d = decoder.get_or_insert_with(|| Decoder::new(limits));
-                last = Some(match d.receive(&unhex(rest)) {
-                    Ok(Event::Applied { sequence, keyframe }) => {
-                        format!(
-                            "applied {sequence} {}",
-                            if keyframe { "keyframe" } else { "delta" }
-                        )
-                    }
-                    Ok(Event::Stale { .. }) => "stale".into(),
-                    Ok(Event::NeedKeyframe { .. }) => "need_keyframe".into(),
-                    Err(e) => {
-                        errors.insert(e.code().to_string());
-                        format!("error {}", e.code())
-                    }
-                });
+                let result = d.receive(&unhex(rest));
+                if let Err(e) = &result {
+                    errors.insert(e.code().to_string());
+                }
+                last = Some(common::raw::outcome(&result));
             }
             "expect" => {
                 assert_eq!(last.take().as_deref(), Some(rest), "{name}: outcome");

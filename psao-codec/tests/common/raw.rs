@@ -4,8 +4,8 @@
 #![allow(dead_code, missing_docs)]
 
 use glam::{UVec3, Vec3};
-use psao_codec::InstanceDef;
 use psao_codec::point::{PointFields, PointWord};
+use psao_codec::{DecodeError, Event, InstanceDef};
 
 pub fn u32le(out: &mut Vec<u8>, v: u32) {
     out.extend_from_slice(&v.to_le_bytes());
@@ -251,4 +251,17 @@ pub fn frame(keyframe: bool, seq: u32, base: u32, messages: &[Vec<u8>]) -> Vec<u
         delta(seq, base, messages)
     };
     f.bytes()
+}
+
+/// The `expect` line of spec/vectors for a decoder's answer to a frame.
+pub fn outcome(r: &Result<Event, DecodeError>) -> String {
+    match r {
+        Ok(Event::Applied { sequence, keyframe }) => {
+            let kind = if *keyframe { "keyframe" } else { "delta" };
+            format!("applied {sequence} {kind}")
+        }
+        Ok(Event::Stale { .. }) => "stale".into(),
+        Ok(Event::NeedKeyframe { .. }) => "need_keyframe".into(),
+        Err(e) => format!("error {}", e.code()),
+    }
 }
