@@ -77,6 +77,9 @@ pub enum SceneError {
         /// The rule.
         error: psao_codec::DefError,
     },
+    /// The codec refused a point or a frame.
+    #[error("encoding failed: {0}")]
+    Encode(#[from] psao_codec::EncodeError),
     /// Points and normals differ in length.
     #[error("{points} points but {normals} normals")]
     LengthMismatch {

@@ -6,20 +6,25 @@
 //! CPU ray-traced AO for points with obvhs ([`AoTracer`], paper 3.3), with
 //! both the closest-hit and the Laine-Karras estimator.
 //!
-//! This is the first slice of issue 3: static scenes only (skins, node
-//! animation, glTF import, the embedded default scene and the frame
-//! pipeline come next).
+//! It also holds the embedded [`default_scene`] and the server frame
+//! [`Pipeline`] for rigid motion (transforms, re-tracing only what motion
+//! reaches, thresholds, encoding). Skins, node animation and glTF import
+//! come next.
 
 mod ao;
+mod default_scene;
 mod error;
 mod layout;
+mod pipeline;
 mod points;
 mod random;
 mod scene;
 
 pub use ao::{AoParams, AoResult, AoTracer, Estimator, MAX_RAYS, morton_order};
+pub use default_scene::{MOVING_BOX, default_scene};
 pub use error::SceneError;
 pub use layout::{LayoutParams, layout};
+pub use pipeline::{FrameReport, Motion, Pipeline, PipelineConfig};
 pub use points::{MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
 pub use random::{hash, uniform};
 pub use scene::{Instance, Mesh, Scene};

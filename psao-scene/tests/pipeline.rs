@@ -1,0 +1,140 @@
+//! The server frame pipeline: skipping, rigid motion, end-to-end streaming.
+
+use glam::{Affine3A, Vec3};
+use psao_codec::{Decoder, Event, Limits, reconstruct_ao, world_to_local};
+use psao_scene::*;
+
+fn quick() -> PipelineConfig {
+    PipelineConfig {
+        density: 16.0,
+        ao: AoParams {
+            rays: 16,
+            ..AoParams::default()
+        },
+        ..PipelineConfig::default()
+    }
+}
+
+#[test]
+fn a_static_scene_traces_nothing_and_sends_nothing_after_the_first_frame() {
+    let (scene, _) = default_scene();
+    let mut p = Pipeline::new(scene, Vec::new(), quick()).unwrap();
+    for _ in 0..5 {
+        let (frame, report) = p.step(1.0 / 60.0).unwrap();
+        assert!(frame.is_none());
+        assert_eq!(
+            (report.traced, report.rays, report.updated, report.bytes),
+            (0, 0, 0, 0)
+        );
+        assert!(report.points > 1000);
+    }
+}
+
+#[test]
+fn rigid_motion_away_from_geometry_sends_only_transforms() {
+    let mut scene = Scene::default();
+    // A floor far below (more than R away) and a box that moves in the air.
+    scene.add(
+        Mesh::quad(
+            Vec3::new(-10.0, -5.0, -10.0),
+            Vec3::Z * 20.0,
+            Vec3::X * 20.0,
+        ),
+        Affine3A::IDENTITY,
+    );
+    scene.add(
+        Mesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5)),
+        Affine3A::IDENTITY,
+    );
+    let motions: Vec<Motion> = vec![
+        None,
+        Some(Box::new(|t: f32| {
+            Affine3A::from_translation(Vec3::new(t, 0.0, 0.0))
+        })),
+    ];
+    let mut p = Pipeline::new(scene, motions, quick()).unwrap();
+    for _ in 0..3 {
+        let (frame, report) = p.step(0.1).unwrap();
+        assert_eq!(report.transforms, 1);
+        // Only the box's own points are re-traced (the floor is out of
+        // reach), and a convex box does not occlude itself: the only
+        // "updates" are retries of points dropped by full cells.
+        let box_stats = p.table(1).unwrap().stats();
+        assert_eq!(report.traced, (box_stats.stored + box_stats.dropped) as u64);
+        assert_eq!(report.updated, box_stats.dropped as u64);
+        let frame = frame.expect("a transform is news");
+        assert_eq!(frame.stats.points, 0, "{:?}", frame.stats);
+    }
+}
+
+#[test]
+fn default_scene_streams_end_to_end() {
+    let (scene, motions) = default_scene();
+    let mut p = Pipeline::new(scene, motions, quick()).unwrap();
+    let mut client = Decoder::new(Limits::default());
+    let kf = p.keyframe().unwrap();
+    assert!(matches!(
+        client.receive(&kf.bytes),
+        Ok(Event::Applied { keyframe: true, .. })
+    ));
+    let (mut traced, mut total, mut updated) = (0u64, 0u64, 0u64);
+    for _ in 0..30 {
+        let (frame, report) = p.step(1.0 / 60.0).unwrap();
+        traced += report.traced;
+        total += report.points;
+        updated += report.updated;
+        assert_eq!(report.transforms, 1, "the box moves every frame");
+        let frame = frame.expect("the box moved");
+        assert!(matches!(
+            client.receive(&frame.bytes),
+            Ok(Event::Applied { .. })
+        ));
+    }
+    assert!(updated > 0, "the box changes AO near it");
+    assert!(
+        traced * 10 < total,
+        "skipping: traced {traced} of {total} point-frames"
+    );
+    // The mirror equals the server's tables and transforms.
+    for i in 0..p.instance_count() {
+        let t = p.table(i).unwrap();
+        let m = client.mirror().instance(i as u32).unwrap();
+        assert!(
+            m.words() == t.words() && m.buckets() == t.buckets(),
+            "instance {i}"
+        );
+        let tr = m.transform().unwrap().affine();
+        assert_eq!(tr, p.transform(i).unwrap());
+    }
+    // A stretch of floor far from everything reconstructs bright.
+    let (x, nx) = world_to_local(&Affine3A::IDENTITY, Vec3::new(8.0, 0.0, 10.0), Vec3::Y).unwrap();
+    let ao = reconstruct_ao(client.mirror().instance(0).unwrap(), x, nx);
+    assert!(ao > 0.8, "an open stretch of floor is bright: {ao}");
+}
+
+#[test]
+fn runs_are_deterministic() {
+    let run = || {
+        let (scene, motions) = default_scene();
+        let mut p = Pipeline::new(scene, motions, quick()).unwrap();
+        let mut bytes = vec![p.keyframe().unwrap().bytes.to_vec()];
+        for _ in 0..5 {
+            bytes.push(p.step(1.0 / 60.0).unwrap().0.unwrap().bytes.to_vec());
+        }
+        bytes
+    };
+    assert_eq!(run(), run());
+}
+
+#[test]
+fn the_default_scene_moves_only_its_box() {
+    let (scene, motions) = default_scene();
+    assert!(scene.validate().is_ok());
+    let moving: Vec<usize> = (0..motions.len())
+        .filter(|&i| motions[i].is_some())
+        .collect();
+    assert_eq!(moving, vec![MOVING_BOX]);
+    let m = motions[MOVING_BOX].as_ref().unwrap();
+    assert_ne!(m(0.0), m(1.0));
+    assert_eq!(m(0.0), m(8.0), "period 8 s");
+}
