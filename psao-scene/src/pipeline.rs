@@ -40,6 +40,9 @@ pub struct PipelineConfig {
     pub layout: LayoutParams,
     /// Frame encoding.
     pub encoder: EncoderConfig,
+    /// Re-trace only what motion can reach (true), or every point every
+    /// frame (false: the baseline the skipping is measured against).
+    pub skip: bool,
 }
 
 impl Default for PipelineConfig {
@@ -54,6 +57,7 @@ impl Default for PipelineConfig {
             thresholds: Thresholds::default(),
             layout: LayoutParams::default(),
             encoder: EncoderConfig::default(),
+            skip: true,
         }
     }
 }
@@ -207,6 +211,11 @@ impl Pipeline {
         self.instances.len()
     }
 
+    /// The points of instance `i` (local space).
+    pub fn points(&self, i: usize) -> Option<&PointSet> {
+        self.instances.get(i).map(|s| &s.points)
+    }
+
     /// World transform of instance `i` now.
     pub fn transform(&self, i: usize) -> Option<Affine3A> {
         self.instances.get(i).map(|s| s.transform)
@@ -286,7 +295,9 @@ impl Pipeline {
         let t0 = Instant::now();
         self.time += dt;
         self.frame += 1;
-        let reach = self.config.ao.radius;
+        // A ray reaches R from an origin offset along the normal by at most
+        // the bias (plus its coordinate-scaled part): grow by all of it.
+        let reach = self.config.ao.radius + self.config.ao.bias + 1e-3;
         let grow = |b: (Vec3, Vec3)| (b.0 - Vec3::splat(reach), b.1 + Vec3::splat(reach));
         // Move instances; remember where motion happened (swept bounds).
         let mut moved = vec![false; self.instances.len()];
@@ -310,7 +321,12 @@ impl Pipeline {
         };
         // Choose the points to re-trace.
         let mut which: Vec<Vec<u32>> = vec![Vec::new(); self.instances.len()];
-        if !swept.is_empty() {
+        let everything = !self.config.skip;
+        if everything {
+            for (w, s) in which.iter_mut().zip(&self.instances) {
+                *w = (0..s.points.len() as u32).collect();
+            }
+        } else if !swept.is_empty() {
             for (i, s) in self.instances.iter().enumerate() {
                 if moved[i] {
                     which[i] = (0..s.points.len() as u32).collect();
@@ -330,7 +346,7 @@ impl Pipeline {
                     .collect();
             }
         }
-        let tracer = if swept.is_empty() {
+        let tracer = if swept.is_empty() && !everything {
             None
         } else {
             Some(self.tracer()?)
