@@ -77,6 +77,16 @@ pub enum SceneError {
         /// The rule.
         error: psao_codec::DefError,
     },
+    /// A glTF file could not be read or holds something unsupported.
+    #[error("{file}: {element}: {reason}")]
+    Gltf {
+        /// The file (or the name given for in-memory data).
+        file: String,
+        /// The element at fault (`document`, `buffer 0`, `mesh 2 primitive 0`, ...).
+        element: String,
+        /// What was wrong.
+        reason: String,
+    },
     /// The codec refused a point or a frame.
     #[error("encoding failed: {0}")]
     Encode(#[from] psao_codec::EncodeError),

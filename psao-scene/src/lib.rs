@@ -14,6 +14,7 @@
 mod ao;
 mod default_scene;
 mod error;
+mod gltf_import;
 mod layout;
 mod pipeline;
 mod points;
@@ -23,6 +24,7 @@ mod scene;
 pub use ao::{AoParams, AoResult, AoTracer, Estimator, MAX_RAYS, morton_order};
 pub use default_scene::{MOVING_BOX, default_scene};
 pub use error::SceneError;
+pub use gltf_import::{load_gltf, load_gltf_slice};
 pub use layout::{LayoutParams, layout};
 pub use pipeline::{FrameReport, Motion, Pipeline, PipelineConfig};
 pub use points::{MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
