@@ -14,4 +14,8 @@ for v in vectors:
     for i, f in enumerate(frames):
         (single / f"{v.stem}-{i}").write_bytes(f)
     (stream / v.stem).write_bytes(b"".join(struct.pack("<H", len(f)) + f for f in frames if len(f) < 65536))
-print(f"seeded {len(vectors)} vectors")
+models = root / "corpus" / "gltf_import"
+models.mkdir(parents=True, exist_ok=True)
+for m in sorted((root.parent / "psao-scene" / "tests" / "data").glob("*.gl*")):
+    (models / m.name).write_bytes(m.read_bytes())
+print(f"seeded {len(vectors)} vectors and the glTF test models")

@@ -13,7 +13,10 @@ fuzz_target!(|data: &[u8]| {
     let mut scratch = Scratch::default();
     if let Ok(view) = decode_frame(data, &limits, &mut scratch) {
         assert!(view.payload().len() <= limits.max_payload_bytes as usize);
-        assert_eq!(view.payload().len(), view.header().uncompressed_len as usize);
+        assert_eq!(
+            view.payload().len(),
+            view.header().uncompressed_len as usize
+        );
         let mut n = 0u32;
         for m in view.messages() {
             m.expect("decode_frame checked the syntax of every message");

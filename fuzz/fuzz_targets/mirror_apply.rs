@@ -23,7 +23,11 @@ fuzz_target!(|data: &[u8]| {
         rest = &rest[2 + frame.len()..];
         let before = decoder.mirror().describe();
         if decoder.receive(frame).is_err() {
-            assert_eq!(before, decoder.mirror().describe(), "rejected frame changed the mirror");
+            assert_eq!(
+                before,
+                decoder.mirror().describe(),
+                "rejected frame changed the mirror"
+            );
         }
         let mirror = decoder.mirror();
         assert!(mirror.bytes() <= limits.max_mirror_bytes);
@@ -31,12 +35,21 @@ fuzz_target!(|data: &[u8]| {
             let cap = m.def().bucket_capacity as usize;
             for bucket in m.buckets().chunks(cap) {
                 let used = bucket.iter().take_while(|e| !e.is_empty()).count();
-                assert!(bucket[used..].iter().all(|e| e.is_empty()), "bucket not compacted");
+                assert!(
+                    bucket[used..].iter().all(|e| e.is_empty()),
+                    "bucket not compacted"
+                );
             }
             let cap = m.def().cell_capacity as usize;
             for cell in m.words().chunks(cap) {
-                let used = cell.iter().take_while(|&&w| PointWord(w).is_allocated()).count();
-                assert!(cell.iter().all(|&w| PointWord(w).is_valid()), "invalid word");
+                let used = cell
+                    .iter()
+                    .take_while(|&&w| PointWord(w).is_allocated())
+                    .count();
+                assert!(
+                    cell.iter().all(|&w| PointWord(w).is_valid()),
+                    "invalid word"
+                );
                 assert!(cell[used..].iter().all(|&w| w == 0), "cell not compacted");
             }
         }

@@ -29,6 +29,31 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
 /// Reads glTF from memory; `name` names it in errors, `base` is where
 /// external buffers are looked up (none: external buffers are an error).
 pub fn load_gltf_slice(bytes: &[u8], name: &str, base: Option<&Path>) -> Result<Scene, SceneError> {
+    // gltf-json 1.4's validation indexes the POSITION accessor without a
+    // bounds check (a panic found by fuzzing): check attribute accessor
+    // indices on the unvalidated document first, then validate.
+    let raw = gltf::Gltf::from_slice_without_validation(bytes)
+        .map_err(|e| gltf_error(name, "document", e.to_string()))?;
+    let json = raw.as_json();
+    for (m, mesh) in json.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            if let Some(bad) = prim
+                .attributes
+                .values()
+                .find(|a| a.value() >= json.accessors.len())
+            {
+                return Err(gltf_error(
+                    name,
+                    &format!("mesh {m} primitive {p}"),
+                    format!(
+                        "attribute accessor {} of {}",
+                        bad.value(),
+                        json.accessors.len()
+                    ),
+                ));
+            }
+        }
+    }
     let gltf =
         gltf::Gltf::from_slice(bytes).map_err(|e| gltf_error(name, "document", e.to_string()))?;
     let buffers = load_buffers(&gltf, name, base)?;
@@ -167,14 +192,47 @@ fn primitive_mesh(
             format!("mode {:?} is not supported (triangles only)", prim.mode()),
         ));
     }
-    let reader = prim.reader(|b| buffers.get(b.index()).map(|d| d.as_slice()));
-    let positions: Vec<Vec3> = reader
-        .read_positions()
-        .ok_or_else(|| gltf_error(name, element, "has no POSITION attribute".into()))?
-        .map(Vec3::from)
-        .collect();
-    let indices: Vec<u32> = match reader.read_indices() {
-        Some(i) => i.into_u32().collect(),
+    use gltf::accessor::{DataType, Dimensions};
+    use gltf::mesh::Semantic;
+    let read = |acc: gltf::Accessor<'_>, what: &str| {
+        read_accessor(&acc, buffers).map_err(|r| {
+            gltf_error(
+                name,
+                element,
+                format!("{what} accessor {}: {r}", acc.index()),
+            )
+        })
+    };
+    let positions: Vec<Vec3> = match prim.get(&Semantic::Positions) {
+        Some(a) if a.data_type() == DataType::F32 && a.dimensions() == Dimensions::Vec3 => {
+            read(a, "POSITION")?.vec3()
+        }
+        Some(a) => {
+            return Err(gltf_error(
+                name,
+                element,
+                format!("POSITION accessor {} is not f32 VEC3", a.index()),
+            ));
+        }
+        None => {
+            return Err(gltf_error(
+                name,
+                element,
+                "has no POSITION attribute".into(),
+            ));
+        }
+    };
+    let indices: Vec<u32> = match prim.indices() {
+        Some(a) if a.dimensions() == Dimensions::Scalar => read(a, "index")?
+            .u32s()
+            .map_err(|r| gltf_error(name, element, r))?,
+        Some(a) => {
+            return Err(gltf_error(
+                name,
+                element,
+                format!("index accessor {} is not SCALAR", a.index()),
+            ));
+        }
         None => (0..positions.len() as u32).collect(),
     };
     if indices.len() % 3 != 0 {
@@ -191,8 +249,21 @@ fn primitive_mesh(
             format!("index {bad} is past {} vertices", positions.len()),
         ));
     }
-    let normals: Vec<Vec3> = match reader.read_normals() {
-        Some(n) => n.map(|n| Vec3::from(n).normalize_or(Vec3::Z)).collect(),
+    let normals: Vec<Vec3> = match prim.get(&Semantic::Normals) {
+        Some(a) if a.data_type() == DataType::F32 && a.dimensions() == Dimensions::Vec3 => {
+            read(a, "NORMAL")?
+                .vec3()
+                .into_iter()
+                .map(|n| n.normalize_or(Vec3::Z))
+                .collect()
+        }
+        Some(a) => {
+            return Err(gltf_error(
+                name,
+                element,
+                format!("NORMAL accessor {} is not f32 VEC3", a.index()),
+            ));
+        }
         None => face_normals(&positions, &indices),
     };
     if normals.len() != positions.len() {
@@ -221,4 +292,89 @@ fn face_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
         }
     }
     n.into_iter().map(|v| v.normalize_or(Vec3::Z)).collect()
+}
+
+/// The raw elements of an accessor, each `size` bytes.
+struct Elements {
+    bytes: Vec<u8>,
+    size: usize,
+    kind: gltf::accessor::DataType,
+}
+
+impl Elements {
+    fn vec3(&self) -> Vec<Vec3> {
+        self.bytes
+            .chunks_exact(12)
+            .map(|c| {
+                let f = |i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
+                Vec3::new(f(0), f(4), f(8))
+            })
+            .collect()
+    }
+
+    fn u32s(&self) -> Result<Vec<u32>, String> {
+        use gltf::accessor::DataType;
+        let c = self.bytes.chunks_exact(self.size);
+        Ok(match self.kind {
+            DataType::U8 => c.map(|b| b[0] as u32).collect(),
+            DataType::U16 => c.map(|b| u16::from_le_bytes([b[0], b[1]]) as u32).collect(),
+            DataType::U32 => c
+                .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect(),
+            other => {
+                return Err(format!(
+                    "index component type {other:?} is not an unsigned integer"
+                ));
+            }
+        })
+    }
+}
+
+/// Copies an accessor's elements out of its buffer view with every offset,
+/// stride and length checked (the gltf crate's reader asserts instead).
+fn read_accessor(acc: &gltf::Accessor<'_>, buffers: &[Vec<u8>]) -> Result<Elements, String> {
+    if acc.sparse().is_some() {
+        return Err("sparse accessors are not supported".into());
+    }
+    let view = acc.view().ok_or("has no buffer view")?;
+    let size = acc.size();
+    let stride = view.stride().unwrap_or(size);
+    if size == 0 || stride < size {
+        return Err(format!(
+            "stride {stride} is shorter than the element ({size} bytes)"
+        ));
+    }
+    let data = buffers
+        .get(view.buffer().index())
+        .ok_or("refers to a missing buffer")?;
+    let view_end = view
+        .offset()
+        .checked_add(view.length())
+        .filter(|&e| e <= data.len())
+        .ok_or("buffer view runs past its buffer")?;
+    let start = view
+        .offset()
+        .checked_add(acc.offset())
+        .ok_or("offset overflows")?;
+    let count = acc.count();
+    if count > 0 {
+        let last = (count - 1)
+            .checked_mul(stride)
+            .and_then(|x| x.checked_add(start))
+            .and_then(|x| x.checked_add(size))
+            .ok_or("size overflows")?;
+        if last > view_end {
+            return Err(format!("{count} elements run past the buffer view"));
+        }
+    }
+    let mut bytes = Vec::with_capacity(count * size);
+    for k in 0..count {
+        let at = start + k * stride;
+        bytes.extend_from_slice(&data[at..at + size]);
+    }
+    Ok(Elements {
+        bytes,
+        size,
+        kind: acc.data_type(),
+    })
 }

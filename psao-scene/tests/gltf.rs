@@ -100,3 +100,24 @@ fn broken_files_name_the_file_and_element() {
     let e = load_gltf_slice(json, "escape.gltf", Some(&dir)).unwrap_err();
     assert!(e.to_string().contains("leaves the model's folder"), "{e}");
 }
+
+#[test]
+fn accessors_outside_their_buffer_are_refused() {
+    // 12 bytes of buffer (one vertex), but the POSITION accessor claims 3.
+    let json = br#"{
+        "asset": {"version": "2.0"},
+        "buffers": [{"uri": "data:application/octet-stream;base64,AAAAAAAAAAAAAAAA", "byteLength": 12}],
+        "bufferViews": [{"buffer": 0, "byteLength": 12}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, 0], "max": [0, 0, 0]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}]
+    }"#;
+    let e = load_gltf_slice(json, "short.gltf", None).unwrap_err();
+    assert!(
+        matches!(&e, SceneError::Gltf { element, .. } if element == "mesh 0 primitive 0"),
+        "{e}"
+    );
+    assert!(e.to_string().contains("POSITION accessor 0"), "{e}");
+}
