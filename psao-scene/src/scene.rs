@@ -217,6 +217,21 @@ impl Scene {
             if !inst.transform.is_finite() || !det.is_finite() || det.abs() < 1e-12 {
                 return Err(SceneError::BadTransform { instance: i });
             }
+            // Finite vertices under a finite transform can still overflow:
+            // the transformed bounds must be finite too.
+            if let Some((lo, hi)) = self.meshes[inst.mesh].bounds() {
+                let finite = (0..8).all(|k| {
+                    let c = Vec3::new(
+                        if k & 1 == 0 { lo.x } else { hi.x },
+                        if k & 2 == 0 { lo.y } else { hi.y },
+                        if k & 4 == 0 { lo.z } else { hi.z },
+                    );
+                    inst.transform.transform_point3(c).is_finite()
+                });
+                if !finite {
+                    return Err(SceneError::BadTransform { instance: i });
+                }
+            }
         }
         Ok(())
     }
@@ -226,10 +241,14 @@ impl Scene {
     pub fn world_triangles(&self) -> Result<Vec<[Vec3; 3]>, SceneError> {
         self.validate()?;
         let mut out = Vec::new();
-        for inst in &self.instances {
+        for (i, inst) in self.instances.iter().enumerate() {
             let m = &self.meshes[inst.mesh];
             for t in 0..m.triangle_count() {
-                out.push(m.triangle(t).map(|p| inst.transform.transform_point3(p)));
+                let tri = m.triangle(t).map(|p| inst.transform.transform_point3(p));
+                if !tri.iter().all(|p| p.is_finite()) {
+                    return Err(SceneError::BadTransform { instance: i });
+                }
+                out.push(tri);
             }
         }
         Ok(out)
