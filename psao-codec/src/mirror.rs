@@ -924,19 +924,18 @@ impl Edit<'_> {
         Ok(cell as usize * cap..(cell as usize + 1) * cap)
     }
 
+    /// Charges a cell write and saves the words it overwrites.
     fn save_words(&mut self, range: Range<usize>) -> Result<(), MessageError> {
+        self.charge_words(range.clone())?;
         if let Some(j) = &mut self.journal {
-            j.spend(range.len() * 4)?;
             j.undo.push(Undo::Words {
                 instance: self.instance,
                 start: range.start as u32,
                 len: range.len() as u8,
                 saved: j.words.len() as u32,
             });
-            j.words.extend_from_slice(&self.words[range.clone()]);
+            j.words.extend_from_slice(&self.words[range]);
         }
-        let r = range.start as u32..range.end as u32;
-        push_change(self.changes, Change::Words(self.instance, r));
         Ok(())
     }
 

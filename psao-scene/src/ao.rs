@@ -188,9 +188,7 @@ impl AoTracer {
         }
         let n = normal.try_normalize().unwrap_or(Vec3::Z);
         let (t1, t2) = n.any_orthonormal_pair();
-        // The offset grows with the coordinates so it stays above f32
-        // rounding far from the origin.
-        let bias = p.bias + point.abs().max_element() * (1.0 / (1u32 << 21) as f32);
+        let bias = ray_offset(p.bias, point);
         let origin = Vec3A::from(point + n * bias);
         let shift = hash(p.seed as u32 ^ hash(id ^ hash((p.seed >> 32) as u32)));
         let mut sum = 0.0f32;
@@ -233,6 +231,13 @@ impl AoTracer {
         }
         sum / p.rays as f32
     }
+}
+
+/// How far along its normal a ray starts from `point`: the configured bias
+/// plus a part that grows with the coordinates, so the offset stays above
+/// f32 rounding far from the origin.
+pub fn ray_offset(bias: f32, point: Vec3) -> f32 {
+    bias + point.abs().max_element() * (1.0 / (1u32 << 21) as f32)
 }
 
 /// Indices of `points` sorted along a 30-bit Morton curve over their bounds.

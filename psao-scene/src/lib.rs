@@ -21,7 +21,7 @@ mod points;
 mod random;
 mod scene;
 
-pub use ao::{AoParams, AoResult, AoTracer, Estimator, MAX_RAYS, morton_order};
+pub use ao::{AoParams, AoResult, AoTracer, Estimator, MAX_RAYS, morton_order, ray_offset};
 pub use default_scene::{MOVING_BOX, default_scene};
 pub use error::SceneError;
 pub use gltf_import::{load_gltf, load_gltf_slice};
@@ -29,4 +29,4 @@ pub use layout::{LayoutParams, layout};
 pub use pipeline::{FrameReport, Motion, Pipeline, PipelineConfig};
 pub use points::{MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
 pub use random::{hash, uniform};
-pub use scene::{Instance, Mesh, Scene};
+pub use scene::{Instance, Mesh, Scene, transformed_bounds};

@@ -15,11 +15,11 @@ use std::time::{Duration, Instant};
 use glam::{Affine3A, Mat3A, Vec3};
 use psao_codec::{EncodedFrame, Encoder, EncoderConfig, GridTable, Thresholds};
 
-use crate::ao::{AoParams, AoTracer};
+use crate::ao::{AoParams, AoTracer, ray_offset};
 use crate::error::SceneError;
 use crate::layout::{LayoutParams, layout};
 use crate::points::{PointSet, generate_points};
-use crate::scene::Scene;
+use crate::scene::{Scene, transformed_bounds};
 
 /// How an instance moves: a function of time (seconds) to its
 /// local-to-world transform. `None` for a static instance.
@@ -113,20 +113,6 @@ impl std::fmt::Debug for Pipeline {
             .field("frame", &self.frame)
             .finish()
     }
-}
-
-fn world_bounds(t: &Affine3A, (lo, hi): (Vec3, Vec3)) -> (Vec3, Vec3) {
-    let mut out = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-    for k in 0..8 {
-        let c = Vec3::new(
-            if k & 1 == 0 { lo.x } else { hi.x },
-            if k & 2 == 0 { lo.y } else { hi.y },
-            if k & 4 == 0 { lo.z } else { hi.z },
-        );
-        let w = t.transform_point3(c);
-        out = (out.0.min(w), out.1.max(w));
-    }
-    out
 }
 
 fn overlaps(a: (Vec3, Vec3), b: (Vec3, Vec3)) -> bool {
@@ -295,10 +281,15 @@ impl Pipeline {
         let t0 = Instant::now();
         self.time += dt;
         self.frame += 1;
-        // A ray reaches R from an origin offset along the normal by at most
-        // the bias (plus its coordinate-scaled part): grow by all of it.
-        let reach = self.config.ao.radius + self.config.ao.bias + 1e-3;
-        let grow = |b: (Vec3, Vec3)| (b.0 - Vec3::splat(reach), b.1 + Vec3::splat(reach));
+        // A ray reaches R beyond its origin, which sits `ray_offset` off the
+        // surface: grow boxes by both (the offset at the box's farthest
+        // corner), plus a millimetre of slack.
+        let ao = self.config.ao;
+        let grow = |b: (Vec3, Vec3)| {
+            let far = b.0.abs().max(b.1.abs());
+            let reach = ao.radius + ray_offset(ao.bias, far) + 1e-3;
+            (b.0 - Vec3::splat(reach), b.1 + Vec3::splat(reach))
+        };
         // Move instances; remember where motion happened (swept bounds).
         let mut moved = vec![false; self.instances.len()];
         let mut swept = Vec::new();
@@ -308,8 +299,8 @@ impl Pipeline {
             if next == s.transform {
                 continue;
             }
-            let before = world_bounds(&s.transform, s.bounds);
-            let after = world_bounds(&next, s.bounds);
+            let before = transformed_bounds(&s.transform, s.bounds);
+            let after = transformed_bounds(&next, s.bounds);
             swept.push(grow((before.0.min(after.0), before.1.max(after.1))));
             s.transform = next;
             s.transform_seq = s.transform_seq.wrapping_add(1);
@@ -332,7 +323,7 @@ impl Pipeline {
                     which[i] = (0..s.points.len() as u32).collect();
                     continue;
                 }
-                let wb = world_bounds(&s.transform, s.bounds);
+                let wb = transformed_bounds(&s.transform, s.bounds);
                 if !swept.iter().any(|&b| overlaps(b, grow(wb))) {
                     continue;
                 }

@@ -219,16 +219,9 @@ impl Scene {
             }
             // Finite vertices under a finite transform can still overflow:
             // the transformed bounds must be finite too.
-            if let Some((lo, hi)) = self.meshes[inst.mesh].bounds() {
-                let finite = (0..8).all(|k| {
-                    let c = Vec3::new(
-                        if k & 1 == 0 { lo.x } else { hi.x },
-                        if k & 2 == 0 { lo.y } else { hi.y },
-                        if k & 4 == 0 { lo.z } else { hi.z },
-                    );
-                    inst.transform.transform_point3(c).is_finite()
-                });
-                if !finite {
+            if let Some(b) = self.meshes[inst.mesh].bounds() {
+                let (lo, hi) = transformed_bounds(&inst.transform, b);
+                if !lo.is_finite() || !hi.is_finite() {
                     return Err(SceneError::BadTransform { instance: i });
                 }
             }
@@ -253,4 +246,20 @@ impl Scene {
         }
         Ok(out)
     }
+}
+
+/// The box holding a box `(lo, hi)` after transform `t`: the bounds of its
+/// eight transformed corners.
+pub fn transformed_bounds(t: &Affine3A, (lo, hi): (Vec3, Vec3)) -> (Vec3, Vec3) {
+    let mut out = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for k in 0..8 {
+        let corner = Vec3::new(
+            if k & 1 == 0 { lo.x } else { hi.x },
+            if k & 2 == 0 { lo.y } else { hi.y },
+            if k & 4 == 0 { lo.z } else { hi.z },
+        );
+        let w = t.transform_point3(corner);
+        out = (out.0.min(w), out.1.max(w));
+    }
+    out
 }
