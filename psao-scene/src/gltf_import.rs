@@ -10,6 +10,7 @@
 //! [`SceneError::Gltf`] naming the file and the element.
 
 use std::collections::HashMap;
+use std::io::Read;
 use std::path::Path;
 
 use base64::Engine;
@@ -18,6 +19,9 @@ use gltf::mesh::Mode;
 
 use crate::error::SceneError;
 use crate::scene::{Instance, Mesh, Scene};
+
+/// Largest buffer a glTF file may declare (1 GiB).
+pub const MAX_BUFFER_BYTES: usize = 1 << 30;
 
 /// Reads a `.gltf` or `.glb` file.
 pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
@@ -132,6 +136,17 @@ fn load_buffers(
     let mut out = Vec::new();
     for buffer in gltf.buffers() {
         let element = format!("buffer {}", buffer.index());
+        if buffer.length() > MAX_BUFFER_BYTES {
+            return Err(gltf_error(
+                name,
+                &element,
+                format!(
+                    "declares {} bytes, above the {} byte limit",
+                    buffer.length(),
+                    MAX_BUFFER_BYTES
+                ),
+            ));
+        }
         let data = match buffer.source() {
             gltf::buffer::Source::Bin => gltf.blob.clone().ok_or_else(|| {
                 gltf_error(
@@ -163,8 +178,12 @@ fn load_buffers(
                         format!("buffer path `{uri}` leaves the model's folder"),
                     ));
                 }
-                std::fs::read(dir.join(uri))
-                    .map_err(|e| gltf_error(name, &element, format!("`{uri}`: {e}")))?
+                // Read no more than the buffer declares, whatever the file holds.
+                let mut data = Vec::new();
+                std::fs::File::open(dir.join(uri))
+                    .and_then(|f| f.take(buffer.length() as u64).read_to_end(&mut data))
+                    .map_err(|e| gltf_error(name, &element, format!("`{uri}`: {e}")))?;
+                data
             }
         };
         if data.len() < buffer.length() {

@@ -24,7 +24,7 @@ mod scene;
 pub use ao::{AoParams, AoResult, AoTracer, Estimator, MAX_RAYS, morton_order, ray_offset};
 pub use default_scene::{MOVING_BOX, default_scene};
 pub use error::SceneError;
-pub use gltf_import::{load_gltf, load_gltf_slice};
+pub use gltf_import::{MAX_BUFFER_BYTES, load_gltf, load_gltf_slice};
 pub use layout::{LayoutParams, layout};
 pub use pipeline::{FrameReport, Motion, Pipeline, PipelineConfig};
 pub use points::{MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};

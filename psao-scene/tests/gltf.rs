@@ -94,6 +94,21 @@ fn broken_files_name_the_file_and_element() {
         matches!(&e, SceneError::Gltf { element, .. } if element == "buffer 0"),
         "{e}"
     );
+    // ... or one declaring more than the importer accepts.
+    let json =
+        br#"{"asset":{"version":"2.0"},"buffers":[{"uri":"big.bin","byteLength":4000000000}]}"#;
+    let e = load_gltf_slice(json, "big.gltf", Some(&dir)).unwrap_err();
+    assert!(e.to_string().contains("byte limit"), "{e}");
+    // An external file longer than declared is read only up to the length.
+    let folder = std::env::temp_dir().join(format!("psao-gltf-{}", std::process::id()));
+    std::fs::create_dir_all(&folder).unwrap();
+    std::fs::write(folder.join("long.bin"), vec![0u8; 4096]).unwrap();
+    let json = br#"{"asset":{"version":"2.0"},"buffers":[{"uri":"long.bin","byteLength":12}]}"#;
+    assert!(
+        load_gltf_slice(json, "long.gltf", Some(&folder))
+            .is_err_and(|e| e.to_string().contains("scene"))
+    );
+    std::fs::remove_dir_all(&folder).ok();
     // ... or one that tries to leave the model's folder.
     let json =
         br#"{"asset":{"version":"2.0"},"buffers":[{"uri":"../etc/passwd","byteLength":12}]}"#;
