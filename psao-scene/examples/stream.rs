@@ -3,14 +3,22 @@
 //! frames, decoder and mirror). Prints per-stage times, points traced and
 //! sent, bit rate, and checks the client's mirror against the server.
 //!
-//! With `--no-skip` the server re-traces every point every frame (the
-//! baseline that skipping is measured against); `--frames N` and
-//! `--density D` change the run.
+//! Options:
+//! - `--no-skip`: re-trace every point every frame (the baseline that
+//!   skipping is measured against);
+//! - `--no-split`: rebuild one BVH over everything when something moves
+//!   (the baseline of the static/moving BVH split);
+//! - `--cull`: trace only near the viewer following the scene's camera
+//!   path;
+//! - `--gltf PATH`: stream a glTF file instead, standing on a floor;
+//! - `--frames N`, `--density D`, `--rays N`, `--lk` (Laine-Karras
+//!   estimator).
 //!
 //! `cargo run --release -p psao-scene --example stream`
 
 use std::time::Instant;
 
+use glam::{Affine3A, Vec3};
 use psao_codec::{Decoder, Event, Limits};
 use psao_scene::*;
 
@@ -23,18 +31,68 @@ fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
         .unwrap_or(default)
 }
 
+fn flag(name: &str) -> bool {
+    std::env::args().any(|a| a == name)
+}
+
+/// A glTF file standing on a floor 2 m wider than it on every side.
+fn gltf_scene(path: &str) -> Scene {
+    let mut s = load_gltf(std::path::Path::new(path)).unwrap_or_else(|e| {
+        eprintln!("error: {e}");
+        std::process::exit(2)
+    });
+    let tris = s.world_triangles().expect("a loaded scene is valid");
+    let (lo, hi) = tris.iter().flatten().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(lo, hi), &p| (lo.min(p), hi.max(p)),
+    );
+    let (lo, hi) = (lo - Vec3::splat(2.0), hi + Vec3::splat(2.0));
+    let size = hi - lo;
+    s.add(
+        Mesh::quad(
+            Vec3::new(lo.x, lo.y + 2.0, lo.z),
+            Vec3::Z * size.z,
+            Vec3::X * size.x,
+        )
+        .subdivided(2),
+        Affine3A::IDENTITY,
+    );
+    s
+}
+
 fn main() {
     let frames: u32 = arg("--frames", 600);
     let density: f32 = arg("--density", 64.0);
-    let skip = !std::env::args().any(|a| a == "--no-skip");
-    let (scene, motions) = default_scene();
+    let rays: u32 = arg("--rays", 64);
+    let skip = !flag("--no-skip");
+    let split_bvh = !flag("--no-split");
+    let gltf: String = arg("--gltf", String::new());
+    let (scene, name) = if gltf.is_empty() {
+        (default_scene(), "default scene".to_string())
+    } else {
+        (gltf_scene(&gltf), gltf.clone())
+    };
     let config = PipelineConfig {
         density,
         skip,
+        split_bvh,
+        cull: flag("--cull").then(ViewerCull::default),
+        ao: AoParams {
+            rays,
+            estimator: if flag("--lk") {
+                Estimator::LaineKarras
+            } else {
+                Estimator::ClosestHit
+            },
+            ..AoParams::default()
+        },
         ..PipelineConfig::default()
     };
     let t = Instant::now();
-    let mut server = Pipeline::new(scene, motions, config).expect("default scene");
+    let mut server = Pipeline::new(scene, config).unwrap_or_else(|e| {
+        eprintln!("error: {e}");
+        std::process::exit(2)
+    });
     let setup = t.elapsed();
     let mut client = Decoder::new(Limits::default());
     let kf = server.keyframe().expect("keyframe");
@@ -43,7 +101,7 @@ fn main() {
         .map(|i| server.points(i).map_or(0, |p| p.len()))
         .sum();
     println!(
-        "default scene: {} instances, {points} points; setup (points, layout, first trace) {:.2} s; keyframe {} bytes",
+        "{name}: {} instances, {points} points; setup (points, layout, first trace) {:.2} s; keyframe {} bytes",
         server.instance_count(),
         setup.as_secs_f64(),
         kf.bytes.len()
@@ -53,13 +111,7 @@ fn main() {
     let t = Instant::now();
     for _ in 0..frames {
         let (frame, r) = server.step(1.0 / 60.0).expect("step");
-        sum.traced += r.traced;
-        sum.rays += r.rays;
-        sum.updated += r.updated;
-        sum.bytes += r.bytes;
-        sum.t_scene += r.t_scene;
-        sum.t_trace += r.t_trace;
-        sum.t_encode += r.t_encode;
+        sum.accumulate(&r);
         if let Some(f) = frame {
             sent += 1;
             let e = client.receive(&f.bytes).expect("valid frame");
@@ -80,9 +132,13 @@ fn main() {
         );
     }
     println!(
-        "{frames} frames at 60 Hz ({:.1} s of scene), {sent} sent, {wall:.2} s wall, skip {}",
+        "{frames} frames at 60 Hz ({:.1} s of scene), {sent} sent, {wall:.2} s wall; skip {}, BVH {}, culling {}, {} rays/point {:?}",
         n / 60.0,
-        if skip { "on" } else { "off" }
+        if skip { "on" } else { "off" },
+        if split_bvh { "split" } else { "whole" },
+        if config_cull(&server) { "on" } else { "off" },
+        rays,
+        server_estimator(&server),
     );
     println!(
         "  points traced      {:.0} per frame ({:.1}% of {points})",
@@ -103,10 +159,25 @@ fn main() {
         sum.bytes as f64 * 8.0 / (n / 60.0) / 1e6
     );
     println!(
-        "  server ms/frame    {:.3} scene + BVH, {:.3} trace, {:.3} tables + encode",
-        ms(sum.t_scene),
+        "  points culled      {:.0} per frame waiting out of view",
+        sum.culled as f64 / n
+    );
+    println!(
+        "  server ms/frame    {:.3} total: {:.3} animate + skin, {:.3} select, {:.3} BVH, {:.3} trace, {:.3} tables + encode",
+        ms(sum.total_time()),
+        ms(sum.t_animate),
+        ms(sum.t_select),
+        ms(sum.t_bvh),
         ms(sum.t_trace),
         ms(sum.t_encode)
     );
     println!("  client mirror      equal to the server's tables");
+}
+
+fn config_cull(server: &Pipeline) -> bool {
+    server.config().cull.is_some()
+}
+
+fn server_estimator(server: &Pipeline) -> Estimator {
+    server.config().ao.estimator
 }

@@ -8,6 +8,7 @@
 //!   `P(t > u R) = E[min(t, R) / R]` for uniform `u`, the mean is the same,
 //!   with shorter rays that stop at the first hit.
 
+use std::sync::Arc;
 use std::time::Duration;
 
 use glam::{Vec3, Vec3A};
@@ -18,6 +19,7 @@ use obvhs::ray::{Ray, RayHit};
 use obvhs::triangle::Triangle;
 use rayon::prelude::*;
 
+use crate::alpha::AlphaMask;
 use crate::error::{SceneError, check_param};
 use crate::random::{hash, uniform};
 
@@ -92,33 +94,40 @@ impl Default for AoParams {
     }
 }
 
-/// A BVH over world-space triangles, ready to trace AO rays.
-pub struct AoTracer {
-    bvh: Option<CwBvh>,
-    tris: Vec<Triangle>,
+/// The alpha mask of one triangle: the mask and the triangle's vertex
+/// indices in the mesh the mask belongs to.
+pub type TriangleMask = Option<(Arc<AlphaMask>, [u32; 3])>;
+
+/// World-space triangles to trace against, with optional alpha masks.
+#[derive(Clone, Debug, Default)]
+pub struct Geometry {
+    /// Triangles.
+    pub triangles: Vec<[Vec3; 3]>,
+    /// Per triangle, its alpha mask (empty: every triangle is solid).
+    pub masks: Vec<TriangleMask>,
 }
 
-impl std::fmt::Debug for AoTracer {
+/// A BVH (obvhs CWBVH, "fast" preset) over world-space triangles. Rays
+/// pass through alpha-mask holes.
+pub struct TriangleBvh {
+    bvh: Option<CwBvh>,
+    tris: Vec<Triangle>,
+    masks: Vec<TriangleMask>,
+}
+
+impl std::fmt::Debug for TriangleBvh {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("AoTracer")
+        f.debug_struct("TriangleBvh")
             .field("triangles", &self.tris.len())
             .finish()
     }
 }
 
-/// AO of a batch of points.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct AoResult {
-    /// AO per point, in input order (1 = open).
-    pub ao: Vec<f32>,
-    /// Rays traced.
-    pub rays: u64,
-}
-
-impl AoTracer {
-    /// Builds the BVH (obvhs CWBVH, "fast" preset).
-    pub fn new(triangles: &[[Vec3; 3]]) -> AoTracer {
-        let tris: Vec<Triangle> = triangles
+impl TriangleBvh {
+    /// Builds the BVH.
+    pub fn new(geometry: Geometry) -> TriangleBvh {
+        let tris: Vec<Triangle> = geometry
+            .triangles
             .iter()
             .map(|t| Triangle {
                 v0: t[0].into(),
@@ -133,7 +142,113 @@ impl AoTracer {
                 &mut Duration::default(),
             )
         });
-        AoTracer { bvh, tris }
+        let masks = if geometry.masks.iter().any(|m| m.is_some()) {
+            geometry.masks
+        } else {
+            Vec::new()
+        };
+        TriangleBvh { bvh, tris, masks }
+    }
+
+    /// Number of triangles.
+    pub fn len(&self) -> usize {
+        self.tris.len()
+    }
+
+    /// Whether it holds no triangle.
+    pub fn is_empty(&self) -> bool {
+        self.tris.is_empty()
+    }
+
+    /// Distance to triangle `prim` along `r`, or infinity on a miss or a
+    /// hit in a hole.
+    fn hit(&self, r: &Ray, prim: u32) -> f32 {
+        let tri = &self.tris[prim as usize];
+        let t = tri.intersect(r);
+        let Some(Some((mask, v))) = self.masks.get(prim as usize) else {
+            return t;
+        };
+        if !t.is_finite() {
+            return t;
+        }
+        let p = Vec3::from(r.origin + r.direction * t);
+        let (a, b, c) = (Vec3::from(tri.v0), Vec3::from(tri.v1), Vec3::from(tri.v2));
+        if mask.solid(*v, barycentric(p, a, b, c)) {
+            t
+        } else {
+            f32::INFINITY
+        }
+    }
+
+    /// The nearest hit along `ray` (`ray.tmax` or more: none).
+    fn closest(&self, ray: Ray) -> f32 {
+        let Some(bvh) = &self.bvh else {
+            return f32::INFINITY;
+        };
+        let mut hit = RayHit::none();
+        if bvh.ray_traverse(ray, &mut hit, |r, id| {
+            self.hit(r, bvh.primitive_indices[id])
+        }) {
+            hit.t
+        } else {
+            f32::INFINITY
+        }
+    }
+
+    /// Whether `ray` hits nothing.
+    fn misses(&self, ray: Ray) -> bool {
+        let Some(bvh) = &self.bvh else { return true };
+        bvh.ray_traverse_miss(ray, |r, id| self.hit(r, bvh.primitive_indices[id]))
+    }
+}
+
+/// Barycentric weights of `p` (on the plane of `a b c`).
+fn barycentric(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> [f32; 3] {
+    let (e0, e1, ep) = (b - a, c - a, p - a);
+    let (d00, d01, d11) = (e0.dot(e0), e0.dot(e1), e1.dot(e1));
+    let (d20, d21) = (ep.dot(e0), ep.dot(e1));
+    let den = d00 * d11 - d01 * d01;
+    if den.abs() <= f32::MIN_POSITIVE {
+        return [1.0, 0.0, 0.0];
+    }
+    let v = (d11 * d20 - d01 * d21) / den;
+    let w = (d00 * d21 - d01 * d20) / den;
+    [1.0 - v - w, v, w]
+}
+
+/// Traces AO rays against one or more triangle BVHs (for example a static
+/// one built once and a small one rebuilt as things move).
+#[derive(Clone, Debug)]
+pub struct AoTracer {
+    layers: Vec<Arc<TriangleBvh>>,
+}
+
+/// AO of a batch of points.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct AoResult {
+    /// AO per point, in input order (1 = open).
+    pub ao: Vec<f32>,
+    /// Rays traced.
+    pub rays: u64,
+}
+
+impl AoTracer {
+    /// Builds one BVH over `triangles` (all solid).
+    pub fn new(triangles: &[[Vec3; 3]]) -> AoTracer {
+        AoTracer::from_layers(vec![Arc::new(TriangleBvh::new(Geometry {
+            triangles: triangles.to_vec(),
+            masks: Vec::new(),
+        }))])
+    }
+
+    /// Traces against all of `layers` together.
+    pub fn from_layers(layers: Vec<Arc<TriangleBvh>>) -> AoTracer {
+        AoTracer { layers }
+    }
+
+    /// Number of triangles over all layers.
+    pub fn triangles(&self) -> usize {
+        self.layers.iter().map(|l| l.len()).sum()
     }
 
     /// AO at points with unit normals; point `i` draws its random numbers
@@ -182,7 +297,9 @@ impl AoTracer {
     /// AO at one point; `id` selects its random numbers. `p` must be
     /// valid ([`AoParams::validate`]).
     fn point_ao(&self, id: u32, point: Vec3, normal: Vec3, p: &AoParams) -> f32 {
-        let Some(bvh) = &self.bvh else { return 1.0 };
+        if self.layers.iter().all(|l| l.is_empty()) {
+            return 1.0;
+        }
         if p.rays == 0 || !point.is_finite() {
             return 1.0;
         }
@@ -202,15 +319,11 @@ impl AoTracer {
             let dir = Vec3A::from(dir);
             match p.estimator {
                 Estimator::ClosestHit => {
-                    let ray = Ray::new(origin, dir, 0.0, p.radius);
-                    let mut hit = RayHit::none();
-                    let t = if bvh.ray_traverse(ray, &mut hit, |r, id| {
-                        self.tris[bvh.primitive_indices[id] as usize].intersect(r)
-                    }) {
-                        hit.t.min(p.radius)
-                    } else {
-                        p.radius
-                    };
+                    // Each layer's ray ends at the nearest hit so far.
+                    let mut t = p.radius;
+                    for l in &self.layers {
+                        t = t.min(l.closest(Ray::new(origin, dir, 0.0, t)));
+                    }
                     sum += t / p.radius;
                 }
                 Estimator::LaineKarras => {
@@ -221,9 +334,7 @@ impl AoTracer {
                         / (1u32 << 24) as f32;
                     let len = u * p.radius;
                     let ray = Ray::new(origin, dir, 0.0, len);
-                    if bvh.ray_traverse_miss(ray, |r, id| {
-                        self.tris[bvh.primitive_indices[id] as usize].intersect(r)
-                    }) {
+                    if self.layers.iter().all(|l| l.misses(ray)) {
                         sum += 1.0;
                     }
                 }

@@ -98,6 +98,30 @@ pub enum SceneError {
         /// Normals.
         normals: usize,
     },
+    /// A node, skin, mesh attribute or instance reference is invalid.
+    #[error("{element}: {reason}")]
+    Element {
+        /// The element (`node 3 (arm)`, `skin 0`, `mesh 2 skin weights`, ...).
+        element: String,
+        /// What was wrong.
+        reason: String,
+    },
+    /// An animation channel is invalid.
+    #[error("animation {animation} channel {channel}: {reason}")]
+    Animation {
+        /// Animation index.
+        animation: usize,
+        /// Channel index.
+        channel: usize,
+        /// What was wrong.
+        reason: String,
+    },
+    /// The camera path is invalid.
+    #[error("camera path: {reason}")]
+    Camera {
+        /// What was wrong.
+        reason: String,
+    },
     /// The grid would need more cells than a 32-bit key allows, or a table
     /// or pool beyond the receivers' default limits.
     #[error("instance {instance}: grid too large for 32-bit keys even at the coarsest cell size")]

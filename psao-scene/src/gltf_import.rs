@@ -14,11 +14,15 @@ use std::io::Read;
 use std::path::Path;
 
 use base64::Engine;
-use glam::{Affine3A, Mat4, Vec3};
+use glam::{Affine3A, Mat4, Quat, Vec3};
 use gltf::mesh::Mode;
 
+use crate::alpha::AlphaMask;
+use crate::animation::{Animation, Channel, Interpolation, Keys};
 use crate::error::SceneError;
+use crate::node::Trs;
 use crate::scene::{Instance, Mesh, Scene};
+use crate::skin::{Skin, SkinWeights};
 
 /// Largest buffer a glTF file may declare (1 GiB).
 pub const MAX_BUFFER_BYTES: usize = 1 << 30;
@@ -66,57 +70,260 @@ pub fn load_gltf_slice(bytes: &[u8], name: &str, base: Option<&Path>) -> Result<
         .or_else(|| gltf.scenes().next())
         .ok_or_else(|| gltf_error(name, "scenes", "the file has no scene".into()))?;
     let mut out = Scene::default();
-    let mut meshes: HashMap<(usize, usize), usize> = HashMap::new();
-    let mut stack: Vec<(gltf::Node<'_>, Mat4, u32)> =
-        scene.nodes().map(|n| (n, Mat4::IDENTITY, 0)).collect();
+    // Nodes in depth-first order from the scene's roots, so parents come
+    // before children; `order[gltf index]` is the node's index here.
+    let mut order: Vec<Option<usize>> = vec![None; gltf.nodes().len()];
+    let mut stack: Vec<(gltf::Node<'_>, Option<usize>, u32)> =
+        scene.nodes().map(|n| (n, None, 0)).collect();
+    stack.reverse();
+    let mut visited = Vec::new();
     while let Some((node, parent, depth)) = stack.pop() {
+        let element = format!("node {}", node.index());
         if depth > 256 {
             return Err(gltf_error(
                 name,
-                &format!("node {}", node.index()),
+                &element,
                 "hierarchy deeper than 256".into(),
             ));
         }
-        let local = Mat4::from_cols_array_2d(&node.transform().matrix());
-        let world = parent * local;
-        if let Some(mesh) = node.mesh() {
-            // A skinned mesh ignores its node transform (glTF 2.0, 3.7.3);
-            // in the bind pose its vertices are where they are stored.
-            let at = if node.skin().is_some() {
-                Mat4::IDENTITY
-            } else {
-                world
-            };
-            let transform = Affine3A::from_mat4(at);
-            if !transform.is_finite() {
-                return Err(gltf_error(
-                    name,
-                    &format!("node {}", node.index()),
-                    "transform is not finite".into(),
-                ));
-            }
-            for prim in mesh.primitives() {
-                let key = (mesh.index(), prim.index());
-                let id = match meshes.get(&key) {
-                    Some(&id) => id,
-                    None => {
-                        let element = format!("mesh {} primitive {}", mesh.index(), prim.index());
-                        let m = primitive_mesh(&prim, &buffers, name, &element)?;
-                        out.meshes.push(m);
-                        meshes.insert(key, out.meshes.len() - 1);
-                        out.meshes.len() - 1
-                    }
-                };
-                out.instances.push(Instance {
-                    mesh: id,
-                    transform,
-                });
-            }
+        let slot = order
+            .get_mut(node.index())
+            .ok_or_else(|| gltf_error(name, &element, "index out of range".into()))?;
+        if slot.is_some() {
+            return Err(gltf_error(
+                name,
+                &element,
+                "is reached twice (more than one parent, or a cycle)".into(),
+            ));
         }
-        stack.extend(node.children().map(|c| (c, world, depth + 1)));
+        let (t, r, sc) = match node.transform() {
+            gltf::scene::Transform::Matrix { matrix } => {
+                let (sc, r, t) = Mat4::from_cols_array_2d(&matrix).to_scale_rotation_translation();
+                (t, r, sc)
+            }
+            gltf::scene::Transform::Decomposed {
+                translation,
+                rotation,
+                scale,
+            } => (
+                Vec3::from(translation),
+                Quat::from_array(rotation),
+                Vec3::from(scale),
+            ),
+        };
+        let trs = Trs {
+            translation: t,
+            rotation: r,
+            scale: sc,
+        };
+        if !trs.is_finite() {
+            return Err(gltf_error(name, &element, "transform is not finite".into()));
+        }
+        let index = out.add_node(node.name().unwrap_or(""), parent, trs);
+        *slot = Some(index);
+        visited.push(node.clone());
+        let children: Vec<_> = node.children().collect();
+        stack.extend(
+            children
+                .into_iter()
+                .rev()
+                .map(|c| (c, Some(index), depth + 1)),
+        );
+    }
+    let node_of = |n: usize, what: &str| {
+        order
+            .get(n)
+            .copied()
+            .flatten()
+            .ok_or_else(|| gltf_error(name, what, format!("node {n} is not in the scene")))
+    };
+    let mut skins: HashMap<usize, usize> = HashMap::new();
+    let mut meshes: HashMap<(usize, usize), usize> = HashMap::new();
+    for node in &visited {
+        let here = node_of(node.index(), "scene")?;
+        let Some(mesh) = node.mesh() else { continue };
+        let skin = match node.skin() {
+            Some(sk) => Some(match skins.get(&sk.index()) {
+                Some(&i) => i,
+                None => {
+                    let skin = read_skin(&sk, &buffers, name, &node_of)?;
+                    out.skins.push(skin);
+                    skins.insert(sk.index(), out.skins.len() - 1);
+                    out.skins.len() - 1
+                }
+            }),
+            None => None,
+        };
+        for prim in mesh.primitives() {
+            let key = (mesh.index(), prim.index());
+            let id = match meshes.get(&key) {
+                Some(&id) => id,
+                None => {
+                    let element = format!("mesh {} primitive {}", mesh.index(), prim.index());
+                    let m = primitive_mesh(&prim, &buffers, name, &element)?;
+                    out.meshes.push(m);
+                    meshes.insert(key, out.meshes.len() - 1);
+                    out.meshes.len() - 1
+                }
+            };
+            out.instances.push(Instance {
+                mesh: id,
+                transform: Affine3A::IDENTITY,
+                node: Some(here),
+                // A skin only deforms a primitive that carries joints.
+                skin: skin.filter(|_| out.meshes[id].skin.is_some()),
+            });
+        }
+    }
+    for anim in gltf.animations() {
+        out.animations
+            .push(read_animation(&anim, &buffers, name, &node_of)?);
     }
     out.validate()
         .map_err(|e| gltf_error(name, "scene", e.to_string()))?;
+    Ok(out)
+}
+
+/// A skin: joints mapped to the scene's nodes, inverse bind matrices read
+/// (identity when absent).
+fn read_skin(
+    skin: &gltf::Skin<'_>,
+    buffers: &[Vec<u8>],
+    name: &str,
+    node_of: &dyn Fn(usize, &str) -> Result<usize, SceneError>,
+) -> Result<Skin, SceneError> {
+    let element = format!("skin {}", skin.index());
+    let joints = skin
+        .joints()
+        .map(|j| node_of(j.index(), &element))
+        .collect::<Result<Vec<_>, _>>()?;
+    let inverse_bind = match skin.inverse_bind_matrices() {
+        Some(acc) => {
+            let what = format!("inverse bind matrix accessor {}", acc.index());
+            let e = read_accessor(&acc, buffers)
+                .map_err(|r| gltf_error(name, &element, format!("{what}: {r}")))?;
+            if acc.dimensions() != gltf::accessor::Dimensions::Mat4
+                || acc.data_type() != gltf::accessor::DataType::F32
+            {
+                return Err(gltf_error(
+                    name,
+                    &element,
+                    format!("{what} is not f32 MAT4"),
+                ));
+            }
+            let f = e.floats();
+            let mut out = Vec::with_capacity(f.len() / 16);
+            for (k, m) in f.chunks_exact(16).enumerate() {
+                let m = Mat4::from_cols_slice(m);
+                let row = m.row(3);
+                if (row - glam::Vec4::W).abs().max_element() > 1e-4 || !m.is_finite() {
+                    return Err(gltf_error(
+                        name,
+                        &element,
+                        format!("inverse bind matrix {k} is not a finite affine transform"),
+                    ));
+                }
+                out.push(Affine3A::from_mat4(m));
+            }
+            out
+        }
+        None => vec![Affine3A::IDENTITY; joints.len()],
+    };
+    if inverse_bind.len() != joints.len() {
+        return Err(gltf_error(
+            name,
+            &element,
+            format!(
+                "{} inverse bind matrices for {} joints",
+                inverse_bind.len(),
+                joints.len()
+            ),
+        ));
+    }
+    Ok(Skin {
+        name: skin.name().unwrap_or("").to_string(),
+        joints,
+        inverse_bind,
+    })
+}
+
+/// An animation's translation, rotation and scale channels.
+fn read_animation(
+    anim: &gltf::Animation<'_>,
+    buffers: &[Vec<u8>],
+    name: &str,
+    node_of: &dyn Fn(usize, &str) -> Result<usize, SceneError>,
+) -> Result<Animation, SceneError> {
+    use gltf::animation::{Interpolation as I, Property};
+    let mut out = Animation {
+        name: anim.name().unwrap_or("").to_string(),
+        channels: Vec::new(),
+    };
+    for ch in anim.channels() {
+        let element = format!("animation {} channel {}", anim.index(), ch.index());
+        let target = ch.target();
+        let node = node_of(target.node().index(), &element)?;
+        let sampler = ch.sampler();
+        let (input, output) = (sampler.input(), sampler.output());
+        let read = |acc: &gltf::Accessor<'_>, what: &str| {
+            read_accessor(acc, buffers).map_err(|r| {
+                gltf_error(
+                    name,
+                    &element,
+                    format!("{what} accessor {}: {r}", acc.index()),
+                )
+            })
+        };
+        if input.data_type() != gltf::accessor::DataType::F32
+            || input.dimensions() != gltf::accessor::Dimensions::Scalar
+        {
+            return Err(gltf_error(
+                name,
+                &element,
+                "key times are not f32 SCALAR".into(),
+            ));
+        }
+        let times = read(&input, "input")?.floats();
+        let values = read(&output, "output")?;
+        let dims = output.dimensions();
+        let want = match target.property() {
+            Property::Rotation => gltf::accessor::Dimensions::Vec4,
+            Property::MorphTargetWeights => {
+                return Err(gltf_error(
+                    name,
+                    &element,
+                    "morph target weights are not supported".into(),
+                ));
+            }
+            _ => gltf::accessor::Dimensions::Vec3,
+        };
+        if dims != want {
+            return Err(gltf_error(
+                name,
+                &element,
+                format!("output is {dims:?}, expected {want:?}"),
+            ));
+        }
+        let f = values.floats();
+        let keys = match target.property() {
+            Property::Translation => {
+                Keys::Translation(f.chunks_exact(3).map(Vec3::from_slice).collect())
+            }
+            Property::Scale => Keys::Scale(f.chunks_exact(3).map(Vec3::from_slice).collect()),
+            _ => Keys::Rotation(f.chunks_exact(4).map(Quat::from_slice).collect()),
+        };
+        let interpolation = match sampler.interpolation() {
+            I::Linear => Interpolation::Linear,
+            I::Step => Interpolation::Step,
+            I::CubicSpline => Interpolation::CubicSpline,
+        };
+        out.channels.push(Channel {
+            node,
+            times,
+            keys,
+            interpolation,
+        });
+    }
     Ok(out)
 }
 
@@ -292,11 +499,125 @@ fn primitive_mesh(
             "NORMAL and POSITION counts differ".into(),
         ));
     }
+    let n = positions.len();
+    let attribute = |sem: Semantic, dims: Dimensions| -> Result<Option<Vec<f32>>, SceneError> {
+        let Some(a) = prim.get(&sem) else {
+            return Ok(None);
+        };
+        let what = format!("{sem:?}");
+        if a.dimensions() != dims {
+            return Err(gltf_error(
+                name,
+                element,
+                format!(
+                    "{what} accessor {} is {:?}, expected {dims:?}",
+                    a.index(),
+                    a.dimensions()
+                ),
+            ));
+        }
+        let f = read(a, &what)?.floats();
+        if f.len() != n * dims.multiplicity() {
+            return Err(gltf_error(
+                name,
+                element,
+                format!("{what} and POSITION counts differ"),
+            ));
+        }
+        Ok(Some(f))
+    };
+    if prim.get(&Semantic::Joints(1)).is_some() || prim.get(&Semantic::Weights(1)).is_some() {
+        return Err(gltf_error(
+            name,
+            element,
+            "more than four joints per vertex (JOINTS_1) is not supported".into(),
+        ));
+    }
+    let skin = match (
+        attribute(Semantic::Joints(0), Dimensions::Vec4)?,
+        attribute(Semantic::Weights(0), Dimensions::Vec4)?,
+    ) {
+        (Some(j), Some(w)) => {
+            if let Some(bad) = j
+                .iter()
+                .find(|&&x| !(0.0..=65535.0).contains(&x) || x.fract() != 0.0)
+            {
+                return Err(gltf_error(
+                    name,
+                    element,
+                    format!("joint index {bad} is not a u16"),
+                ));
+            }
+            if let Some(bad) = w.iter().find(|&&x| !x.is_finite() || x < 0.0) {
+                return Err(gltf_error(
+                    name,
+                    element,
+                    format!("joint weight {bad} is negative or not finite"),
+                ));
+            }
+            Some(SkinWeights {
+                joints: j
+                    .chunks_exact(4)
+                    .map(|c| [c[0] as u16, c[1] as u16, c[2] as u16, c[3] as u16])
+                    .collect(),
+                weights: w
+                    .chunks_exact(4)
+                    .map(|c| [c[0], c[1], c[2], c[3]])
+                    .collect(),
+            })
+        }
+        (None, None) => None,
+        _ => {
+            return Err(gltf_error(
+                name,
+                element,
+                "JOINTS_0 without WEIGHTS_0 or the other way round".into(),
+            ));
+        }
+    };
+    let material = prim.material();
+    let alpha = match material.alpha_mode() {
+        gltf::material::AlphaMode::Mask => {
+            let pbr = material.pbr_metallic_roughness();
+            if let Some(t) = pbr.base_color_texture() {
+                return Err(gltf_error(
+                    name,
+                    &format!(
+                        "material {}",
+                        material.index().map_or("default".into(), |i| i.to_string())
+                    ),
+                    format!(
+                        "alpha mask from texture {} is not supported (factor and COLOR_0 masks are)",
+                        t.texture().index()
+                    ),
+                ));
+            }
+            let vertex_alpha = match prim.get(&Semantic::Colors(0)) {
+                Some(a) if a.dimensions() == Dimensions::Vec4 => {
+                    attribute(Semantic::Colors(0), Dimensions::Vec4)?
+                        .unwrap_or_default()
+                        .chunks_exact(4)
+                        .map(|c| c[3])
+                        .collect()
+                }
+                _ => Vec::new(),
+            };
+            Some(AlphaMask {
+                cutoff: material.alpha_cutoff().unwrap_or(0.5),
+                factor: pbr.base_color_factor()[3],
+                vertex_alpha,
+                texture: None,
+            })
+        }
+        _ => None,
+    };
     Ok(Mesh {
         positions,
         normals,
         indices,
-        double_sided: prim.material().double_sided(),
+        double_sided: material.double_sided(),
+        skin,
+        alpha,
     })
 }
 
@@ -318,9 +639,54 @@ struct Elements {
     bytes: Vec<u8>,
     size: usize,
     kind: gltf::accessor::DataType,
+    normalized: bool,
 }
 
 impl Elements {
+    /// Every component as f32: floats as they are, normalized integers
+    /// mapped to [0, 1] or [-1, 1] (glTF 2.0, 3.11), other integers as
+    /// their value.
+    fn floats(&self) -> Vec<f32> {
+        use gltf::accessor::DataType;
+        let b = &self.bytes;
+        let n = self.normalized;
+        match self.kind {
+            DataType::F32 => b
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect(),
+            DataType::U32 => b
+                .chunks_exact(4)
+                .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f32)
+                .collect(),
+            DataType::U8 => b
+                .iter()
+                .map(|&c| if n { c as f32 / 255.0 } else { c as f32 })
+                .collect(),
+            DataType::I8 => b
+                .iter()
+                .map(|&c| {
+                    let c = c as i8 as f32;
+                    if n { (c / 127.0).max(-1.0) } else { c }
+                })
+                .collect(),
+            DataType::U16 => b
+                .chunks_exact(2)
+                .map(|c| {
+                    let c = u16::from_le_bytes([c[0], c[1]]) as f32;
+                    if n { c / 65535.0 } else { c }
+                })
+                .collect(),
+            DataType::I16 => b
+                .chunks_exact(2)
+                .map(|c| {
+                    let c = i16::from_le_bytes([c[0], c[1]]) as f32;
+                    if n { (c / 32767.0).max(-1.0) } else { c }
+                })
+                .collect(),
+        }
+    }
+
     fn vec3(&self) -> Vec<Vec3> {
         self.bytes
             .chunks_exact(12)
@@ -395,5 +761,6 @@ fn read_accessor(acc: &gltf::Accessor<'_>, buffers: &[Vec<u8>]) -> Result<Elemen
         bytes,
         size,
         kind: acc.data_type(),
+        normalized: acc.normalized(),
     })
 }

@@ -11,22 +11,37 @@
 //! reaches, thresholds, encoding). Skins, node animation and glTF import
 //! come next.
 
+mod alpha;
+mod animation;
 mod ao;
+mod camera;
 mod default_scene;
 mod error;
 mod gltf_import;
 mod layout;
+mod node;
 mod pipeline;
 mod points;
+mod pose;
 mod random;
 mod scene;
+mod skin;
 
-pub use ao::{AoParams, AoResult, AoTracer, Estimator, MAX_RAYS, morton_order, ray_offset};
-pub use default_scene::{MOVING_BOX, default_scene};
+pub use alpha::{AlphaMask, AlphaTexture};
+pub use animation::{Animation, Channel, Interpolation, Keys};
+pub use ao::{
+    AoParams, AoResult, AoTracer, Estimator, Geometry, MAX_RAYS, TriangleBvh, TriangleMask,
+    morton_order, ray_offset,
+};
+pub use camera::{Camera, CameraKey, CameraPath, Frustum};
+pub use default_scene::{MOVING_BOX, TRELLIS, WALKER, default_scene};
 pub use error::SceneError;
 pub use gltf_import::{MAX_BUFFER_BYTES, load_gltf, load_gltf_slice};
 pub use layout::{LayoutParams, layout};
-pub use pipeline::{FrameReport, Motion, Pipeline, PipelineConfig};
-pub use points::{MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
+pub use node::{Node, Trs, compose};
+pub use pipeline::{FrameReport, Pipeline, PipelineConfig, ViewerCull};
+pub use points::{Anchor, MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
+pub use pose::Pose;
 pub use random::{hash, uniform};
 pub use scene::{Instance, Mesh, Scene, transformed_bounds};
+pub use skin::{Skin, SkinWeights};

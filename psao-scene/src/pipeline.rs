@@ -1,29 +1,58 @@
-//! The server frame pipeline for scenes with rigid motion (paper 3.3):
-//! move instances -> choose the points to re-trace -> trace -> compare with
-//! what clients hold (thresholds) -> GridTable -> Encoder.
+//! The server frame pipeline (paper 3.3): animate -> carry skinned points
+//! along (in instance-local space) -> choose the points to re-trace ->
+//! trace -> compare with what clients hold (thresholds) -> GridTable ->
+//! Encoder.
 //!
 //! Skipping what the scene does not need is part of the design:
 //! - a rigidly moving instance sends only its transform; its own points are
 //!   re-traced (their surroundings changed) but sent only if their AO moved
 //!   past the threshold;
+//! - a skinned instance re-traces its points when its pose changes, and
+//!   sends those whose position, normal or AO passed the thresholds;
 //! - a static instance is re-traced only where its points lie within reach
 //!   (the AO radius) of a moving instance's swept bounds;
+//! - with per-viewer culling, points outside the viewer's extended frustum
+//!   wait until they come into view;
+//! - static geometry sits in a BVH built once; only the moving part is
+//!   rebuilt;
 //! - a frame with nothing to say is not sent.
 
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use glam::{Affine3A, Mat3A, Vec3};
 use psao_codec::{EncodedFrame, Encoder, EncoderConfig, GridTable, Thresholds};
 
-use crate::ao::{AoParams, AoTracer, ray_offset};
-use crate::error::SceneError;
+use crate::alpha::AlphaMask;
+use crate::ao::{AoParams, AoTracer, Geometry, TriangleBvh, ray_offset};
+use crate::error::{SceneError, check_param};
 use crate::layout::{LayoutParams, layout};
 use crate::points::{PointSet, generate_points};
-use crate::scene::{Scene, transformed_bounds};
+use crate::pose::Pose;
+use crate::scene::{Scene, check_transform, transformed_bounds};
 
-/// How an instance moves: a function of time (seconds) to its
-/// local-to-world transform. `None` for a static instance.
-pub type Motion = Option<Box<dyn Fn(f32) -> Affine3A + Send + Sync>>;
+/// Per-viewer culling: the server runs for one viewer following the
+/// scene's camera path and traces only points near its view.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ViewerCull {
+    /// Width over height of the viewer's image.
+    pub aspect: f32,
+    /// Far plane distance.
+    pub far: f32,
+    /// How far beyond the frustum (on top of the AO radius) points still
+    /// count as in view: room for the camera to move before the next frame.
+    pub margin: f32,
+}
+
+impl Default for ViewerCull {
+    fn default() -> Self {
+        ViewerCull {
+            aspect: 16.0 / 9.0,
+            far: 100.0,
+            margin: 0.5,
+        }
+    }
+}
 
 /// Pipeline settings.
 #[derive(Clone, Debug, PartialEq)]
@@ -43,6 +72,13 @@ pub struct PipelineConfig {
     /// Re-trace only what motion can reach (true), or every point every
     /// frame (false: the baseline the skipping is measured against).
     pub skip: bool,
+    /// Keep static geometry in a BVH built once and rebuild only the
+    /// moving part (true), or rebuild one BVH over everything whenever
+    /// something moves (false: the baseline).
+    pub split_bvh: bool,
+    /// Trace only near one viewer's frustum (needs a scene camera path);
+    /// `None` when one stream serves many viewers.
+    pub cull: Option<ViewerCull>,
 }
 
 impl Default for PipelineConfig {
@@ -58,6 +94,8 @@ impl Default for PipelineConfig {
             layout: LayoutParams::default(),
             encoder: EncoderConfig::default(),
             skip: true,
+            split_bvh: true,
+            cull: None,
         }
     }
 }
@@ -69,39 +107,90 @@ pub struct FrameReport {
     pub points: u64,
     /// Points re-traced.
     pub traced: u64,
+    /// Points that needed re-tracing but were out of the viewer's view
+    /// (they wait until they come into view).
+    pub culled: u64,
     /// Rays cast.
     pub rays: u64,
     /// Points whose change passed the thresholds (set in their table).
     pub updated: u64,
     /// Transforms sent.
     pub transforms: u32,
+    /// Skinned instances whose pose changed.
+    pub deformed: u32,
     /// Bytes of the frame sent (0 when none was).
     pub bytes: u64,
-    /// Time to move instances and rebuild the BVH.
-    pub t_scene: Duration,
+    /// Time to evaluate animations and skin meshes and points.
+    pub t_animate: Duration,
+    /// Time to choose the points to re-trace.
+    pub t_select: Duration,
+    /// Time to build BVHs.
+    pub t_bvh: Duration,
     /// Time to trace.
     pub t_trace: Duration,
     /// Time to update tables and encode.
     pub t_encode: Duration,
 }
 
+impl FrameReport {
+    /// Adds `other`'s counts and times to this one (`points` is kept as the
+    /// larger of the two).
+    pub fn accumulate(&mut self, other: &FrameReport) {
+        self.points = self.points.max(other.points);
+        self.traced += other.traced;
+        self.culled += other.culled;
+        self.rays += other.rays;
+        self.updated += other.updated;
+        self.transforms += other.transforms;
+        self.deformed += other.deformed;
+        self.bytes += other.bytes;
+        self.t_animate += other.t_animate;
+        self.t_select += other.t_select;
+        self.t_bvh += other.t_bvh;
+        self.t_trace += other.t_trace;
+        self.t_encode += other.t_encode;
+    }
+
+    /// Server time of the frame, all stages.
+    pub fn total_time(&self) -> Duration {
+        self.t_animate + self.t_select + self.t_bvh + self.t_trace + self.t_encode
+    }
+}
+
 struct InstanceState {
+    /// Points in the mesh's bind pose.
     points: PointSet,
+    /// Points now (instance-local; skinned instances move them).
+    positions: Vec<Vec3>,
+    /// Point normals now.
+    normals: Vec<Vec3>,
+    /// Skinned vertex positions and normals now (empty: the mesh's own).
+    vertices: Vec<Vec3>,
+    vertex_normals: Vec<Vec3>,
+    /// Joint matrices of the current pose (skinned instances).
+    joints: Vec<Affine3A>,
     table: GridTable,
     transform: Affine3A,
     transform_seq: u32,
-    /// Local bounds of the mesh.
+    /// Local bounds of the mesh as it is now.
     bounds: (Vec3, Vec3),
+    /// Whether it can move or deform.
+    dynamic: bool,
+    /// Points waiting to be traced until they come into view.
+    pending: Vec<bool>,
 }
 
 /// A server streaming one scene.
 pub struct Pipeline {
     scene: Scene,
-    motions: Vec<Motion>,
     config: PipelineConfig,
     instances: Vec<InstanceState>,
+    masks: Vec<Option<Arc<AlphaMask>>>,
     encoder: Encoder,
-    time: f32,
+    pose: Pose,
+    static_layer: Option<Arc<TriangleBvh>>,
+    moving_layer: Option<Arc<TriangleBvh>>,
+    time: f64,
     frame: u64,
 }
 
@@ -123,49 +212,107 @@ fn normal_matrix(t: &Affine3A) -> Mat3A {
     t.matrix3.inverse().transpose()
 }
 
+fn bounds_of(points: &[Vec3]) -> (Vec3, Vec3) {
+    let first = points.first().copied().unwrap_or(Vec3::ZERO);
+    points
+        .iter()
+        .fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p)))
+}
+
+/// Most poses sampled to find a skinned instance's bounds over its
+/// animation.
+const MAX_BOUND_SAMPLES: usize = 600;
+
 impl Pipeline {
     /// Generates points for every instance, lays out their grids and traces
-    /// every point once (the state the first keyframe carries). `motions`
-    /// has one entry per instance (missing entries are static).
-    pub fn new(
-        scene: Scene,
-        mut motions: Vec<Motion>,
-        config: PipelineConfig,
-    ) -> Result<Pipeline, SceneError> {
+    /// every point once (the state the first keyframe carries).
+    pub fn new(scene: Scene, config: PipelineConfig) -> Result<Pipeline, SceneError> {
         scene.validate()?;
         config.ao.validate()?;
-        motions.resize_with(scene.instances.len(), || None);
+        if let Some(c) = &config.cull {
+            check_param("cull.aspect", c.aspect as f64, 1e-3, 1e3, "in [1e-3, 1e3]")?;
+            check_param("cull.far", c.far as f64, 1e-3, 1e9, "in [1e-3, 1e9]")?;
+            check_param("cull.margin", c.margin as f64, 0.0, 1e9, "in [0, 1e9]")?;
+            if scene.camera.is_none() {
+                return Err(SceneError::Camera {
+                    reason: "per-viewer culling needs a camera path".into(),
+                });
+            }
+        }
+        let dynamic = scene.dynamic_instances();
+        let pose = scene.pose(0.0);
+        let skin_bounds = skinned_bounds(&scene, &dynamic);
+        let masks = scene
+            .meshes
+            .iter()
+            .map(|m| m.alpha.clone().map(Arc::new))
+            .collect();
         let mut instances = Vec::with_capacity(scene.instances.len());
         for (i, inst) in scene.instances.iter().enumerate() {
             let mesh = &scene.meshes[inst.mesh];
             let seed = config.seed ^ ((i as u64) << 32);
             let points = generate_points(mesh, config.density, seed)?;
-            let bounds = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ZERO));
+            let rest = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ZERO));
+            let grid_bounds = skin_bounds[i].unwrap_or(rest);
             let sides = if mesh.double_sided { 2.0 } else { 1.0 };
             let def = layout(
                 i,
-                bounds,
+                grid_bounds,
                 mesh.area() * sides,
                 points.len(),
                 points.radius.max(1e-6),
                 &config.layout,
             )?;
             let table = GridTable::new(i as u32, def, points.len().max(1) as u32)?;
-            let transform = motions[i].as_ref().map_or(inst.transform, |m| m(0.0));
+            let (vertices, vertex_normals) = scene.skinned(i, &pose);
+            let skinned = inst.skin.is_some() && mesh.skin.is_some();
+            let (mut positions, mut normals) = (Vec::new(), Vec::new());
+            if skinned {
+                points.follow(
+                    mesh,
+                    &vertices,
+                    &vertex_normals,
+                    &mut positions,
+                    &mut normals,
+                );
+            } else {
+                positions.clone_from(&points.positions);
+                normals.clone_from(&points.normals);
+            }
+            let (vertices, vertex_normals) = if skinned {
+                (vertices.into_owned(), vertex_normals.into_owned())
+            } else {
+                (Vec::new(), Vec::new())
+            };
+            let bounds = if skinned { bounds_of(&vertices) } else { rest };
             instances.push(InstanceState {
+                pending: if config.cull.is_some() {
+                    vec![false; points.len()]
+                } else {
+                    Vec::new()
+                },
                 points,
+                positions,
+                normals,
+                vertices,
+                vertex_normals,
+                joints: pose.joints[i].clone(),
                 table,
-                transform,
+                transform: pose.instances[i],
                 transform_seq: 0,
                 bounds,
+                dynamic: dynamic[i],
             });
         }
         let mut pipeline = Pipeline {
             scene,
-            motions,
             encoder: Encoder::new(config.encoder),
             config,
             instances,
+            masks,
+            pose,
+            static_layer: None,
+            moving_layer: None,
             time: 0.0,
             frame: 0,
         };
@@ -174,7 +321,7 @@ impl Pipeline {
             .iter()
             .map(|s| (0..s.points.len() as u32).collect())
             .collect();
-        let tracer = pipeline.tracer()?;
+        let tracer = pipeline.tracer(true);
         pipeline.trace_and_update(&tracer, &all, true)?;
         for s in &mut pipeline.instances {
             s.table.take_dirty();
@@ -184,7 +331,17 @@ impl Pipeline {
 
     /// Seconds of scene time so far.
     pub fn time(&self) -> f32 {
-        self.time
+        self.time as f32
+    }
+
+    /// The settings it runs with.
+    pub fn config(&self) -> &PipelineConfig {
+        &self.config
+    }
+
+    /// The scene being streamed.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
     }
 
     /// The table of instance `i`.
@@ -197,14 +354,28 @@ impl Pipeline {
         self.instances.len()
     }
 
-    /// The points of instance `i` (local space).
+    /// The points of instance `i` in its mesh's bind pose (local space).
     pub fn points(&self, i: usize) -> Option<&PointSet> {
         self.instances.get(i).map(|s| &s.points)
+    }
+
+    /// Positions and normals of instance `i`'s points now (local space;
+    /// skinned instances move them).
+    pub fn current_points(&self, i: usize) -> Option<(&[Vec3], &[Vec3])> {
+        self.instances
+            .get(i)
+            .map(|s| (s.positions.as_slice(), s.normals.as_slice()))
     }
 
     /// World transform of instance `i` now.
     pub fn transform(&self, i: usize) -> Option<Affine3A> {
         self.instances.get(i).map(|s| s.transform)
+    }
+
+    /// A tracer over the scene as it is now (what [`step`](Self::step)
+    /// traces against), for reference renders and tests.
+    pub fn current_tracer(&mut self) -> AoTracer {
+        self.tracer(false)
     }
 
     /// A keyframe of the current state (for a client joining now).
@@ -220,15 +391,55 @@ impl Pipeline {
             .ok_or(SceneError::Encode(psao_codec::EncodeError::FrameTooLarge))
     }
 
-    fn tracer(&self) -> Result<AoTracer, SceneError> {
-        let mut tris = Vec::new();
+    /// World-space triangles (with alpha masks) of the instances that
+    /// `pick` selects, as they are now.
+    fn geometry(&self, pick: impl Fn(&InstanceState) -> bool) -> Geometry {
+        let mut g = Geometry::default();
         for (s, inst) in self.instances.iter().zip(&self.scene.instances) {
+            if !pick(s) {
+                continue;
+            }
             let m = &self.scene.meshes[inst.mesh];
+            let verts = if s.vertices.is_empty() {
+                &m.positions
+            } else {
+                &s.vertices
+            };
+            let mask = &self.masks[inst.mesh];
             for t in 0..m.triangle_count() {
-                tris.push(m.triangle(t).map(|p| s.transform.transform_point3(p)));
+                let i = &m.indices[3 * t..3 * t + 3];
+                g.triangles
+                    .push([0, 1, 2].map(|k| s.transform.transform_point3(verts[i[k] as usize])));
+                if let Some(mask) = mask {
+                    g.masks.push(Some((mask.clone(), [i[0], i[1], i[2]])));
+                } else {
+                    g.masks.push(None);
+                }
             }
         }
-        Ok(AoTracer::new(&tris))
+        g
+    }
+
+    /// The tracer for the scene now. With a split BVH the static layer is
+    /// built once; the moving layer (or, unsplit, the single one) is
+    /// rebuilt when `changed`.
+    fn tracer(&mut self, changed: bool) -> AoTracer {
+        let split = self.config.split_bvh;
+        if split && self.static_layer.is_none() {
+            self.static_layer = Some(Arc::new(TriangleBvh::new(self.geometry(|s| !s.dynamic))));
+        }
+        if changed || self.moving_layer.is_none() {
+            let g = self.geometry(|s| !split || s.dynamic);
+            self.moving_layer = Some(Arc::new(TriangleBvh::new(g)));
+        }
+        let layers = self
+            .static_layer
+            .iter()
+            .filter(|_| split)
+            .chain(&self.moving_layer)
+            .cloned()
+            .collect();
+        AoTracer::from_layers(layers)
     }
 
     /// Traces the listed points of each instance (world space) and sets the
@@ -242,14 +453,12 @@ impl Pipeline {
     ) -> Result<(u64, u64, u64), SceneError> {
         let (mut ids, mut pts, mut nrm) = (Vec::new(), Vec::new(), Vec::new());
         let mut base = 0u32;
-        let mut bases = Vec::with_capacity(self.instances.len());
         for (s, list) in self.instances.iter().zip(which) {
-            bases.push(base);
             let nm = normal_matrix(&s.transform);
             for &k in list {
                 ids.push(base + k);
-                pts.push(s.transform.transform_point3(s.points.positions[k as usize]));
-                nrm.push((nm * s.points.normals[k as usize]).normalize_or_zero());
+                pts.push(s.transform.transform_point3(s.positions[k as usize]));
+                nrm.push((nm * s.normals[k as usize]).normalize_or_zero());
             }
             base += s.points.len() as u32;
         }
@@ -259,7 +468,7 @@ impl Pipeline {
         let th = self.config.thresholds;
         for (s, list) in self.instances.iter_mut().zip(which) {
             for &k in list {
-                let (p, n) = (s.points.positions[k as usize], s.points.normals[k as usize]);
+                let (p, n) = (s.positions[k as usize], s.normals[k as usize]);
                 let ao = result.ao[at];
                 at += 1;
                 let set = if force {
@@ -276,10 +485,12 @@ impl Pipeline {
     }
 
     /// Advances the scene by `dt` seconds and produces the frame clients
-    /// need, if any.
+    /// need, if any. Scene time is kept in f64, so a run is the same for
+    /// the same sequence of steps.
     pub fn step(&mut self, dt: f32) -> Result<(Option<EncodedFrame>, FrameReport), SceneError> {
+        check_param("dt", dt as f64, 0.0, 1e6, "finite, in [0, 1e6] seconds")?;
         let t0 = Instant::now();
-        self.time += dt;
+        self.time += dt as f64;
         self.frame += 1;
         // A ray reaches R beyond its origin, which sits `ray_offset` off the
         // surface: grow boxes by both (the offset at the box's farthest
@@ -290,36 +501,73 @@ impl Pipeline {
             let reach = ao.radius + ray_offset(ao.bias, far) + 1e-3;
             (b.0 - Vec3::splat(reach), b.1 + Vec3::splat(reach))
         };
-        // Move instances; remember where motion happened (swept bounds).
-        let mut moved = vec![false; self.instances.len()];
-        let mut swept = Vec::new();
-        for (i, s) in self.instances.iter_mut().enumerate() {
-            let Some(m) = &self.motions[i] else { continue };
-            let next = m(self.time);
-            if next == s.transform {
-                continue;
-            }
-            let before = transformed_bounds(&s.transform, s.bounds);
-            let after = transformed_bounds(&next, s.bounds);
-            swept.push(grow((before.0.min(after.0), before.1.max(after.1))));
-            s.transform = next;
-            s.transform_seq = s.transform_seq.wrapping_add(1);
-            moved[i] = true;
-        }
+        // Animate; remember where motion happened (swept bounds).
+        self.scene.pose_into(self.time as f32, &mut self.pose);
         let mut report = FrameReport {
             points: self.instances.iter().map(|s| s.points.len() as u64).sum(),
             ..FrameReport::default()
         };
+        let mut moved = vec![false; self.instances.len()];
+        let mut changed = vec![false; self.instances.len()];
+        let mut swept = Vec::new();
+        for (i, s) in self.instances.iter_mut().enumerate() {
+            if !s.dynamic {
+                continue;
+            }
+            let next = self.pose.instances[i];
+            check_transform(i, &next, Some(s.bounds))?;
+            let joints = &self.pose.joints[i];
+            let deformed = !s.vertices.is_empty() && *joints != s.joints;
+            if next == s.transform && !deformed {
+                continue;
+            }
+            let before = transformed_bounds(&s.transform, s.bounds);
+            if deformed {
+                let inst = &self.scene.instances[i];
+                let mesh = &self.scene.meshes[inst.mesh];
+                if let Some(w) = &mesh.skin {
+                    w.skin(
+                        &mesh.positions,
+                        &mesh.normals,
+                        joints,
+                        &mut s.vertices,
+                        &mut s.vertex_normals,
+                    );
+                }
+                s.points.follow(
+                    mesh,
+                    &s.vertices,
+                    &s.vertex_normals,
+                    &mut s.positions,
+                    &mut s.normals,
+                );
+                s.bounds = bounds_of(&s.vertices);
+                s.joints.clone_from(joints);
+                report.deformed += 1;
+            }
+            let after = transformed_bounds(&next, s.bounds);
+            if !after.0.is_finite() || !after.1.is_finite() {
+                return Err(SceneError::BadTransform { instance: i });
+            }
+            swept.push(grow((before.0.min(after.0), before.1.max(after.1))));
+            if next != s.transform {
+                s.transform = next;
+                s.transform_seq = s.transform_seq.wrapping_add(1);
+                moved[i] = true;
+            }
+            changed[i] = true;
+        }
+        report.t_animate = t0.elapsed();
+        let t1 = Instant::now();
         // Choose the points to re-trace.
         let mut which: Vec<Vec<u32>> = vec![Vec::new(); self.instances.len()];
-        let everything = !self.config.skip;
-        if everything {
+        if !self.config.skip {
             for (w, s) in which.iter_mut().zip(&self.instances) {
                 *w = (0..s.points.len() as u32).collect();
             }
         } else if !swept.is_empty() {
             for (i, s) in self.instances.iter().enumerate() {
-                if moved[i] {
+                if changed[i] {
                     which[i] = (0..s.points.len() as u32).collect();
                     continue;
                 }
@@ -329,7 +577,7 @@ impl Pipeline {
                 }
                 which[i] = (0..s.points.len() as u32)
                     .filter(|&k| {
-                        let p = s.transform.transform_point3(s.points.positions[k as usize]);
+                        let p = s.transform.transform_point3(s.positions[k as usize]);
                         swept
                             .iter()
                             .any(|b| p.cmpge(b.0).all() && p.cmple(b.1).all())
@@ -337,21 +585,27 @@ impl Pipeline {
                     .collect();
             }
         }
-        let tracer = if swept.is_empty() && !everything {
-            None
-        } else {
-            Some(self.tracer()?)
-        };
-        report.t_scene = t0.elapsed();
-        let t1 = Instant::now();
+        if let Some(cull) = self.config.cull {
+            report.culled = self.cull(&cull, &mut which);
+        }
+        report.t_select = t1.elapsed();
+        let anything = which.iter().any(|w| !w.is_empty());
+        let t2 = Instant::now();
+        let tracer = anything.then(|| self.tracer(changed.contains(&true)));
+        if !anything && changed.contains(&true) {
+            // Keep the moving layer current for the next frame that traces.
+            self.moving_layer = None;
+        }
+        report.t_bvh = t2.elapsed();
+        let t3 = Instant::now();
         if let Some(tracer) = &tracer {
             let (traced, rays, updated) = self.trace_and_update(tracer, &which, false)?;
             report.traced = traced;
             report.rays = rays;
             report.updated = updated;
         }
-        report.t_trace = t1.elapsed();
-        let t2 = Instant::now();
+        report.t_trace = t3.elapsed();
+        let t4 = Instant::now();
         let mut frame = self.encoder.delta();
         for (i, s) in self.instances.iter_mut().enumerate() {
             if moved[i] {
@@ -362,7 +616,83 @@ impl Pipeline {
         }
         let frame = frame.finish()?;
         report.bytes = frame.as_ref().map_or(0, |f| f.bytes.len() as u64);
-        report.t_encode = t2.elapsed();
+        report.t_encode = t4.elapsed();
         Ok((frame, report))
     }
+
+    /// Keeps in `which` only the points near the viewer's frustum; the
+    /// others become pending, and pending points now in view join `which`.
+    /// Returns how many points wait.
+    fn cull(&mut self, cull: &ViewerCull, which: &mut [Vec<u32>]) -> u64 {
+        let Some(path) = &self.scene.camera else {
+            return 0;
+        };
+        let near = 0.05f32.min(cull.far * 0.5);
+        let frustum = path
+            .at(self.time as f32)
+            .frustum(cull.aspect, near, cull.far);
+        let reach = cull.margin + self.config.ao.radius;
+        let mut waiting = 0u64;
+        for (s, w) in self.instances.iter_mut().zip(which.iter_mut()) {
+            for &k in w.iter() {
+                s.pending[k as usize] = true;
+            }
+            w.clear();
+            for (k, pending) in s.pending.iter_mut().enumerate() {
+                if !*pending {
+                    continue;
+                }
+                let p = s.transform.transform_point3(s.positions[k]);
+                if frustum.touches_sphere(p, reach) {
+                    *pending = false;
+                    w.push(k as u32);
+                } else {
+                    waiting += 1;
+                }
+            }
+        }
+        waiting
+    }
+}
+
+/// For each skinned, animated instance, the local bounds of its skinned
+/// vertices over its animations (sampled at 30 Hz, at most
+/// [`MAX_BOUND_SAMPLES`] poses), grown by 5% of their extent: room for its
+/// grid.
+fn skinned_bounds(scene: &Scene, dynamic: &[bool]) -> Vec<Option<(Vec3, Vec3)>> {
+    let mut out = vec![None; scene.instances.len()];
+    let skinned: Vec<usize> = (0..scene.instances.len())
+        .filter(|&i| {
+            dynamic[i]
+                && scene.instances[i].skin.is_some()
+                && scene.meshes[scene.instances[i].mesh].skin.is_some()
+        })
+        .collect();
+    if skinned.is_empty() {
+        return out;
+    }
+    let duration = scene.duration();
+    let samples = ((duration * 30.0).ceil() as usize).clamp(1, MAX_BOUND_SAMPLES);
+    let mut pose = Pose::default();
+    for k in 0..=samples {
+        scene.pose_into(duration * k as f32 / samples as f32, &mut pose);
+        for &i in &skinned {
+            let (p, _) = scene.skinned(i, &pose);
+            let b = bounds_of(&p);
+            let b = if !b.0.is_finite() || !b.1.is_finite() {
+                continue;
+            } else {
+                b
+            };
+            out[i] = Some(match out[i] {
+                Some((lo, hi)) => (b.0.min(lo), b.1.max(hi)),
+                None => b,
+            });
+        }
+    }
+    for b in out.iter_mut().flatten() {
+        let pad = (b.1 - b.0) * 0.05;
+        *b = (b.0 - pad, b.1 + pad);
+    }
+    out
 }

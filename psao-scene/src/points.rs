@@ -9,6 +9,18 @@ use crate::error::{SceneError, check_param};
 use crate::random::uniform;
 use crate::scene::Mesh;
 
+/// Where a point sits on its mesh: a triangle, barycentric weights and a
+/// side. A deformed (skinned) mesh carries its points along through it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Anchor {
+    /// Triangle index.
+    pub triangle: u32,
+    /// Barycentric weights of the triangle's three vertices (sum 1).
+    pub weights: [f32; 3],
+    /// Whether the point is on the back side (its normal is flipped).
+    pub back: bool,
+}
+
 /// Points of one mesh, in its local space.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PointSet {
@@ -16,6 +28,8 @@ pub struct PointSet {
     pub positions: Vec<Vec3>,
     /// Unit normals (the surface side the point belongs to).
     pub normals: Vec<Vec3>,
+    /// Where each point sits on the mesh.
+    pub anchors: Vec<Anchor>,
     /// The Poisson radius `r_max` of the elimination: the client's
     /// interpolation radius r (paper eq. 2).
     pub radius: f32,
@@ -31,14 +45,57 @@ impl PointSet {
     pub fn is_empty(&self) -> bool {
         self.positions.is_empty()
     }
+
+    /// Positions and normals of the points on `mesh` with its vertices at
+    /// `positions` and `normals` (a deformed copy of the mesh the points
+    /// were made for), written into `out_p` and `out_n`. A point whose
+    /// anchor does not fit the mesh keeps its own position and normal.
+    pub fn follow(
+        &self,
+        mesh: &Mesh,
+        positions: &[Vec3],
+        normals: &[Vec3],
+        out_p: &mut Vec<Vec3>,
+        out_n: &mut Vec<Vec3>,
+    ) {
+        out_p.clear();
+        out_n.clear();
+        for (k, a) in self.anchors.iter().enumerate() {
+            let t = a.triangle as usize;
+            let corners = mesh.indices.get(3 * t..3 * t + 3).map(|i| {
+                [0, 1, 2].map(|c| (positions.get(i[c] as usize), normals.get(i[c] as usize)))
+            });
+            let (p, n) = match corners {
+                Some(
+                    [
+                        (Some(&p0), Some(&n0)),
+                        (Some(&p1), Some(&n1)),
+                        (Some(&p2), Some(&n2)),
+                    ],
+                ) => {
+                    let w = a.weights;
+                    let p = p0 * w[0] + p1 * w[1] + p2 * w[2];
+                    let face = (p1 - p0).cross(p2 - p0).normalize_or_zero();
+                    let n = (n0 * w[0] + n1 * w[1] + n2 * w[2])
+                        .try_normalize()
+                        .unwrap_or(face);
+                    (p, if a.back { -n } else { n })
+                }
+                _ => (self.positions[k], self.normals[k]),
+            };
+            out_p.push(p);
+            out_n.push(n);
+        }
+    }
 }
 
 /// Most points [`generate_points`] spawns for one mesh side.
 pub const MAX_SPAWNED_POINTS: usize = 1 << 26;
 
 /// Spawns `density` points per unit area over `mesh` (both sides of a
-/// double-sided mesh, each with its own normal), then eliminates half of
-/// them per side by weighted sample elimination. Deterministic for a seed.
+/// double-sided mesh, each with its own normal), rejects those in
+/// alpha-mask holes, then eliminates half of the rest per side by weighted
+/// sample elimination. Deterministic for a seed.
 pub fn generate_points(mesh: &Mesh, density: f32, seed: u64) -> Result<PointSet, SceneError> {
     check_param(
         "density",
@@ -68,20 +125,28 @@ pub fn generate_points(mesh: &Mesh, density: f32, seed: u64) -> Result<PointSet,
     };
     let mut out = PointSet::default();
     for (s, &sign) in sides.iter().enumerate() {
-        let (pos, nrm) = spawn(mesh, spawned, seed ^ ((s as u64) << 40));
-        let keep = spawned / 2;
-        let (kept, radius) = eliminate(&pos, &nrm, keep, area);
-        out.radius = radius;
+        let (pos, nrm, anchors) = spawn(mesh, spawned, seed ^ ((s as u64) << 40));
+        // Holes take their share of the area: the solid area is the
+        // accepted fraction of the whole.
+        let keep = pos.len() / 2;
+        let solid_area = area * pos.len() as f32 / spawned as f32;
+        let (kept, radius) = eliminate(&pos, &nrm, keep, solid_area);
+        out.radius = out.radius.max(radius);
         for i in kept {
             out.positions.push(pos[i]);
             out.normals.push(nrm[i] * sign);
+            out.anchors.push(Anchor {
+                back: sign < 0.0,
+                ..anchors[i]
+            });
         }
     }
     Ok(out)
 }
 
-/// `count` points uniform over the mesh's area, with interpolated normals.
-fn spawn(mesh: &Mesh, count: usize, seed: u64) -> (Vec<Vec3>, Vec<Vec3>) {
+/// `count` points uniform over the mesh's area, with interpolated normals
+/// and their anchors; points in alpha-mask holes are left out.
+fn spawn(mesh: &Mesh, count: usize, seed: u64) -> (Vec<Vec3>, Vec<Vec3>, Vec<Anchor>) {
     let tris = mesh.triangle_count();
     let mut cdf = Vec::with_capacity(tris);
     let mut total = 0.0f64;
@@ -92,11 +157,15 @@ fn spawn(mesh: &Mesh, count: usize, seed: u64) -> (Vec<Vec3>, Vec<Vec3>) {
     }
     let mut pos = Vec::with_capacity(count);
     let mut nrm = Vec::with_capacity(count);
+    let mut anchors = Vec::with_capacity(count);
     for k in 0..count as u32 {
         let pick = uniform(seed, 0, k) as f64 * total;
         let t = cdf.partition_point(|&c| c <= pick).min(tris - 1);
         let (r1, r2) = (uniform(seed, 1, k).sqrt(), uniform(seed, 2, k));
         let (wa, wb, wc) = (1.0 - r1, r1 * (1.0 - r2), r1 * r2);
+        if !mesh.solid(t, [wa, wb, wc]) {
+            continue;
+        }
         let i = &mesh.indices[3 * t..3 * t + 3];
         let [a, b, c] = mesh.triangle(t);
         pos.push(a * wa + b * wb + c * wc);
@@ -105,8 +174,13 @@ fn spawn(mesh: &Mesh, count: usize, seed: u64) -> (Vec<Vec3>, Vec<Vec3>) {
             + mesh.normals[i[2] as usize] * wc;
         let face = (b - a).cross(c - a).normalize_or_zero();
         nrm.push(n.try_normalize().unwrap_or(face));
+        anchors.push(Anchor {
+            triangle: t as u32,
+            weights: [wa, wb, wc],
+            back: false,
+        });
     }
-    (pos, nrm)
+    (pos, nrm, anchors)
 }
 
 /// Weighted sample elimination of `points` with unit `normals` (spread

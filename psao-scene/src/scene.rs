@@ -1,8 +1,14 @@
-//! Static scene model: meshes and their instances.
+//! The scene model: meshes (optionally skinned or alpha-masked), their
+//! instances, the node hierarchy, skins, animations and a camera path.
 
 use glam::{Affine3A, Vec3};
 
+use crate::alpha::AlphaMask;
+use crate::animation::Animation;
+use crate::camera::CameraPath;
 use crate::error::SceneError;
+use crate::node::{Node, Trs};
+use crate::skin::{Skin, SkinWeights};
 
 /// A triangle mesh in its own (instance-local) space.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -15,6 +21,10 @@ pub struct Mesh {
     pub indices: Vec<u32>,
     /// Whether both sides are surfaces (points are spawned on both).
     pub double_sided: bool,
+    /// Joint influences, for instances with a skin.
+    pub skin: Option<SkinWeights>,
+    /// Where the surface has holes.
+    pub alpha: Option<AlphaMask>,
 }
 
 impl Mesh {
@@ -85,7 +95,47 @@ impl Mesh {
                 vertices: self.positions.len(),
             });
         }
+        let element = |what: &str, reason: String| SceneError::Element {
+            element: format!("mesh {mesh} {what}"),
+            reason,
+        };
+        if let Some(w) = &self.skin {
+            let n = self.positions.len();
+            if w.joints.len() != n || w.weights.len() != n {
+                return Err(element(
+                    "skin weights",
+                    format!(
+                        "{} joint sets and {} weight sets for {n} vertices",
+                        w.joints.len(),
+                        w.weights.len()
+                    ),
+                ));
+            }
+            if let Some(v) = w
+                .weights
+                .iter()
+                .position(|w| w.iter().any(|x| !x.is_finite() || *x < 0.0))
+            {
+                return Err(element(
+                    "skin weights",
+                    format!("vertex {v} has a negative or non-finite weight"),
+                ));
+            }
+        }
+        if let Some(a) = &self.alpha {
+            a.check(self.positions.len())
+                .map_err(|r| element("alpha mask", r))?;
+        }
         Ok(())
+    }
+
+    /// Whether the surface is solid (not an alpha-mask hole) at barycentric
+    /// weights `w` of triangle `t`.
+    pub fn solid(&self, t: usize, w: [f32; 3]) -> bool {
+        match (&self.alpha, self.indices.get(3 * t..3 * t + 3)) {
+            (Some(a), Some(i)) => a.solid([i[0], i[1], i[2]], w),
+            _ => true,
+        }
     }
 
     /// An axis-aligned box `[min, max]`, normals facing out, 12 triangles.
@@ -122,6 +172,7 @@ impl Mesh {
     /// The same surface with every triangle split into four at its edge
     /// midpoints, `levels` times (4^levels as many triangles). Normals are
     /// interpolated and renormalized.
+    /// Skin weights and alpha masks are not carried over.
     pub fn subdivided(&self, levels: u32) -> Mesh {
         let mut m = self.clone();
         for _ in 0..levels {
@@ -176,17 +227,32 @@ impl Mesh {
 pub struct Instance {
     /// Index into [`Scene::meshes`].
     pub mesh: usize,
-    /// Instance-local to world transform.
+    /// Instance-local to world transform; with a `node`, relative to the
+    /// node's world transform.
     pub transform: Affine3A,
+    /// The node it hangs from (it moves with the node's animation).
+    pub node: Option<usize>,
+    /// The skin that deforms its mesh (index into [`Scene::skins`]); the
+    /// mesh must carry [`SkinWeights`].
+    pub skin: Option<usize>,
 }
 
-/// Meshes and instances.
+/// Meshes, instances, the node hierarchy, skins, animations and a camera
+/// path. Time runs in seconds from 0; [`Scene::pose`] evaluates it.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Scene {
     /// Meshes in their local space.
     pub meshes: Vec<Mesh>,
     /// Placed instances.
     pub instances: Vec<Instance>,
+    /// The node hierarchy (parents before children).
+    pub nodes: Vec<Node>,
+    /// Skins.
+    pub skins: Vec<Skin>,
+    /// Animations (each loops over its own duration).
+    pub animations: Vec<Animation>,
+    /// The viewer's path, if the scene has one.
+    pub camera: Option<CameraPath>,
 }
 
 impl Scene {
@@ -196,14 +262,114 @@ impl Scene {
         self.instances.push(Instance {
             mesh: self.meshes.len() - 1,
             transform,
+            node: None,
+            skin: None,
         });
         self.instances.len() - 1
     }
 
-    /// Checks every mesh and instance.
+    /// Appends everything of `other` (meshes, nodes, skins, animations,
+    /// instances; not its camera), hanging its root nodes and its
+    /// node-less instances from `parent`. Returns the range of the new
+    /// instances.
+    pub fn append(&mut self, other: Scene, parent: Option<usize>) -> std::ops::Range<usize> {
+        let (meshes, nodes, skins) = (self.meshes.len(), self.nodes.len(), self.skins.len());
+        let first = self.instances.len();
+        self.meshes.extend(other.meshes);
+        self.nodes.extend(other.nodes.into_iter().map(|mut n| {
+            n.parent = n.parent.map(|p| p + nodes).or(parent);
+            n
+        }));
+        self.skins.extend(other.skins.into_iter().map(|mut s| {
+            s.joints.iter_mut().for_each(|j| *j += nodes);
+            s
+        }));
+        self.animations
+            .extend(other.animations.into_iter().map(|mut a| {
+                a.channels.iter_mut().for_each(|c| c.node += nodes);
+                a
+            }));
+        self.instances
+            .extend(other.instances.into_iter().map(|mut i| {
+                i.mesh += meshes;
+                i.node = i.node.map(|n| n + nodes).or(parent);
+                i.skin = i.skin.map(|s| s + skins);
+                i
+            }));
+        first..self.instances.len()
+    }
+
+    /// Adds a node; returns its index. `parent` must already exist.
+    pub fn add_node(&mut self, name: &str, parent: Option<usize>, trs: Trs) -> usize {
+        self.nodes.push(Node {
+            name: name.to_string(),
+            parent,
+            trs,
+        });
+        self.nodes.len() - 1
+    }
+
+    /// Adds a mesh with one instance hanging from `node`; returns the
+    /// instance index.
+    pub fn add_on_node(&mut self, mesh: Mesh, node: usize) -> usize {
+        let i = self.add(mesh, Affine3A::IDENTITY);
+        self.instances[i].node = Some(node);
+        i
+    }
+
+    /// Checks every mesh, node, skin, animation, the camera path and every
+    /// instance (its transform in the pose at time 0).
     pub fn validate(&self) -> Result<(), SceneError> {
         for (i, m) in self.meshes.iter().enumerate() {
             m.validate(i)?;
+        }
+        let element = |element: String, reason: String| SceneError::Element { element, reason };
+        for (i, n) in self.nodes.iter().enumerate() {
+            if n.parent.is_some_and(|p| p >= i) {
+                return Err(element(
+                    format!("node {i} ({})", n.name),
+                    "its parent does not come before it".into(),
+                ));
+            }
+            if !n.trs.is_finite() {
+                return Err(element(
+                    format!("node {i} ({})", n.name),
+                    "transform is not finite".into(),
+                ));
+            }
+        }
+        for (i, s) in self.skins.iter().enumerate() {
+            let name = || format!("skin {i} ({})", s.name);
+            if let Some(j) = s.joints.iter().find(|&&j| j >= self.nodes.len()) {
+                return Err(element(
+                    name(),
+                    format!("joint node {j} of {}", self.nodes.len()),
+                ));
+            }
+            if s.inverse_bind.len() != s.joints.len() {
+                return Err(element(
+                    name(),
+                    format!(
+                        "{} inverse bind matrices for {} joints",
+                        s.inverse_bind.len(),
+                        s.joints.len()
+                    ),
+                ));
+            }
+            if !s.inverse_bind.iter().all(|m| m.is_finite()) {
+                return Err(element(
+                    name(),
+                    "an inverse bind matrix is not finite".into(),
+                ));
+            }
+        }
+        for (a, anim) in self.animations.iter().enumerate() {
+            for (c, ch) in anim.channels.iter().enumerate() {
+                ch.validate(self.nodes.len(), a, c)?;
+            }
+        }
+        if let Some(c) = &self.camera {
+            c.validate()?;
         }
         for (i, inst) in self.instances.iter().enumerate() {
             if inst.mesh >= self.meshes.len() {
@@ -213,31 +379,61 @@ impl Scene {
                     meshes: self.meshes.len(),
                 });
             }
-            let det = inst.transform.matrix3.determinant();
-            if !inst.transform.is_finite() || !det.is_finite() || det.abs() < 1e-12 {
-                return Err(SceneError::BadTransform { instance: i });
+            if let Some(n) = inst.node.filter(|&n| n >= self.nodes.len()) {
+                return Err(element(
+                    format!("instance {i}"),
+                    format!("hangs from node {n} of {}", self.nodes.len()),
+                ));
             }
-            // Finite vertices under a finite transform can still overflow:
-            // the transformed bounds must be finite too.
-            if let Some(b) = self.meshes[inst.mesh].bounds() {
-                let (lo, hi) = transformed_bounds(&inst.transform, b);
-                if !lo.is_finite() || !hi.is_finite() {
-                    return Err(SceneError::BadTransform { instance: i });
+            if let Some(s) = inst.skin {
+                let Some(skin) = self.skins.get(s) else {
+                    return Err(element(
+                        format!("instance {i}"),
+                        format!("uses skin {s} of {}", self.skins.len()),
+                    ));
+                };
+                let Some(w) = &self.meshes[inst.mesh].skin else {
+                    return Err(element(
+                        format!("instance {i}"),
+                        "has a skin but its mesh has no joint weights".into(),
+                    ));
+                };
+                if let Some(v) = w
+                    .joints
+                    .iter()
+                    .position(|j| j.iter().any(|&j| j as usize >= skin.joints.len()))
+                {
+                    return Err(element(
+                        format!("mesh {} skin weights", inst.mesh),
+                        format!(
+                            "vertex {v} names a joint past the {} of skin {s}",
+                            skin.joints.len()
+                        ),
+                    ));
                 }
             }
+        }
+        let pose = self.pose(0.0);
+        for (i, inst) in self.instances.iter().enumerate() {
+            check_transform(i, &pose.instances[i], self.meshes[inst.mesh].bounds())?;
         }
         Ok(())
     }
 
-    /// Every instance's triangles in world space, in instance order, after
+    /// Every instance's triangles in world space in the pose at time 0
+    /// (skins applied), in instance order, after
     /// [`validate`](Self::validate).
     pub fn world_triangles(&self) -> Result<Vec<[Vec3; 3]>, SceneError> {
         self.validate()?;
+        let pose = self.pose(0.0);
         let mut out = Vec::new();
         for (i, inst) in self.instances.iter().enumerate() {
             let m = &self.meshes[inst.mesh];
+            let at = &pose.instances[i];
+            let (positions, _) = self.skinned(i, &pose);
             for t in 0..m.triangle_count() {
-                let tri = m.triangle(t).map(|p| inst.transform.transform_point3(p));
+                let idx = &m.indices[3 * t..3 * t + 3];
+                let tri = [0, 1, 2].map(|k| at.transform_point3(positions[idx[k] as usize]));
                 if !tri.iter().all(|p| p.is_finite()) {
                     return Err(SceneError::BadTransform { instance: i });
                 }
@@ -246,6 +442,28 @@ impl Scene {
         }
         Ok(out)
     }
+}
+
+/// Checks an instance's world transform: finite, invertible, and keeping
+/// the mesh's `bounds` finite.
+pub(crate) fn check_transform(
+    instance: usize,
+    t: &Affine3A,
+    bounds: Option<(Vec3, Vec3)>,
+) -> Result<(), SceneError> {
+    let det = t.matrix3.determinant();
+    if !t.is_finite() || !det.is_finite() || det.abs() < 1e-12 {
+        return Err(SceneError::BadTransform { instance });
+    }
+    // Finite vertices under a finite transform can still overflow: the
+    // transformed bounds must be finite too.
+    if let Some(b) = bounds {
+        let (lo, hi) = transformed_bounds(t, b);
+        if !lo.is_finite() || !hi.is_finite() {
+            return Err(SceneError::BadTransform { instance });
+        }
+    }
+    Ok(())
 }
 
 /// The box holding a box `(lo, hi)` after transform `t`: the bounds of its

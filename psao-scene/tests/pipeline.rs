@@ -17,8 +17,10 @@ fn quick() -> PipelineConfig {
 
 #[test]
 fn a_static_scene_traces_nothing_and_sends_nothing_after_the_first_frame() {
-    let (scene, _) = default_scene();
-    let mut p = Pipeline::new(scene, Vec::new(), quick()).unwrap();
+    let mut scene = default_scene();
+    scene.animations.clear();
+    assert!(scene.dynamic_instances().iter().all(|d| !d));
+    let mut p = Pipeline::new(scene, quick()).unwrap();
     for _ in 0..5 {
         let (frame, report) = p.step(1.0 / 60.0).unwrap();
         assert!(frame.is_none());
@@ -42,17 +44,14 @@ fn rigid_motion_away_from_geometry_sends_only_transforms() {
         ),
         Affine3A::IDENTITY,
     );
-    scene.add(
-        Mesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5)),
-        Affine3A::IDENTITY,
-    );
-    let motions: Vec<Motion> = vec![
-        None,
-        Some(Box::new(|t: f32| {
-            Affine3A::from_translation(Vec3::new(t, 0.0, 0.0))
-        })),
-    ];
-    let mut p = Pipeline::new(scene, motions, quick()).unwrap();
+    let node = scene.add_node("box", None, Trs::default());
+    scene.add_on_node(Mesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5)), node);
+    scene.animations.push(Animation::translation(
+        "fly",
+        node,
+        &[(0.0, Vec3::ZERO), (10.0, Vec3::new(10.0, 0.0, 0.0))],
+    ));
+    let mut p = Pipeline::new(scene, quick()).unwrap();
     for _ in 0..3 {
         let (frame, report) = p.step(0.1).unwrap();
         assert_eq!(report.transforms, 1);
@@ -69,8 +68,7 @@ fn rigid_motion_away_from_geometry_sends_only_transforms() {
 
 #[test]
 fn default_scene_streams_end_to_end() {
-    let (scene, motions) = default_scene();
-    let mut p = Pipeline::new(scene, motions, quick()).unwrap();
+    let mut p = Pipeline::new(default_scene(), quick()).unwrap();
     let mut client = Decoder::new(Limits::default());
     let kf = p.keyframe().unwrap();
     assert!(matches!(
@@ -83,7 +81,11 @@ fn default_scene_streams_end_to_end() {
         traced += report.traced;
         total += report.points;
         updated += report.updated;
-        assert_eq!(report.transforms, 1, "the box moves every frame");
+        assert_eq!(
+            report.transforms, 2,
+            "the box and the walker move every frame"
+        );
+        assert_eq!(report.deformed, 1, "the walker's pose changes");
         let frame = frame.expect("the box moved");
         assert!(matches!(
             client.receive(&frame.bytes),
@@ -115,8 +117,7 @@ fn default_scene_streams_end_to_end() {
 #[test]
 fn runs_are_deterministic() {
     let run = || {
-        let (scene, motions) = default_scene();
-        let mut p = Pipeline::new(scene, motions, quick()).unwrap();
+        let mut p = Pipeline::new(default_scene(), quick()).unwrap();
         let mut bytes = vec![p.keyframe().unwrap().bytes.to_vec()];
         for _ in 0..5 {
             bytes.push(p.step(1.0 / 60.0).unwrap().0.unwrap().bytes.to_vec());
@@ -127,16 +128,18 @@ fn runs_are_deterministic() {
 }
 
 #[test]
-fn the_default_scene_moves_only_its_box() {
-    let (scene, motions) = default_scene();
+fn the_default_scene_moves_only_its_box_and_its_walker() {
+    let scene = default_scene();
     assert!(scene.validate().is_ok());
-    let moving: Vec<usize> = (0..motions.len())
-        .filter(|&i| motions[i].is_some())
-        .collect();
-    assert_eq!(moving, vec![MOVING_BOX]);
-    let m = motions[MOVING_BOX].as_ref().unwrap();
-    assert_ne!(m(0.0), m(1.0));
-    assert_eq!(m(0.0), m(8.0), "period 8 s");
+    let dynamic = scene.dynamic_instances();
+    let moving: Vec<usize> = (0..dynamic.len()).filter(|&i| dynamic[i]).collect();
+    assert_eq!(moving, vec![MOVING_BOX, WALKER]);
+    assert!(scene.instances[WALKER].skin.is_some());
+    let at = |t: f32| scene.pose(t).instances[MOVING_BOX];
+    assert_ne!(at(0.0), at(1.0));
+    assert_eq!(at(0.0), at(8.0), "period 8 s");
+    // The camera path lasts at least 10 s.
+    assert!(scene.camera.as_ref().unwrap().duration() >= 10.0);
 }
 
 #[test]
@@ -145,8 +148,7 @@ fn skipping_changes_nothing_clients_see() {
     // motion can reach gives the value it already has: the tables with and
     // without skipping must be identical, frame after frame.
     let run = |skip: bool| {
-        let (scene, motions) = default_scene();
-        let mut p = Pipeline::new(scene, motions, PipelineConfig { skip, ..quick() }).unwrap();
+        let mut p = Pipeline::new(default_scene(), PipelineConfig { skip, ..quick() }).unwrap();
         let mut traced = 0;
         for _ in 0..12 {
             traced += p.step(1.0 / 20.0).unwrap().1.traced;

@@ -122,7 +122,7 @@ fn generation_is_deterministic_and_checks_its_input() {
         positions: vec![Vec3::ZERO, Vec3::X, Vec3::X * 2.0],
         normals: vec![Vec3::Z; 3],
         indices: vec![0, 1, 2],
-        double_sided: false,
+        ..Mesh::default()
     };
     assert!(generate_points(&flat, 10.0, 1).unwrap().is_empty());
     // A quad with parallel edges has no normal: refused, not NaN points.
@@ -171,6 +171,8 @@ fn scene_validation_names_the_problem() {
     s.instances.push(Instance {
         mesh: 5,
         transform: Affine3A::IDENTITY,
+        node: None,
+        skin: None,
     });
     assert_eq!(
         s.validate(),
@@ -183,6 +185,8 @@ fn scene_validation_names_the_problem() {
     s.instances[1] = Instance {
         mesh: 0,
         transform: Affine3A::from_scale(Vec3::new(1.0, 0.0, 1.0)),
+        node: None,
+        skin: None,
     };
     assert_eq!(s.validate(), Err(SceneError::BadTransform { instance: 1 }));
     let world = {

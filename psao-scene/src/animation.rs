@@ -1,0 +1,249 @@
+//! Node animation: keyframed translation, rotation and scale channels
+//! (glTF 2.0 animation samplers) with step, linear (slerp for rotations)
+//! and cubic-spline interpolation.
+//!
+//! Every animation loops over its own duration (its last key time): at
+//! scene time `t` it plays at `t mod duration`. An animation of duration 0
+//! holds its first keys.
+
+use glam::{Quat, Vec3};
+
+use crate::error::SceneError;
+use crate::node::{Trs, normalize_quat};
+
+/// How values between two keys are found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Interpolation {
+    /// The value of the key at or before the time.
+    Step,
+    /// Linear for translation and scale, spherical linear (shortest arc)
+    /// for rotations.
+    Linear,
+    /// Cubic Hermite spline; each key holds an in-tangent, a value and an
+    /// out-tangent (glTF `CUBICSPLINE`). Rotations are renormalized.
+    CubicSpline,
+}
+
+/// The keyed values of a channel: one per key, or three per key (in-tangent,
+/// value, out-tangent) for [`Interpolation::CubicSpline`].
+#[derive(Clone, Debug, PartialEq)]
+pub enum Keys {
+    /// Node translations.
+    Translation(Vec<Vec3>),
+    /// Node rotations (unit quaternions).
+    Rotation(Vec<Quat>),
+    /// Node scales.
+    Scale(Vec<Vec3>),
+}
+
+impl Keys {
+    fn len(&self) -> usize {
+        match self {
+            Keys::Translation(v) | Keys::Scale(v) => v.len(),
+            Keys::Rotation(v) => v.len(),
+        }
+    }
+
+    fn is_finite(&self) -> bool {
+        match self {
+            Keys::Translation(v) | Keys::Scale(v) => v.iter().all(|x| x.is_finite()),
+            Keys::Rotation(v) => v.iter().all(|q| q.is_finite()),
+        }
+    }
+}
+
+/// One animated property of one node.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Channel {
+    /// The node it drives (index into [`Scene::nodes`](crate::Scene::nodes)).
+    pub node: usize,
+    /// Key times in seconds, strictly increasing, not negative.
+    pub times: Vec<f32>,
+    /// The keyed values.
+    pub keys: Keys,
+    /// How values between keys are found.
+    pub interpolation: Interpolation,
+}
+
+/// A set of channels that play together.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Animation {
+    /// Name (for messages).
+    pub name: String,
+    /// The channels.
+    pub channels: Vec<Channel>,
+}
+
+impl Channel {
+    /// Checks the node index, key times and value counts. `animation` and
+    /// `channel` name it in errors.
+    pub fn validate(
+        &self,
+        nodes: usize,
+        animation: usize,
+        channel: usize,
+    ) -> Result<(), SceneError> {
+        let bad = |reason: String| SceneError::Animation {
+            animation,
+            channel,
+            reason,
+        };
+        if self.node >= nodes {
+            return Err(bad(format!("drives node {} of {nodes}", self.node)));
+        }
+        if self.times.is_empty() {
+            return Err(bad("has no keys".into()));
+        }
+        if !self.times.iter().all(|t| t.is_finite() && *t >= 0.0) {
+            return Err(bad("a key time is negative or not finite".into()));
+        }
+        if self.times.windows(2).any(|w| w[0] >= w[1]) {
+            return Err(bad("key times are not strictly increasing".into()));
+        }
+        let per_key = match self.interpolation {
+            Interpolation::CubicSpline => 3,
+            _ => 1,
+        };
+        if self.keys.len() != self.times.len() * per_key {
+            return Err(bad(format!(
+                "{} values for {} keys ({} per key)",
+                self.keys.len(),
+                self.times.len(),
+                per_key
+            )));
+        }
+        if !self.keys.is_finite() {
+            return Err(bad("a value is not finite".into()));
+        }
+        if let Keys::Rotation(q) = &self.keys {
+            // Tangents of a cubic spline need not be unit; values must.
+            let values = q.iter().skip(per_key / 2).step_by(per_key);
+            if values.into_iter().any(|q| (q.length() - 1.0).abs() > 1e-2) {
+                return Err(bad("a rotation is not a unit quaternion".into()));
+            }
+        }
+        Ok(())
+    }
+
+    /// The last key time.
+    pub fn duration(&self) -> f32 {
+        self.times.last().copied().unwrap_or(0.0)
+    }
+
+    /// Sets the property of `trs` it drives to its value at time `t`
+    /// (clamped to the keys). The channel must be valid.
+    pub fn apply(&self, t: f32, trs: &mut Trs) {
+        let (i, s, dt) = self.locate(t);
+        match &self.keys {
+            Keys::Translation(v) => trs.translation = self.vec3(v, i, s, dt),
+            Keys::Scale(v) => trs.scale = self.vec3(v, i, s, dt),
+            Keys::Rotation(q) => trs.rotation = self.quat(q, i, s, dt),
+        }
+    }
+
+    /// The key at or before `t`, the fraction `s` in `[0, 1]` towards the
+    /// next key, and the time between the two keys.
+    fn locate(&self, t: f32) -> (usize, f32, f32) {
+        let n = self.times.len();
+        let next = self.times.partition_point(|&k| k <= t);
+        if next == 0 {
+            return (0, 0.0, 0.0);
+        }
+        if next >= n {
+            return (n - 1, 0.0, 0.0);
+        }
+        let (a, b) = (self.times[next - 1], self.times[next]);
+        let dt = b - a;
+        (next - 1, ((t - a) / dt).clamp(0.0, 1.0), dt)
+    }
+
+    fn vec3(&self, v: &[Vec3], i: usize, s: f32, dt: f32) -> Vec3 {
+        let last = self.times.len() - 1;
+        match self.interpolation {
+            Interpolation::Step => v[i],
+            Interpolation::Linear if i == last => v[i],
+            Interpolation::Linear => v[i].lerp(v[i + 1], s),
+            Interpolation::CubicSpline if i == last => v[3 * i + 1],
+            Interpolation::CubicSpline => {
+                let (p0, m0) = (v[3 * i + 1], v[3 * i + 2] * dt);
+                let (p1, m1) = (v[3 * i + 4], v[3 * i + 3] * dt);
+                let h = hermite(s);
+                p0 * h[0] + m0 * h[1] + p1 * h[2] + m1 * h[3]
+            }
+        }
+    }
+
+    fn quat(&self, q: &[Quat], i: usize, s: f32, dt: f32) -> Quat {
+        let last = self.times.len() - 1;
+        let q = match self.interpolation {
+            Interpolation::Step => q[i],
+            Interpolation::Linear if i == last => q[i],
+            Interpolation::Linear => normalize_quat(q[i]).slerp(normalize_quat(q[i + 1]), s),
+            Interpolation::CubicSpline if i == last => q[3 * i + 1],
+            Interpolation::CubicSpline => {
+                let (p0, m0) = (q[3 * i + 1], q[3 * i + 2] * dt);
+                let (p1, m1) = (q[3 * i + 4], q[3 * i + 3] * dt);
+                let h = hermite(s);
+                p0 * h[0] + m0 * h[1] + p1 * h[2] + m1 * h[3]
+            }
+        };
+        normalize_quat(q)
+    }
+}
+
+/// The four cubic Hermite basis weights at `s`.
+fn hermite(s: f32) -> [f32; 4] {
+    let (s2, s3) = (s * s, s * s * s);
+    [
+        2.0 * s3 - 3.0 * s2 + 1.0,
+        s3 - 2.0 * s2 + s,
+        -2.0 * s3 + 3.0 * s2,
+        s3 - s2,
+    ]
+}
+
+impl Animation {
+    /// The last key time over all channels.
+    pub fn duration(&self) -> f32 {
+        self.channels
+            .iter()
+            .map(Channel::duration)
+            .fold(0.0, f32::max)
+    }
+
+    /// The time within the loop at scene time `t`.
+    pub fn local_time(&self, t: f32) -> f32 {
+        let d = self.duration();
+        if d > 0.0 && t.is_finite() {
+            t.rem_euclid(d)
+        } else {
+            0.0
+        }
+    }
+
+    /// Sets every driven property of `nodes` to its value at scene time `t`
+    /// (looping). The animation must be valid for `nodes`.
+    pub fn apply(&self, t: f32, nodes: &mut [Trs]) {
+        let local = self.local_time(t);
+        for c in &self.channels {
+            if let Some(trs) = nodes.get_mut(c.node) {
+                c.apply(local, trs);
+            }
+        }
+    }
+
+    /// A linear translation channel for `node` through `(time, position)`
+    /// keys, as a one-channel animation (a convenience for scenes built in
+    /// code).
+    pub fn translation(name: &str, node: usize, keys: &[(f32, Vec3)]) -> Animation {
+        Animation {
+            name: name.to_string(),
+            channels: vec![Channel {
+                node,
+                times: keys.iter().map(|k| k.0).collect(),
+                keys: Keys::Translation(keys.iter().map(|k| k.1).collect()),
+                interpolation: Interpolation::Linear,
+            }],
+        }
+    }
+}
