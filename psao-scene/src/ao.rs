@@ -11,8 +11,11 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use glam::{Vec3, Vec3A};
+use glam::{Affine3A, Vec3, Vec3A};
 use obvhs::BvhBuildParams;
+use obvhs::aabb::Aabb;
+use obvhs::bvh2::Bvh2;
+use obvhs::bvh2::builder::build_bvh2_from_tris;
 use obvhs::cwbvh::CwBvh;
 use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::ray::{Ray, RayHit};
@@ -98,7 +101,7 @@ impl Default for AoParams {
 /// indices in the mesh the mask belongs to.
 pub type TriangleMask = Option<(Arc<AlphaMask>, [u32; 3])>;
 
-/// World-space triangles to trace against, with optional alpha masks.
+/// Triangles to trace against, with optional alpha masks.
 #[derive(Clone, Debug, Default)]
 pub struct Geometry {
     /// Triangles.
@@ -107,10 +110,23 @@ pub struct Geometry {
     pub masks: Vec<TriangleMask>,
 }
 
-/// A BVH (obvhs CWBVH, "fast" preset) over world-space triangles. Rays
-/// pass through alpha-mask holes.
+/// The acceleration structure of a [`TriangleBvh`].
+#[derive(Clone)]
+enum Accel {
+    /// obvhs CWBVH: fastest to trace, built once.
+    Wide(CwBvh),
+    /// obvhs binary BVH: traced a little slower, but refitted in place
+    /// when its triangles move (skinned meshes).
+    Binary(Bvh2),
+}
+
+/// A BVH over triangles (in any one space). Rays pass through alpha-mask
+/// holes. [`new`](Self::new) builds a wide BVH for geometry that keeps its
+/// shape; [`refittable`](Self::refittable) one whose bounds
+/// [`refit`](Self::refit) follows deforming triangles without a rebuild.
+#[derive(Clone)]
 pub struct TriangleBvh {
-    bvh: Option<CwBvh>,
+    accel: Option<Accel>,
     tris: Vec<Triangle>,
     masks: Vec<TriangleMask>,
 }
@@ -119,35 +135,103 @@ impl std::fmt::Debug for TriangleBvh {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("TriangleBvh")
             .field("triangles", &self.tris.len())
+            .field("refittable", &matches!(self.accel, Some(Accel::Binary(_))))
             .finish()
     }
 }
 
+fn to_triangles(triangles: &[[Vec3; 3]]) -> Vec<Triangle> {
+    triangles
+        .iter()
+        .map(|t| Triangle {
+            v0: t[0].into(),
+            v1: t[1].into(),
+            v2: t[2].into(),
+        })
+        .collect()
+}
+
+fn keep_masks(masks: Vec<TriangleMask>) -> Vec<TriangleMask> {
+    if masks.iter().any(|m| m.is_some()) {
+        masks
+    } else {
+        Vec::new()
+    }
+}
+
 impl TriangleBvh {
-    /// Builds the BVH.
+    /// Builds a wide BVH (obvhs CWBVH, "fast" preset).
     pub fn new(geometry: Geometry) -> TriangleBvh {
-        let tris: Vec<Triangle> = geometry
-            .triangles
-            .iter()
-            .map(|t| Triangle {
-                v0: t[0].into(),
-                v1: t[1].into(),
-                v2: t[2].into(),
-            })
-            .collect();
-        let bvh = (!tris.is_empty()).then(|| {
-            build_cwbvh_from_tris(
+        let tris = to_triangles(&geometry.triangles);
+        let accel = (!tris.is_empty()).then(|| {
+            Accel::Wide(build_cwbvh_from_tris(
                 &tris,
                 BvhBuildParams::fast_build(),
                 &mut Duration::default(),
-            )
+            ))
         });
-        let masks = if geometry.masks.iter().any(|m| m.is_some()) {
-            geometry.masks
-        } else {
-            Vec::new()
-        };
-        TriangleBvh { bvh, tris, masks }
+        TriangleBvh {
+            accel,
+            tris,
+            masks: keep_masks(geometry.masks),
+        }
+    }
+
+    /// Builds a binary BVH that [`refit`](Self::refit) can update when the
+    /// triangles move (the tree stays, its boxes follow).
+    pub fn refittable(geometry: Geometry) -> TriangleBvh {
+        let tris = to_triangles(&geometry.triangles);
+        let accel = (!tris.is_empty()).then(|| {
+            Accel::Binary(build_bvh2_from_tris(
+                &tris,
+                BvhBuildParams::fast_build(),
+                &mut Duration::default(),
+            ))
+        });
+        TriangleBvh {
+            accel,
+            tris,
+            masks: keep_masks(geometry.masks),
+        }
+    }
+
+    /// Moves the triangles to `triangles` (same count and order as built)
+    /// and refits the boxes of a refittable BVH; a wide BVH is rebuilt.
+    /// Returns false, changing nothing, when the count differs.
+    pub fn refit(&mut self, triangles: &[[Vec3; 3]]) -> bool {
+        if triangles.len() != self.tris.len() {
+            return false;
+        }
+        self.tris = to_triangles(triangles);
+        match &mut self.accel {
+            Some(Accel::Binary(bvh)) => {
+                for n in 0..bvh.nodes.len() {
+                    let node = bvh.nodes[n];
+                    if !node.is_leaf() {
+                        continue;
+                    }
+                    let mut aabb = Aabb::empty();
+                    for k in node.first_index..node.first_index + node.prim_count {
+                        if let Some(&prim) = bvh.primitive_indices.get(k as usize) {
+                            if let Some(t) = self.tris.get(prim as usize) {
+                                aabb = aabb.union(&t.aabb());
+                            }
+                        }
+                    }
+                    bvh.nodes[n].set_aabb(aabb);
+                }
+                bvh.refit_all();
+            }
+            Some(Accel::Wide(bvh)) => {
+                *bvh = build_cwbvh_from_tris(
+                    &self.tris,
+                    BvhBuildParams::fast_build(),
+                    &mut Duration::default(),
+                );
+            }
+            None => {}
+        }
+        true
     }
 
     /// Number of triangles.
@@ -182,23 +266,30 @@ impl TriangleBvh {
 
     /// The nearest hit along `ray` (`ray.tmax` or more: none).
     fn closest(&self, ray: Ray) -> f32 {
-        let Some(bvh) = &self.bvh else {
-            return f32::INFINITY;
-        };
         let mut hit = RayHit::none();
-        if bvh.ray_traverse(ray, &mut hit, |r, id| {
-            self.hit(r, bvh.primitive_indices[id])
-        }) {
-            hit.t
-        } else {
-            f32::INFINITY
-        }
+        let found = match &self.accel {
+            None => false,
+            Some(Accel::Wide(bvh)) => bvh.ray_traverse(ray, &mut hit, |r, id| {
+                self.hit(r, bvh.primitive_indices[id])
+            }),
+            Some(Accel::Binary(bvh)) => bvh.ray_traverse(ray, &mut hit, |r, id| {
+                self.hit(r, bvh.primitive_indices[id])
+            }),
+        };
+        if found { hit.t } else { f32::INFINITY }
     }
 
     /// Whether `ray` hits nothing.
     fn misses(&self, ray: Ray) -> bool {
-        let Some(bvh) = &self.bvh else { return true };
-        bvh.ray_traverse_miss(ray, |r, id| self.hit(r, bvh.primitive_indices[id]))
+        match &self.accel {
+            None => true,
+            Some(Accel::Wide(bvh)) => {
+                bvh.ray_traverse_miss(ray, |r, id| self.hit(r, bvh.primitive_indices[id]))
+            }
+            Some(Accel::Binary(bvh)) => {
+                bvh.ray_traverse_miss(ray, |r, id| self.hit(r, bvh.primitive_indices[id]))
+            }
+        }
     }
 }
 
@@ -216,11 +307,58 @@ fn barycentric(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> [f32; 3] {
     [1.0 - v - w, v, w]
 }
 
-/// Traces AO rays against one or more triangle BVHs (for example a static
-/// one built once and a small one rebuilt as things move).
+/// One BVH placed in the world: its triangles are in a local space that
+/// `to_world` maps to world space (an instance's own BVH, moved by its
+/// transform rather than rebuilt).
+#[derive(Clone, Debug)]
+pub struct Layer {
+    /// The BVH.
+    pub bvh: Arc<TriangleBvh>,
+    /// Local-to-world transform (`None`: the BVH is in world space).
+    pub to_world: Option<Affine3A>,
+    /// World-to-local, cached.
+    to_local: Option<Affine3A>,
+}
+
+impl Layer {
+    /// A BVH in world space.
+    pub fn world(bvh: Arc<TriangleBvh>) -> Layer {
+        Layer {
+            bvh,
+            to_world: None,
+            to_local: None,
+        }
+    }
+
+    /// A BVH in a local space placed by `to_world` (which must be
+    /// invertible).
+    pub fn placed(bvh: Arc<TriangleBvh>, to_world: Affine3A) -> Layer {
+        Layer {
+            bvh,
+            to_world: Some(to_world),
+            to_local: Some(to_world.inverse()),
+        }
+    }
+
+    /// The ray in the layer's space (the same `t` reaches the same point).
+    fn local(&self, origin: Vec3A, dir: Vec3A, tmax: f32) -> Ray {
+        match &self.to_local {
+            None => Ray::new(origin, dir, 0.0, tmax),
+            Some(m) => Ray::new(
+                m.transform_point3a(origin),
+                m.transform_vector3a(dir),
+                0.0,
+                tmax,
+            ),
+        }
+    }
+}
+
+/// Traces AO rays against one or more placed triangle BVHs (for example a
+/// static one built once, and one per moving instance).
 #[derive(Clone, Debug)]
 pub struct AoTracer {
-    layers: Vec<Arc<TriangleBvh>>,
+    layers: Vec<Layer>,
 }
 
 /// AO of a batch of points.
@@ -235,20 +373,20 @@ pub struct AoResult {
 impl AoTracer {
     /// Builds one BVH over `triangles` (all solid).
     pub fn new(triangles: &[[Vec3; 3]]) -> AoTracer {
-        AoTracer::from_layers(vec![Arc::new(TriangleBvh::new(Geometry {
+        AoTracer::from_layers(vec![Layer::world(Arc::new(TriangleBvh::new(Geometry {
             triangles: triangles.to_vec(),
             masks: Vec::new(),
-        }))])
+        })))])
     }
 
     /// Traces against all of `layers` together.
-    pub fn from_layers(layers: Vec<Arc<TriangleBvh>>) -> AoTracer {
+    pub fn from_layers(layers: Vec<Layer>) -> AoTracer {
         AoTracer { layers }
     }
 
     /// Number of triangles over all layers.
     pub fn triangles(&self) -> usize {
-        self.layers.iter().map(|l| l.len()).sum()
+        self.layers.iter().map(|l| l.bvh.len()).sum()
     }
 
     /// AO at points with unit normals; point `i` draws its random numbers
@@ -297,7 +435,7 @@ impl AoTracer {
     /// AO at one point; `id` selects its random numbers. `p` must be
     /// valid ([`AoParams::validate`]).
     fn point_ao(&self, id: u32, point: Vec3, normal: Vec3, p: &AoParams) -> f32 {
-        if self.layers.iter().all(|l| l.is_empty()) {
+        if self.layers.iter().all(|l| l.bvh.is_empty()) {
             return 1.0;
         }
         if p.rays == 0 || !point.is_finite() {
@@ -322,7 +460,7 @@ impl AoTracer {
                     // Each layer's ray ends at the nearest hit so far.
                     let mut t = p.radius;
                     for l in &self.layers {
-                        t = t.min(l.closest(Ray::new(origin, dir, 0.0, t)));
+                        t = t.min(l.bvh.closest(l.local(origin, dir, t)));
                     }
                     sum += t / p.radius;
                 }
@@ -333,8 +471,11 @@ impl AoTracer {
                     let u = (k.wrapping_mul(GOLDEN).wrapping_add(shift) >> 8) as f32
                         / (1u32 << 24) as f32;
                     let len = u * p.radius;
-                    let ray = Ray::new(origin, dir, 0.0, len);
-                    if self.layers.iter().all(|l| l.misses(ray)) {
+                    if self
+                        .layers
+                        .iter()
+                        .all(|l| l.bvh.misses(l.local(origin, dir, len)))
+                    {
                         sum += 1.0;
                     }
                 }

@@ -30,7 +30,7 @@ mod skin;
 pub use alpha::{AlphaMask, AlphaTexture};
 pub use animation::{Animation, Channel, Interpolation, Keys};
 pub use ao::{
-    AoParams, AoResult, AoTracer, Estimator, Geometry, MAX_RAYS, TriangleBvh, TriangleMask,
+    AoParams, AoResult, AoTracer, Estimator, Geometry, Layer, MAX_RAYS, TriangleBvh, TriangleMask,
     morton_order, ray_offset,
 };
 pub use camera::{Camera, CameraKey, CameraPath, Frustum};

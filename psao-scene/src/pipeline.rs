@@ -24,7 +24,7 @@ use glam::{Affine3A, Mat3A, Vec3};
 use psao_codec::{EncodedFrame, Encoder, EncoderConfig, GridTable, Thresholds};
 
 use crate::alpha::AlphaMask;
-use crate::ao::{AoParams, AoTracer, Geometry, TriangleBvh, ray_offset};
+use crate::ao::{AoParams, AoTracer, Geometry, Layer, TriangleBvh, ray_offset};
 use crate::error::{SceneError, check_param};
 use crate::layout::{LayoutParams, layout};
 use crate::points::{PointSet, generate_points};
@@ -178,6 +178,9 @@ struct InstanceState {
     dynamic: bool,
     /// Points waiting to be traced until they come into view.
     pending: Vec<bool>,
+    /// Its own BVH in local space (dynamic instances, split BVH): moved by
+    /// its transform, refitted when it deforms.
+    bvh: Option<Arc<TriangleBvh>>,
 }
 
 /// A server streaming one scene.
@@ -189,7 +192,7 @@ pub struct Pipeline {
     encoder: Encoder,
     pose: Pose,
     static_layer: Option<Arc<TriangleBvh>>,
-    moving_layer: Option<Arc<TriangleBvh>>,
+    whole_layer: Option<Arc<TriangleBvh>>,
     time: f64,
     frame: u64,
 }
@@ -302,6 +305,7 @@ impl Pipeline {
                 transform_seq: 0,
                 bounds,
                 dynamic: dynamic[i],
+                bvh: None,
             });
         }
         let mut pipeline = Pipeline {
@@ -312,7 +316,7 @@ impl Pipeline {
             masks,
             pose,
             static_layer: None,
-            moving_layer: None,
+            whole_layer: None,
             time: 0.0,
             frame: 0,
         };
@@ -321,7 +325,7 @@ impl Pipeline {
             .iter()
             .map(|s| (0..s.points.len() as u32).collect())
             .collect();
-        let tracer = pipeline.tracer(true);
+        let tracer = pipeline.tracer(false);
         pipeline.trace_and_update(&tracer, &all, true)?;
         for s in &mut pipeline.instances {
             s.table.take_dirty();
@@ -391,55 +395,103 @@ impl Pipeline {
             .ok_or(SceneError::Encode(psao_codec::EncodeError::FrameTooLarge))
     }
 
-    /// World-space triangles (with alpha masks) of the instances that
-    /// `pick` selects, as they are now.
-    fn geometry(&self, pick: impl Fn(&InstanceState) -> bool) -> Geometry {
-        let mut g = Geometry::default();
-        for (s, inst) in self.instances.iter().zip(&self.scene.instances) {
-            if !pick(s) {
-                continue;
-            }
-            let m = &self.scene.meshes[inst.mesh];
-            let verts = if s.vertices.is_empty() {
-                &m.positions
-            } else {
-                &s.vertices
-            };
-            let mask = &self.masks[inst.mesh];
-            for t in 0..m.triangle_count() {
-                let i = &m.indices[3 * t..3 * t + 3];
-                g.triangles
-                    .push([0, 1, 2].map(|k| s.transform.transform_point3(verts[i[k] as usize])));
-                if let Some(mask) = mask {
-                    g.masks.push(Some((mask.clone(), [i[0], i[1], i[2]])));
+    /// Instance `i`'s triangles (with alpha masks) as they are now, in its
+    /// local space, or in world space with `world`.
+    fn instance_geometry(&self, i: usize, world: bool, g: &mut Geometry) {
+        let (s, inst) = (&self.instances[i], &self.scene.instances[i]);
+        let m = &self.scene.meshes[inst.mesh];
+        let verts = if s.vertices.is_empty() {
+            &m.positions
+        } else {
+            &s.vertices
+        };
+        let mask = &self.masks[inst.mesh];
+        for t in 0..m.triangle_count() {
+            let idx = &m.indices[3 * t..3 * t + 3];
+            let corner = |k: usize| {
+                let p = verts[idx[k] as usize];
+                if world {
+                    s.transform.transform_point3(p)
                 } else {
-                    g.masks.push(None);
+                    p
                 }
+            };
+            g.triangles.push([corner(0), corner(1), corner(2)]);
+            g.masks
+                .push(mask.as_ref().map(|m| (m.clone(), [idx[0], idx[1], idx[2]])));
+        }
+    }
+
+    /// World-space geometry of the instances `pick` selects.
+    fn world_geometry(&self, pick: impl Fn(&InstanceState) -> bool) -> Geometry {
+        let mut g = Geometry::default();
+        for i in 0..self.instances.len() {
+            if pick(&self.instances[i]) {
+                self.instance_geometry(i, true, &mut g);
             }
         }
         g
     }
 
-    /// The tracer for the scene now. With a split BVH the static layer is
-    /// built once; the moving layer (or, unsplit, the single one) is
-    /// rebuilt when `changed`.
+    /// The tracer for the scene now. With a split BVH, static geometry
+    /// sits in one world-space BVH built once, and each dynamic instance in
+    /// its own local-space BVH, placed by its transform (rigid motion
+    /// rebuilds nothing) and refitted when it deforms (see
+    /// [`refit_deformed`](Self::refit_deformed)). Unsplit, one world-space
+    /// BVH over everything is rebuilt whenever `changed`.
     fn tracer(&mut self, changed: bool) -> AoTracer {
-        let split = self.config.split_bvh;
-        if split && self.static_layer.is_none() {
-            self.static_layer = Some(Arc::new(TriangleBvh::new(self.geometry(|s| !s.dynamic))));
+        if !self.config.split_bvh {
+            if changed || self.whole_layer.is_none() {
+                self.whole_layer = Some(Arc::new(TriangleBvh::new(self.world_geometry(|_| true))));
+            }
+            return AoTracer::from_layers(
+                self.whole_layer.iter().cloned().map(Layer::world).collect(),
+            );
         }
-        if changed || self.moving_layer.is_none() {
-            let g = self.geometry(|s| !split || s.dynamic);
-            self.moving_layer = Some(Arc::new(TriangleBvh::new(g)));
+        if self.static_layer.is_none() {
+            self.static_layer = Some(Arc::new(TriangleBvh::new(
+                self.world_geometry(|s| !s.dynamic),
+            )));
         }
-        let layers = self
+        for i in 0..self.instances.len() {
+            if self.instances[i].dynamic && self.instances[i].bvh.is_none() {
+                let mut g = Geometry::default();
+                self.instance_geometry(i, false, &mut g);
+                let bvh = if self.instances[i].vertices.is_empty() {
+                    TriangleBvh::new(g)
+                } else {
+                    TriangleBvh::refittable(g)
+                };
+                self.instances[i].bvh = Some(Arc::new(bvh));
+            }
+        }
+        let mut layers: Vec<Layer> = self
             .static_layer
             .iter()
-            .filter(|_| split)
-            .chain(&self.moving_layer)
             .cloned()
+            .map(Layer::world)
             .collect();
+        layers.extend(
+            self.instances
+                .iter()
+                .filter_map(|s| s.bvh.clone().map(|b| Layer::placed(b, s.transform))),
+        );
         AoTracer::from_layers(layers)
+    }
+
+    /// Refits the BVH of every instance in `deformed` to its mesh as it is
+    /// now.
+    fn refit_deformed(&mut self, deformed: &[usize]) {
+        for &i in deformed {
+            if self.instances[i].bvh.is_none() {
+                continue;
+            }
+            let mut g = Geometry::default();
+            self.instance_geometry(i, false, &mut g);
+            if let Some(bvh) = &mut self.instances[i].bvh {
+                Arc::make_mut(bvh).refit(&g.triangles);
+            }
+        }
     }
 
     /// Traces the listed points of each instance (world space) and sets the
@@ -509,6 +561,7 @@ impl Pipeline {
         };
         let mut moved = vec![false; self.instances.len()];
         let mut changed = vec![false; self.instances.len()];
+        let mut deformed_list = Vec::new();
         let mut swept = Vec::new();
         for (i, s) in self.instances.iter_mut().enumerate() {
             if !s.dynamic {
@@ -544,6 +597,7 @@ impl Pipeline {
                 s.bounds = bounds_of(&s.vertices);
                 s.joints.clone_from(joints);
                 report.deformed += 1;
+                deformed_list.push(i);
             }
             let after = transformed_bounds(&next, s.bounds);
             if !after.0.is_finite() || !after.1.is_finite() {
@@ -591,11 +645,13 @@ impl Pipeline {
         report.t_select = t1.elapsed();
         let anything = which.iter().any(|w| !w.is_empty());
         let t2 = Instant::now();
-        let tracer = anything.then(|| self.tracer(changed.contains(&true)));
-        if !anything && changed.contains(&true) {
-            // Keep the moving layer current for the next frame that traces.
-            self.moving_layer = None;
+        if self.config.split_bvh {
+            self.refit_deformed(&deformed_list);
+        } else if changed.contains(&true) {
+            // Rebuilt the next time something is traced.
+            self.whole_layer = None;
         }
+        let tracer = anything.then(|| self.tracer(false));
         report.t_bvh = t2.elapsed();
         let t3 = Instant::now();
         if let Some(tracer) = &tracer {
