@@ -70,6 +70,6 @@ pub use header::{FLAG_CHECKSUM, FLAG_KEYFRAME, FrameHeader, HEADER_LEN, MAGIC, V
 pub use limits::Limits;
 pub use message::{BucketsMsg, CellsMsg, IndexIter, IndexList, Message, PlanarU32, kind};
 pub use mirror::{Change, Changes, Event, InstanceMirror, Mirror, Transform};
-pub use point::{PointWord, normal_table};
+pub use point::{POSITION_QUANTA, PointWord, normal_table};
 pub use reconstruct::{WeightParams, base_cell, reconstruct_ao, weight, world_to_local};
 pub use table::{DirtyCell, DirtySet, DropReason, GridTable, Placement, TableStats, Thresholds};

@@ -504,7 +504,7 @@ fn primitive_mesh(
         let Some(a) = prim.get(&sem) else {
             return Ok(None);
         };
-        let what = format!("{sem:?}");
+        let what = sem.to_string();
         if a.dimensions() != dims {
             return Err(gltf_error(
                 name,

@@ -249,7 +249,8 @@ pub struct Scene {
     pub nodes: Vec<Node>,
     /// Skins.
     pub skins: Vec<Skin>,
-    /// Animations (each loops over its own duration).
+    /// Animations; all of them play together, each looping over its own
+    /// duration (see [`select_animation`](Self::select_animation)).
     pub animations: Vec<Animation>,
     /// The viewer's path, if the scene has one.
     pub camera: Option<CameraPath>,
@@ -297,6 +298,23 @@ impl Scene {
                 i
             }));
         first..self.instances.len()
+    }
+
+    /// Keeps only the animation named `name` (glTF files often hold
+    /// alternatives, such as walk and run, that should not play together).
+    pub fn select_animation(&mut self, name: &str) -> Result<(), SceneError> {
+        let Some(k) = self.animations.iter().position(|a| a.name == name) else {
+            return Err(SceneError::Element {
+                element: format!("animation `{name}`"),
+                reason: format!(
+                    "not found (the scene has {:?})",
+                    self.animations.iter().map(|a| &a.name).collect::<Vec<_>>()
+                ),
+            });
+        };
+        let keep = self.animations.swap_remove(k);
+        self.animations = vec![keep];
+        Ok(())
     }
 
     /// Adds a node; returns its index. `parent` must already exist.

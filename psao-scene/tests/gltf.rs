@@ -47,14 +47,157 @@ fn box_animated_composes_node_transforms() {
     // Nodes 2 (under 0 -> 1) and 3 hold meshes 0 and 1.
     assert_eq!(s.instances.len(), 2);
     assert!(s.meshes.iter().map(|m| m.triangle_count()).sum::<usize>() > 100);
+    // One animation drives the second box; the first stays.
+    assert_eq!(s.animations.len(), 1);
+    assert_eq!(s.dynamic_instances(), vec![false, true]);
     // Nodes 0 and 2 carry the quaternion (0, 0, 0, -1): composed along the
-    // hierarchy they give the identity rotation.
-    for i in &s.instances {
-        let m = i.transform.to_cols_array();
-        let id = glam::Affine3A::IDENTITY.to_cols_array();
-        assert!(m.iter().zip(id).all(|(a, b)| (a - b).abs() < 1e-6), "{m:?}");
+    // hierarchy the static box has the identity rotation.
+    let pose = s.pose(0.0);
+    let m = pose.instances[0].to_cols_array();
+    let id = glam::Affine3A::IDENTITY.to_cols_array();
+    assert!(m.iter().zip(id).all(|(a, b)| (a - b).abs() < 1e-6), "{m:?}");
+    // The animated one moves over time.
+    assert_ne!(s.pose(0.5).instances[1], s.pose(1.5).instances[1]);
+}
+
+#[test]
+fn skinned_and_animated_models_load_and_move() {
+    // (file, joints, animations, duration of the first)
+    let models = [
+        ("RiggedSimple.glb", 2, 1, 2.083),
+        ("RiggedFigure.glb", 19, 1, 1.25),
+        ("Fox.glb", 24, 3, 3.417),
+    ];
+    for (file, joints, anims, duration) in models {
+        let s = load_gltf(&data(file)).unwrap();
+        assert_eq!(s.skins.len(), 1, "{file}");
+        assert_eq!(s.skins[0].joints.len(), joints, "{file}");
+        assert_eq!(s.animations.len(), anims, "{file}");
+        assert!(
+            (s.animations[0].duration() - duration).abs() < 1e-3,
+            "{file}"
+        );
+        let i = s.instances.iter().position(|x| x.skin.is_some()).unwrap();
+        assert!(s.dynamic_instances()[i], "{file}");
+        // The mesh deforms: some vertex moves between two times, and every
+        // vertex stays finite.
+        let (a, b) = (s.pose(0.0), s.pose(duration * 0.5));
+        let (pa, _) = s.skinned(i, &a);
+        let (pb, _) = s.skinned(i, &b);
+        assert!(pa.iter().chain(pb.iter()).all(|p| p.is_finite()), "{file}");
+        let moved = pa
+            .iter()
+            .zip(pb.iter())
+            .map(|(x, y)| x.distance(*y))
+            .fold(0.0, f32::max);
+        assert!(moved > 1e-3, "{file}: nothing moved");
+    }
+    // Alternatives can be narrowed to one.
+    let mut fox = load_gltf(&data("Fox.glb")).unwrap();
+    fox.select_animation("Walk").unwrap();
+    assert_eq!(fox.animations.len(), 1);
+    assert!((fox.duration() - 0.708).abs() < 1e-3);
+    let e = fox.select_animation("Dance").unwrap_err();
+    assert!(e.to_string().contains("Walk"), "{e}");
+    // A rigid rotation animation.
+    let tri = load_gltf(&data("AnimatedTriangle.gltf")).unwrap();
+    assert_eq!(tri.dynamic_instances(), vec![true]);
+    let q = |t: f32| tri.pose(t).instances[0];
+    assert_ne!(q(0.0), q(0.25));
+}
+
+#[test]
+fn cesium_man_walks_in_place_with_its_skin() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/CesiumMan.glb");
+    let s = load_gltf(&path).unwrap();
+    assert_eq!(s.skins[0].joints.len(), 19);
+    assert_eq!(s.animations.len(), 1);
+    assert_eq!(s.meshes[0].triangle_count(), 4672);
+    assert!((s.duration() - 2.0).abs() < 1e-3);
+    let i = s.instances.iter().position(|x| x.skin.is_some()).unwrap();
+    for t in [0.0, 0.5, 1.0, 1.5] {
+        let pose = s.pose(t);
+        let (p, n) = s.skinned(i, &pose);
+        let world: Vec<Vec3> = p
+            .iter()
+            .map(|&v| pose.instances[i].transform_point3(v))
+            .collect();
+        let lo = world.iter().fold(Vec3::INFINITY, |a, b| a.min(*b));
+        let hi = world.iter().fold(Vec3::NEG_INFINITY, |a, b| a.max(*b));
+        // A person about 1.5 m tall standing on y = 0, whatever the pose.
+        assert!(
+            (lo.y).abs() < 0.05 && (hi.y - 1.47).abs() < 0.08,
+            "t {t}: {lo} {hi}"
+        );
+        assert!(n.iter().all(|n| (n.length() - 1.0).abs() < 1e-3));
     }
 }
+
+#[test]
+fn skin_and_animation_errors_name_the_element() {
+    // A minimal skinned triangle, then broken one way at a time.
+    let doc = |skin: &str, anim: &str, joints: u32| {
+        format!(
+            r#"{{
+        "asset": {{"version": "2.0"}},
+        "buffers": [{{"uri": "data:application/octet-stream;base64,{b64}", "byteLength": 104}}],
+        "bufferViews": [{{"buffer": 0, "byteLength": 36}}, {{"buffer": 0, "byteOffset": 36, "byteLength": 48}},
+                        {{"buffer": 0, "byteOffset": 84, "byteLength": 8}}, {{"buffer": 0, "byteOffset": 92, "byteLength": 12}}],
+        "accessors": [{{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0,0,0], "max": [1,1,0]}},
+                      {{"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC4"}},
+                      {{"bufferView": 2, "componentType": 5126, "count": 2, "type": "SCALAR", "min": [0], "max": [1]}},
+                      {{"bufferView": 3, "componentType": 5121, "count": {joints}, "type": "VEC4"}}],
+        "meshes": [{{"primitives": [{{"attributes": {{"POSITION": 0, "WEIGHTS_0": 1, "JOINTS_0": 3}}}}]}}],
+        "nodes": [{{"mesh": 0, "skin": 0}}, {{"name": "bone"}}],
+        "skins": [{skin}],
+        "animations": [{anim}],
+        "scenes": [{{"nodes": [0, 1]}}]
+    }}"#,
+            b64 = BUFFER_B64
+        )
+    };
+    let good_skin = r#"{"joints": [1]}"#;
+    let good_anim = r#"{"channels": [{"sampler": 0, "target": {"node": 1, "path": "translation"}}],
+                        "samplers": [{"input": 2, "output": 0}]}"#;
+    let load = |json: String| load_gltf_slice(json.as_bytes(), "skin.gltf", None);
+    // The translation keys: 3 values (accessor 0) for 2 times.
+    let e = load(doc(good_skin, good_anim, 3)).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("animation 0 channel 0: 3 values for 2 keys"),
+        "{e}"
+    );
+    let fixed = good_anim.replace(r#""output": 0"#, r#""output": 0, "interpolation": "STEP""#);
+    assert!(load(doc(good_skin, &fixed, 3)).is_err());
+    // JOINTS_0 with 2 elements for 3 vertices.
+    let e = load(doc(good_skin, good_anim, 2)).unwrap_err();
+    assert!(
+        e.to_string().contains("JOINTS") && e.to_string().contains("mesh 0 primitive 0"),
+        "{e}"
+    );
+    // Inverse bind matrices that are not MAT4.
+    let e = load(doc(
+        r#"{"joints": [1], "inverseBindMatrices": 2}"#,
+        good_anim,
+        3,
+    ))
+    .unwrap_err();
+    assert!(
+        e.to_string().contains("skin 0") && e.to_string().contains("MAT4"),
+        "{e}"
+    );
+    // Morph target weights.
+    let morph = good_anim.replace("translation", "weights");
+    let e = load(doc(good_skin, &morph, 3)).unwrap_err();
+    assert!(
+        e.to_string().contains("animation 0 channel 0") && e.to_string().contains("morph"),
+        "{e}"
+    );
+}
+
+/// 104 bytes: three positions (0,0,0) (1,0,0) (0,1,0), three weights
+/// (1,0,0,0), times 0 and 1, then three zero joint sets (u8 VEC4).
+const BUFFER_B64: &str = "AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAAAAAAAAAAAAAAAIA/AAAAAAAAAAAAAAAAAAAAAAAAgD8AAAAAAAAAAAAAAAA=";
 
 #[test]
 fn data_uri_buffers_load() {

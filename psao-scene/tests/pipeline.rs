@@ -166,3 +166,174 @@ fn skipping_changes_nothing_clients_see() {
         "{traced_skip} vs {traced_all}"
     );
 }
+
+/// Where point `id` of `table` is stored, decoded to instance-local space.
+fn stored_position(table: &psao_codec::GridTable, id: u32) -> Option<Vec3> {
+    let psao_codec::Placement::Stored { cell, slot } = table.placement(id) else {
+        return None;
+    };
+    let key = table.buckets().iter().find(|e| e.cell == cell)?.key;
+    let def = table.def();
+    let cell_pos = def.cell_of_key(key)?;
+    let word = psao_codec::PointWord(table.cell(cell)[slot as usize]);
+    Some(def.cell_min(cell_pos) + word.frac() * def.cell_size)
+}
+
+#[test]
+fn skinned_points_follow_the_skin_to_the_client() {
+    let mut scene = load_gltf(std::path::Path::new("tests/data/RiggedSimple.glb")).unwrap();
+    let i = scene
+        .instances
+        .iter()
+        .position(|x| x.skin.is_some())
+        .unwrap();
+    scene.add(
+        Mesh::quad(Vec3::new(-3.0, -3.0, -3.0), Vec3::Z * 6.0, Vec3::X * 6.0),
+        Affine3A::IDENTITY,
+    );
+    let config = PipelineConfig {
+        density: 200.0,
+        ..quick()
+    };
+    let mut p = Pipeline::new(scene, config).unwrap();
+    let mut client = Decoder::new(Limits::default());
+    client.receive(&p.keyframe().unwrap().bytes).unwrap();
+    let (mut deformed, mut updated) = (0, 0);
+    for _ in 0..20 {
+        let (frame, r) = p.step(1.0 / 30.0).unwrap();
+        deformed += r.deformed;
+        updated += r.updated;
+        if let Some(f) = frame {
+            assert!(matches!(
+                client.receive(&f.bytes),
+                Ok(Event::Applied { .. })
+            ));
+        }
+    }
+    assert!(deformed > 10, "the skin moves: {deformed} of 20 frames");
+    assert!(updated > 0);
+    let table = p.table(i).unwrap();
+    let m = client.mirror().instance(i as u32).unwrap();
+    assert!(m.words() == table.words() && m.buckets() == table.buckets());
+    // Every stored point sits where the skin has it now, within the
+    // position threshold (3 quanta) plus rounding.
+    let (now, _) = p.current_points(i).unwrap();
+    let bind = &p.points(i).unwrap().positions;
+    let quantum = table.def().cell_size / psao_codec::POSITION_QUANTA as f32;
+    let (mut checked, mut moved) = (0, 0);
+    for (k, &pos) in now.iter().enumerate() {
+        let Some(stored) = stored_position(table, k as u32) else {
+            continue;
+        };
+        checked += 1;
+        let off = (stored - pos) / quantum;
+        assert!(off.length() <= 3.0 + 1.0, "point {k}: {off} quanta off");
+        if pos.distance(bind[k]) > 10.0 * quantum.max_element() {
+            moved += 1;
+        }
+    }
+    assert!(checked > 100, "{checked}");
+    assert!(moved > 10, "the pose bends the mesh: {moved} points moved");
+}
+
+#[test]
+fn split_and_whole_bvhs_trace_the_same_scene() {
+    let run = |split_bvh: bool| {
+        let mut p = Pipeline::new(
+            default_scene(),
+            PipelineConfig {
+                split_bvh,
+                ..quick()
+            },
+        )
+        .unwrap();
+        for _ in 0..6 {
+            p.step(1.0 / 20.0).unwrap();
+        }
+        (0..p.instance_count())
+            .flat_map(|i| p.table(i).unwrap().words().to_vec())
+            .collect::<Vec<u32>>()
+    };
+    let (a, b) = (run(true), run(false));
+    assert_eq!(a.len(), b.len());
+    // Rays in a moving instance's local space round differently from
+    // world-space rays: a grazing ray may flip, nothing more.
+    let differ = a.iter().zip(&b).filter(|(x, y)| x != y).count();
+    assert!(
+        differ * 200 < a.len(),
+        "{differ} of {} words differ",
+        a.len()
+    );
+}
+
+#[test]
+fn culling_waits_for_points_to_come_into_view() {
+    // A floor and a box sliding over it at x = 0; the camera first looks
+    // away (towards -x, from x = 20), then turns to the box.
+    let mut scene = Scene::default();
+    scene.add(
+        Mesh::quad(Vec3::new(-4.0, 0.0, -4.0), Vec3::Z * 8.0, Vec3::X * 8.0),
+        Affine3A::IDENTITY,
+    );
+    let node = scene.add_node("box", None, Trs::default());
+    scene.add_on_node(Mesh::cuboid(Vec3::splat(-0.25), Vec3::splat(0.25)), node);
+    scene.animations.push(Animation::translation(
+        "slide",
+        node,
+        &[
+            (0.0, Vec3::new(-1.0, 0.25, 0.0)),
+            (10.0, Vec3::new(1.0, 0.25, 0.0)),
+        ],
+    ));
+    let eye = Vec3::new(20.0, 1.0, 0.0);
+    let key = |time: f32, target: Vec3| CameraKey { time, eye, target };
+    scene.camera = Some(CameraPath {
+        keys: vec![
+            key(0.0, Vec3::new(20.0, 1.0, 10.0)),
+            key(1.0, Vec3::new(20.0, 1.0, 10.0)),
+            key(1.5, Vec3::ZERO),
+        ],
+        fov_y: 0.5,
+    });
+    let cull = ViewerCull {
+        aspect: 1.0,
+        far: 100.0,
+        margin: 0.0,
+    };
+    let no_camera = Pipeline::new(
+        Scene {
+            camera: None,
+            ..scene.clone()
+        },
+        PipelineConfig {
+            cull: Some(cull),
+            ..quick()
+        },
+    );
+    assert!(matches!(no_camera, Err(SceneError::Camera { .. })));
+    let mut p = Pipeline::new(
+        scene,
+        PipelineConfig {
+            cull: Some(cull),
+            ..quick()
+        },
+    )
+    .unwrap();
+    // Looking away: nothing traced, the box's surroundings wait.
+    let mut waiting = 0;
+    for _ in 0..8 {
+        let (_, r) = p.step(0.1).unwrap();
+        assert_eq!(r.traced, 0, "{r:?}");
+        waiting = r.culled;
+    }
+    assert!(waiting > 10, "{waiting}");
+    // Turned to the box: the waiting points are traced, none wait.
+    let mut traced = 0;
+    for _ in 0..10 {
+        let (_, r) = p.step(0.1).unwrap();
+        traced += r.traced;
+        waiting = r.culled;
+    }
+    assert_eq!(waiting, 0);
+    assert!(traced > 10, "{traced}");
+}
