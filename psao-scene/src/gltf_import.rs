@@ -62,6 +62,31 @@ pub fn load_gltf_slice(bytes: &[u8], name: &str, base: Option<&Path>) -> Result<
             }
         }
     }
+    // gltf-json 1.4 does not validate animation channels (their target
+    // node and path); the gltf crate unwraps both: check them here.
+    for (a, anim) in json.animations.iter().enumerate() {
+        for (c, ch) in anim.channels.iter().enumerate() {
+            let element = || format!("animation {a} channel {c}");
+            if ch.target.node.value() >= json.nodes.len() {
+                return Err(gltf_error(
+                    name,
+                    &element(),
+                    format!(
+                        "targets node {} of {}",
+                        ch.target.node.value(),
+                        json.nodes.len()
+                    ),
+                ));
+            }
+            if !matches!(ch.target.path, gltf::json::validation::Checked::Valid(_)) {
+                return Err(gltf_error(
+                    name,
+                    &element(),
+                    "target path is not translation, rotation, scale or weights".into(),
+                ));
+            }
+        }
+    }
     let gltf =
         gltf::Gltf::from_slice(bytes).map_err(|e| gltf_error(name, "document", e.to_string()))?;
     let buffers = load_buffers(&gltf, name, base)?;

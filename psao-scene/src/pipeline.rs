@@ -216,10 +216,7 @@ fn normal_matrix(t: &Affine3A) -> Mat3A {
 }
 
 fn bounds_of(points: &[Vec3]) -> (Vec3, Vec3) {
-    let first = points.first().copied().unwrap_or(Vec3::ZERO);
-    points
-        .iter()
-        .fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p)))
+    crate::scene::bounds_of(points).unwrap_or((Vec3::ZERO, Vec3::ZERO))
 }
 
 /// Most poses sampled to find a skinned instance's bounds over its

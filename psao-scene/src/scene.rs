@@ -55,12 +55,7 @@ impl Mesh {
 
     /// Local bounding box `(min, max)`; `None` without vertices.
     pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
-        let first = *self.positions.first()?;
-        Some(
-            self.positions
-                .iter()
-                .fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p))),
-        )
+        bounds_of(&self.positions)
     }
 
     /// Checks indices, counts and finiteness. `mesh` names it in errors.
@@ -433,7 +428,19 @@ impl Scene {
         }
         let pose = self.pose(0.0);
         for (i, inst) in self.instances.iter().enumerate() {
-            check_transform(i, &pose.instances[i], self.meshes[inst.mesh].bounds())?;
+            let bounds = if inst.skin.is_some() {
+                let (p, _) = self.skinned(i, &pose);
+                if !p.iter().all(|v| v.is_finite()) {
+                    return Err(element(
+                        format!("instance {i}"),
+                        "its skinned vertices are not finite at time 0".into(),
+                    ));
+                }
+                bounds_of(&p)
+            } else {
+                self.meshes[inst.mesh].bounds()
+            };
+            check_transform(i, &pose.instances[i], bounds)?;
         }
         Ok(())
     }
@@ -482,6 +489,16 @@ pub(crate) fn check_transform(
         }
     }
     Ok(())
+}
+
+/// The bounds of `points`; `None` without points.
+pub(crate) fn bounds_of(points: &[Vec3]) -> Option<(Vec3, Vec3)> {
+    let first = *points.first()?;
+    Some(
+        points
+            .iter()
+            .fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p))),
+    )
 }
 
 /// The box holding a box `(lo, hi)` after transform `t`: the bounds of its

@@ -186,6 +186,13 @@ fn skin_and_animation_errors_name_the_element() {
         e.to_string().contains("skin 0") && e.to_string().contains("MAT4"),
         "{e}"
     );
+    // Channels gltf-json leaves unchecked: a bad path, a node past the end.
+    let bogus = good_anim.replace("translation", "bogus");
+    let e = load(doc(good_skin, &bogus, 3)).unwrap_err();
+    assert!(e.to_string().contains("animation 0 channel 0: target path"), "{e}");
+    let far = good_anim.replace(r#""node": 1"#, r#""node": 9"#);
+    let e = load(doc(good_skin, &far, 3)).unwrap_err();
+    assert!(e.to_string().contains("targets node 9 of 2"), "{e}");
     // Morph target weights.
     let morph = good_anim.replace("translation", "weights");
     let e = load(doc(good_skin, &morph, 3)).unwrap_err();
