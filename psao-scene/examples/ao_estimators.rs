@@ -8,7 +8,9 @@
 //! estimator reaches a given error sooner.
 //!
 //! `cargo run --release -p psao-scene --example ao_estimators [LEVELS]`
-//! (LEVELS: midpoint subdivisions of every triangle, default 5).
+//! (LEVELS: midpoint subdivisions of every triangle, default 5), or with
+//! `default` (the default scene at time 0, traced as the server pipeline
+//! traces it) or `cesium` (CesiumMan standing on a floor) instead.
 
 use std::time::Instant;
 
@@ -43,30 +45,65 @@ fn room(levels: u32) -> Scene {
     s
 }
 
-fn main() {
-    // Subdivision levels: 0 = 80 triangles, 5 = 81,920 (same surfaces).
-    let levels = std::env::args()
-        .nth(1)
-        .and_then(|a| a.parse().ok())
-        .unwrap_or(5);
-    let scene = room(levels);
-    scene.validate().expect("valid scene");
+/// The tracer and world-space points of a server pipeline on `scene`, as
+/// its first frame traces them.
+fn from_pipeline(scene: Scene) -> (AoTracer, Vec<Vec3>, Vec<Vec3>) {
+    let config = PipelineConfig {
+        ao: AoParams {
+            rays: 1,
+            ..AoParams::default()
+        },
+        ..PipelineConfig::default()
+    };
+    let mut p = Pipeline::new(scene, config).expect("valid scene");
     let (mut pts, mut nrm) = (Vec::new(), Vec::new());
-    for (i, inst) in scene.instances.iter().enumerate() {
-        let set = generate_points(&scene.meshes[inst.mesh], 64.0, i as u64).expect("points");
-        pts.extend(
-            set.positions
-                .iter()
-                .map(|p| inst.transform.transform_point3(*p)),
-        );
-        nrm.extend(
-            set.normals
-                .iter()
-                .map(|n| inst.transform.transform_vector3(*n).normalize()),
-        );
+    for i in 0..p.instance_count() {
+        let (pos, n) = p.current_points(i).expect("instance");
+        let t = p.transform(i).expect("instance");
+        let nm = t.matrix3.inverse().transpose();
+        pts.extend(pos.iter().map(|q| t.transform_point3(*q)));
+        nrm.extend(n.iter().map(|q| (nm * *q).normalize()));
     }
-    let triangles = scene.world_triangles().expect("valid scene");
-    let tracer = AoTracer::new(&triangles);
+    (p.current_tracer(), pts, nrm)
+}
+
+fn main() {
+    let which = std::env::args().nth(1).unwrap_or_default();
+    let (tracer, pts, nrm) = match which.as_str() {
+        "default" => from_pipeline(default_scene()),
+        "cesium" => {
+            let path = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/CesiumMan.glb");
+            let mut s = load_gltf(std::path::Path::new(path)).expect("CesiumMan loads");
+            s.add(
+                Mesh::quad(Vec3::new(-3.0, 0.0, -3.0), Vec3::Z * 6.0, Vec3::X * 6.0),
+                Affine3A::IDENTITY,
+            );
+            from_pipeline(s)
+        }
+        _ => {
+            // Subdivision levels: 0 = 80 triangles, 5 = 81,920 (same surfaces).
+            let levels = which.parse().unwrap_or(5);
+            let scene = room(levels);
+            scene.validate().expect("valid scene");
+            let (mut pts, mut nrm) = (Vec::new(), Vec::new());
+            for (i, inst) in scene.instances.iter().enumerate() {
+                let set =
+                    generate_points(&scene.meshes[inst.mesh], 64.0, i as u64).expect("points");
+                pts.extend(
+                    set.positions
+                        .iter()
+                        .map(|p| inst.transform.transform_point3(*p)),
+                );
+                nrm.extend(
+                    set.normals
+                        .iter()
+                        .map(|n| inst.transform.transform_vector3(*n).normalize()),
+                );
+            }
+            let triangles = scene.world_triangles().expect("valid scene");
+            (AoTracer::new(&triangles), pts, nrm)
+        }
+    };
     let base = AoParams {
         seed: 1,
         ..AoParams::default()
@@ -83,7 +120,7 @@ fn main() {
     println!(
         "{} points, {} triangles, {} threads; reference: closest hit, 4096 rays/point, {:.1} s",
         pts.len(),
-        triangles.len(),
+        tracer.triangles(),
         rayon::current_num_threads(),
         t.elapsed().as_secs_f64()
     );

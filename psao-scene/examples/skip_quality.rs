@@ -55,7 +55,10 @@ fn main() {
         })
     };
     let (mut fast, mut full) = (make(true), make(false));
-    let mut clients = [Decoder::new(Limits::default()), Decoder::new(Limits::default())];
+    let mut clients = [
+        Decoder::new(Limits::default()),
+        Decoder::new(Limits::default()),
+    ];
     for (c, p) in clients.iter_mut().zip([&mut fast, &mut full]) {
         c.receive(&p.keyframe().expect("keyframe").bytes)
             .expect("keyframe applies");
@@ -106,7 +109,11 @@ fn main() {
     let n = frames as f64;
     println!(
         "{}: {frames} frames at 60 Hz, {:.1} s wall",
-        if gltf.is_empty() { "default scene" } else { &gltf },
+        if gltf.is_empty() {
+            "default scene"
+        } else {
+            &gltf
+        },
         t.elapsed().as_secs_f64()
     );
     println!(
@@ -115,9 +122,7 @@ fn main() {
         traced[1] as f64 / n,
         100.0 * rays[0] as f64 / rays[1].max(1) as f64
     );
-    println!(
-        "  client mirrors           identical after {identical} of {frames} frames"
-    );
+    println!("  client mirrors           identical after {identical} of {frames} frames");
     println!(
         "  reconstruction           PSNR of skip against every point {psnr}, worst AO difference {worst:.4} over {probes} probes"
     );

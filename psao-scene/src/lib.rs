@@ -1,15 +1,23 @@
 //! # psao-scene
 //!
-//! The server side of PSAO without a GPU: a scene model ([`Scene`],
-//! [`Mesh`]), point generation with weighted sample elimination
-//! ([`generate_points`], paper 3.1), grid layout ([`layout`], paper 3.2) and
-//! CPU ray-traced AO for points with obvhs ([`AoTracer`], paper 3.3), with
-//! both the closest-hit and the Laine-Karras estimator.
-//!
-//! It also holds the embedded [`default_scene`] and the server frame
-//! [`Pipeline`] for rigid motion (transforms, re-tracing only what motion
-//! reaches, thresholds, encoding). Skins, node animation and glTF import
-//! come next.
+//! The server side of PSAO without a GPU:
+//! - the scene model ([`Scene`]): meshes ([`Mesh`], optionally skinned with
+//!   [`SkinWeights`] or alpha-masked with [`AlphaMask`]), instances, a node
+//!   hierarchy ([`Node`], [`Trs`]), skins ([`Skin`]), keyframed node
+//!   animations ([`Animation`]: step, linear with slerp, cubic spline) and a
+//!   camera path ([`CameraPath`]); [`Scene::pose`] evaluates it at a time;
+//! - glTF 2.0 import ([`load_gltf`]) of meshes, nodes, skins, animations and
+//!   alpha-mask materials;
+//! - point generation with weighted sample elimination ([`generate_points`],
+//!   paper 3.1), each point anchored to its triangle so skinning carries it;
+//! - grid layout ([`layout`], paper 3.2);
+//! - CPU ray-traced AO for points with obvhs ([`AoTracer`], paper 3.3), with
+//!   the closest-hit and the Laine-Karras estimators, over placed BVH
+//!   [`Layer`]s (static geometry built once, moving instances placed by
+//!   their transform, skinned ones refitted);
+//! - the embedded [`default_scene`] and the server frame [`Pipeline`]:
+//!   animate, skin, choose what motion can reach (and, per viewer, what is
+//!   in view), trace, apply the thresholds, encode.
 
 mod alpha;
 mod animation;

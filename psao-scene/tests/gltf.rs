@@ -189,7 +189,10 @@ fn skin_and_animation_errors_name_the_element() {
     // Channels gltf-json leaves unchecked: a bad path, a node past the end.
     let bogus = good_anim.replace("translation", "bogus");
     let e = load(doc(good_skin, &bogus, 3)).unwrap_err();
-    assert!(e.to_string().contains("animation 0 channel 0: target path"), "{e}");
+    assert!(
+        e.to_string().contains("animation 0 channel 0: target path"),
+        "{e}"
+    );
     let far = good_anim.replace(r#""node": 1"#, r#""node": 9"#);
     let e = load(doc(good_skin, &far, 3)).unwrap_err();
     assert!(e.to_string().contains("targets node 9 of 2"), "{e}");

@@ -112,6 +112,30 @@ fn default_scene_streams_end_to_end() {
     let (x, nx) = world_to_local(&Affine3A::IDENTITY, Vec3::new(8.0, 0.0, 10.0), Vec3::Y).unwrap();
     let ao = reconstruct_ao(client.mirror().instance(0).unwrap(), x, nx);
     assert!(ao > 0.8, "an open stretch of floor is bright: {ao}");
+    // At every point the server holds, the client's reconstruction (eq.
+    // 2-4, a weighted blend of the neighbours) matches the server's value.
+    for i in [0, MOVING_BOX, WALKER] {
+        let (table, mirror) = (
+            p.table(i).unwrap(),
+            client.mirror().instance(i as u32).unwrap(),
+        );
+        let (pos, nrm) = p.current_points(i).unwrap();
+        let (mut sum, mut n) = (0.0f64, 0u32);
+        for k in 0..pos.len() as u32 {
+            let psao_codec::Placement::Stored { cell, slot } = table.placement(k) else {
+                continue;
+            };
+            let server = psao_codec::PointWord(table.cell(cell)[slot as usize]).ao();
+            let client_ao = reconstruct_ao(mirror, pos[k as usize], nrm[k as usize]);
+            sum += (client_ao - server).abs() as f64;
+            n += 1;
+        }
+        let mean = sum / n as f64;
+        assert!(
+            n >= 5 && mean < 0.03,
+            "instance {i}: mean |client - server| {mean} over {n}"
+        );
+    }
 }
 
 #[test]
