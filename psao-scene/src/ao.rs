@@ -312,10 +312,8 @@ fn barycentric(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> [f32; 3] {
 /// transform rather than rebuilt).
 #[derive(Clone, Debug)]
 pub struct Layer {
-    /// The BVH.
-    pub bvh: Arc<TriangleBvh>,
-    /// Local-to-world transform (`None`: the BVH is in world space).
-    pub to_world: Option<Affine3A>,
+    bvh: Arc<TriangleBvh>,
+    to_world: Option<Affine3A>,
     /// World-to-local, cached.
     to_local: Option<Affine3A>,
 }
@@ -338,6 +336,16 @@ impl Layer {
             to_world: Some(to_world),
             to_local: Some(to_world.inverse()),
         }
+    }
+
+    /// The BVH.
+    pub fn bvh(&self) -> &Arc<TriangleBvh> {
+        &self.bvh
+    }
+
+    /// Local-to-world transform (`None`: the BVH is in world space).
+    pub fn to_world(&self) -> Option<Affine3A> {
+        self.to_world
     }
 
     /// The ray in the layer's space (the same `t` reaches the same point).

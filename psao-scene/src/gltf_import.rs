@@ -1,13 +1,21 @@
-//! glTF 2.0 import (the `gltf` crate): meshes and the node hierarchy of the
-//! default scene become [`Mesh`]es and [`Instance`]s.
+//! glTF 2.0 import (the `gltf` crate): the default scene's node hierarchy,
+//! meshes, skins, animations and alpha-mask materials become a [`Scene`].
 //!
 //! Buffers come from the GLB binary chunk, `data:` URIs (base64) or files
-//! next to the document; no texture is decoded. Every mesh primitive is a
-//! mesh; every node that holds it is an instance with the node's composed
-//! transform. Missing normals are computed from the faces; missing indices
-//! mean sequential triangles. Skinned meshes are imported in their bind
-//! pose (skinning comes with the animation slice). Any problem is a
-//! [`SceneError::Gltf`] naming the file and the element.
+//! next to the document. Nodes are kept (parents before children) with
+//! their translation, rotation and scale; every mesh primitive is a
+//! [`Mesh`], and every node that holds it an [`Instance`] hanging from the
+//! node (with the node's skin, if any). Translation, rotation and scale
+//! channels become [`Animation`]s. `MASK` materials become alpha masks from
+//! the base colour factor and `COLOR_0`. Missing normals are computed from
+//! the faces; missing indices mean sequential triangles.
+//!
+//! Not supported, each refused with an error: morph targets, more than four
+//! joints per vertex, alpha masks read from textures, sparse accessors,
+//! primitives other than triangle lists. Any problem is a
+//! [`SceneError::Gltf`] naming the file and the element. Work is bounded:
+//! every buffer is read once, at most [`MAX_BUFFER_BYTES`] in all, and the
+//! accessors read from them at most [`MAX_ACCESSOR_BYTES`] in all.
 
 use std::collections::HashMap;
 use std::io::Read;
@@ -24,8 +32,25 @@ use crate::node::Trs;
 use crate::scene::{Instance, Mesh, Scene};
 use crate::skin::{Skin, SkinWeights};
 
-/// Largest buffer a glTF file may declare (1 GiB).
+/// Most buffer bytes a glTF file may declare, all buffers together (1 GiB).
 pub const MAX_BUFFER_BYTES: usize = 1 << 30;
+
+/// Most bytes read out of accessors, all accessors together (1 GiB).
+pub const MAX_ACCESSOR_BYTES: usize = 1 << 30;
+
+/// Most mesh instances (node-primitive pairs) a file may produce.
+pub const MAX_INSTANCES: usize = 65_536;
+
+/// Most vertices over all skinned instances (each is skinned when the
+/// scene is validated and posed).
+pub const MAX_SKINNED_VERTICES: usize = 1 << 24;
+
+/// The file's buffers, and how many accessor bytes have been read from
+/// them so far.
+struct Buffers {
+    data: Vec<Vec<u8>>,
+    read: std::cell::Cell<usize>,
+}
 
 /// Reads a `.gltf` or `.glb` file.
 pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
@@ -40,6 +65,19 @@ pub fn load_gltf_slice(bytes: &[u8], name: &str, base: Option<&Path>) -> Result<
     // gltf-json 1.4's validation indexes the POSITION accessor without a
     // bounds check (a panic found by fuzzing): check attribute accessor
     // indices on the unvalidated document first, then validate.
+    // gltf 1.4 subtracts 12 from a GLB header's length unchecked.
+    if bytes.starts_with(b"glTF") {
+        let length = bytes
+            .get(8..12)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+        if length.is_none_or(|l| l < 12) {
+            return Err(gltf_error(
+                name,
+                "document",
+                "GLB header is shorter than 12 bytes or declares a length below 12".into(),
+            ));
+        }
+    }
     let raw = gltf::Gltf::from_slice_without_validation(bytes)
         .map_err(|e| gltf_error(name, "document", e.to_string()))?;
     let json = raw.as_json();
@@ -191,6 +229,13 @@ pub fn load_gltf_slice(bytes: &[u8], name: &str, base: Option<&Path>) -> Result<
                     out.meshes.len() - 1
                 }
             };
+            if out.instances.len() >= MAX_INSTANCES {
+                return Err(gltf_error(
+                    name,
+                    &format!("node {}", node.index()),
+                    format!("more than {MAX_INSTANCES} mesh instances"),
+                ));
+            }
             out.instances.push(Instance {
                 mesh: id,
                 transform: Affine3A::IDENTITY,
@@ -204,6 +249,19 @@ pub fn load_gltf_slice(bytes: &[u8], name: &str, base: Option<&Path>) -> Result<
         out.animations
             .push(read_animation(&anim, &buffers, name, &node_of)?);
     }
+    let skinned: usize = out
+        .instances
+        .iter()
+        .filter(|i| i.skin.is_some())
+        .map(|i| out.meshes[i.mesh].positions.len())
+        .fold(0, usize::saturating_add);
+    if skinned > MAX_SKINNED_VERTICES {
+        return Err(gltf_error(
+            name,
+            "skins",
+            format!("{skinned} skinned vertices over all instances, above {MAX_SKINNED_VERTICES}"),
+        ));
+    }
     out.validate()
         .map_err(|e| gltf_error(name, "scene", e.to_string()))?;
     Ok(out)
@@ -213,7 +271,7 @@ pub fn load_gltf_slice(bytes: &[u8], name: &str, base: Option<&Path>) -> Result<
 /// (identity when absent).
 fn read_skin(
     skin: &gltf::Skin<'_>,
-    buffers: &[Vec<u8>],
+    buffers: &Buffers,
     name: &str,
     node_of: &dyn Fn(usize, &str) -> Result<usize, SceneError>,
 ) -> Result<Skin, SceneError> {
@@ -275,7 +333,7 @@ fn read_skin(
 /// An animation's translation, rotation and scale channels.
 fn read_animation(
     anim: &gltf::Animation<'_>,
-    buffers: &[Vec<u8>],
+    buffers: &Buffers,
     name: &str,
     node_of: &dyn Fn(usize, &str) -> Result<usize, SceneError>,
 ) -> Result<Animation, SceneError> {
@@ -360,33 +418,40 @@ fn gltf_error(file: &str, element: &str, reason: String) -> SceneError {
     }
 }
 
-fn load_buffers(
-    gltf: &gltf::Gltf,
-    name: &str,
-    base: Option<&Path>,
-) -> Result<Vec<Vec<u8>>, SceneError> {
+fn load_buffers(gltf: &gltf::Gltf, name: &str, base: Option<&Path>) -> Result<Buffers, SceneError> {
     let mut out = Vec::new();
+    let mut total = 0usize;
     for buffer in gltf.buffers() {
         let element = format!("buffer {}", buffer.index());
-        if buffer.length() > MAX_BUFFER_BYTES {
+        total = total.saturating_add(buffer.length());
+        if total > MAX_BUFFER_BYTES {
             return Err(gltf_error(
                 name,
                 &element,
-                format!(
-                    "declares {} bytes, above the {} byte limit",
-                    buffer.length(),
-                    MAX_BUFFER_BYTES
-                ),
+                format!("buffers declare more than the {MAX_BUFFER_BYTES} byte limit in all"),
             ));
         }
         let data = match buffer.source() {
-            gltf::buffer::Source::Bin => gltf.blob.clone().ok_or_else(|| {
-                gltf_error(
+            // glTF 2.0, 4.4.3.3: only the first buffer may be the GLB's
+            // binary chunk.
+            gltf::buffer::Source::Bin if buffer.index() != 0 => {
+                return Err(gltf_error(
                     name,
                     &element,
-                    "refers to a missing GLB binary chunk".into(),
-                )
-            })?,
+                    "only buffer 0 may refer to the GLB binary chunk".into(),
+                ));
+            }
+            gltf::buffer::Source::Bin => gltf
+                .blob
+                .as_deref()
+                .map(|b| b[..b.len().min(buffer.length())].to_vec())
+                .ok_or_else(|| {
+                    gltf_error(
+                        name,
+                        &element,
+                        "refers to a missing GLB binary chunk".into(),
+                    )
+                })?,
             gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
                 let (_, payload) = uri
                     .split_once(";base64,")
@@ -427,12 +492,15 @@ fn load_buffers(
         }
         out.push(data);
     }
-    Ok(out)
+    Ok(Buffers {
+        data: out,
+        read: std::cell::Cell::new(0),
+    })
 }
 
 fn primitive_mesh(
     prim: &gltf::Primitive<'_>,
-    buffers: &[Vec<u8>],
+    buffers: &Buffers,
     name: &str,
     element: &str,
 ) -> Result<Mesh, SceneError> {
@@ -742,7 +810,7 @@ impl Elements {
 
 /// Copies an accessor's elements out of its buffer view with every offset,
 /// stride and length checked (the gltf crate's reader asserts instead).
-fn read_accessor(acc: &gltf::Accessor<'_>, buffers: &[Vec<u8>]) -> Result<Elements, String> {
+fn read_accessor(acc: &gltf::Accessor<'_>, buffers: &Buffers) -> Result<Elements, String> {
     if acc.sparse().is_some() {
         return Err("sparse accessors are not supported".into());
     }
@@ -755,6 +823,7 @@ fn read_accessor(acc: &gltf::Accessor<'_>, buffers: &[Vec<u8>]) -> Result<Elemen
         ));
     }
     let data = buffers
+        .data
         .get(view.buffer().index())
         .ok_or("refers to a missing buffer")?;
     let view_end = view
@@ -777,6 +846,16 @@ fn read_accessor(acc: &gltf::Accessor<'_>, buffers: &[Vec<u8>]) -> Result<Elemen
             return Err(format!("{count} elements run past the buffer view"));
         }
     }
+    let read = buffers
+        .read
+        .get()
+        .saturating_add(count.saturating_mul(size));
+    if read > MAX_ACCESSOR_BYTES {
+        return Err(format!(
+            "accessors would read more than the {MAX_ACCESSOR_BYTES} byte limit in all"
+        ));
+    }
+    buffers.read.set(read);
     let mut bytes = Vec::with_capacity(count * size);
     for k in 0..count {
         let at = start + k * stride;

@@ -44,7 +44,10 @@ pub use ao::{
 pub use camera::{Camera, CameraKey, CameraPath, Frustum};
 pub use default_scene::{MOVING_BOX, TRELLIS, WALKER, default_scene};
 pub use error::SceneError;
-pub use gltf_import::{MAX_BUFFER_BYTES, load_gltf, load_gltf_slice};
+pub use gltf_import::{
+    MAX_ACCESSOR_BYTES, MAX_BUFFER_BYTES, MAX_INSTANCES, MAX_SKINNED_VERTICES, load_gltf,
+    load_gltf_slice,
+};
 pub use layout::{LayoutParams, layout};
 pub use node::{Node, Trs, compose};
 pub use pipeline::{FrameReport, Pipeline, PipelineConfig, ViewerCull};

@@ -118,6 +118,10 @@ pub struct FrameReport {
     pub transforms: u32,
     /// Skinned instances whose pose changed.
     pub deformed: u32,
+    /// Instances whose new pose was degenerate (a singular or non-finite
+    /// transform, or skinned vertices that overflow) and that kept their
+    /// last valid pose instead.
+    pub held: u32,
     /// Bytes of the frame sent (0 when none was).
     pub bytes: u64,
     /// Time to evaluate animations and skin meshes and points.
@@ -143,6 +147,7 @@ impl FrameReport {
         self.updated += other.updated;
         self.transforms += other.transforms;
         self.deformed += other.deformed;
+        self.held += other.held;
         self.bytes += other.bytes;
         self.t_animate += other.t_animate;
         self.t_select += other.t_select;
@@ -167,6 +172,9 @@ struct InstanceState {
     /// Skinned vertex positions and normals now (empty: the mesh's own).
     vertices: Vec<Vec3>,
     vertex_normals: Vec<Vec3>,
+    /// Room to skin into before the new pose is known to be sound.
+    scratch_vertices: Vec<Vec3>,
+    scratch_normals: Vec<Vec3>,
     /// Joint matrices of the current pose (skinned instances).
     joints: Vec<Affine3A>,
     table: GridTable,
@@ -191,6 +199,8 @@ pub struct Pipeline {
     masks: Vec<Option<Arc<AlphaMask>>>,
     encoder: Encoder,
     pose: Pose,
+    /// Transforms set by [`Pipeline::place_instance`], overriding animation.
+    overrides: Vec<Option<Affine3A>>,
     static_layer: Option<Arc<TriangleBvh>>,
     whole_layer: Option<Arc<TriangleBvh>>,
     time: f64,
@@ -221,7 +231,7 @@ fn bounds_of(points: &[Vec3]) -> (Vec3, Vec3) {
 
 /// Most poses sampled to find a skinned instance's bounds over its
 /// animation.
-const MAX_BOUND_SAMPLES: usize = 600;
+const MAX_BOUND_SAMPLES: usize = 1800;
 
 impl Pipeline {
     /// Generates points for every instance, lays out their grids and traces
@@ -296,6 +306,8 @@ impl Pipeline {
                 normals,
                 vertices,
                 vertex_normals,
+                scratch_vertices: Vec::new(),
+                scratch_normals: Vec::new(),
                 joints: pose.joints[i].clone(),
                 table,
                 transform: pose.instances[i],
@@ -311,6 +323,7 @@ impl Pipeline {
             config,
             instances,
             masks,
+            overrides: vec![None; pose.instances.len()],
             pose,
             static_layer: None,
             whole_layer: None,
@@ -377,6 +390,33 @@ impl Pipeline {
     /// traces against), for reference renders and tests.
     pub fn current_tracer(&mut self) -> AoTracer {
         self.tracer(false)
+    }
+
+    /// Places dynamic instance `i` at `transform` from the next step on, in
+    /// place of its animation (a scene event, such as a user moving an
+    /// object). Static instances share one BVH built once and cannot be
+    /// moved; a singular or non-finite transform is refused.
+    pub fn place_instance(&mut self, i: usize, transform: Affine3A) -> Result<(), SceneError> {
+        let Some(s) = self.instances.get(i) else {
+            return Err(SceneError::Element {
+                element: format!("instance {i}"),
+                reason: format!("the scene has {} instances", self.instances.len()),
+            });
+        };
+        if !s.dynamic {
+            return Err(SceneError::Element {
+                element: format!("instance {i}"),
+                reason: "is static (no animation moves it), so it cannot be placed".into(),
+            });
+        }
+        check_transform(i, &transform, Some(s.bounds))?;
+        self.overrides[i] = Some(transform);
+        Ok(())
+    }
+
+    /// Whether instance `i` can move (an animation drives it or its skin).
+    pub fn is_dynamic(&self, i: usize) -> bool {
+        self.instances.get(i).is_some_and(|s| s.dynamic)
     }
 
     /// A keyframe of the current state (for a client joining now).
@@ -564,26 +604,41 @@ impl Pipeline {
             if !s.dynamic {
                 continue;
             }
-            let next = self.pose.instances[i];
-            check_transform(i, &next, Some(s.bounds))?;
+            let next = self.overrides[i].unwrap_or(self.pose.instances[i]);
             let joints = &self.pose.joints[i];
             let deformed = !s.vertices.is_empty() && *joints != s.joints;
             if next == s.transform && !deformed {
                 continue;
             }
+            // Work out the new state before changing anything: a degenerate
+            // pose (a singular or non-finite transform, say an object
+            // scaled to zero to hide it, or skinned vertices that overflow)
+            // keeps the instance where it was.
+            let inst = &self.scene.instances[i];
+            let mesh = &self.scene.meshes[inst.mesh];
+            let mut bounds = s.bounds;
+            if deformed && let Some(w) = &mesh.skin {
+                w.skin(
+                    &mesh.positions,
+                    &mesh.normals,
+                    joints,
+                    &mut s.scratch_vertices,
+                    &mut s.scratch_normals,
+                );
+                bounds = bounds_of(&s.scratch_vertices);
+            }
+            let after = transformed_bounds(&next, bounds);
+            if check_transform(i, &next, Some(bounds)).is_err()
+                || !after.0.is_finite()
+                || !after.1.is_finite()
+            {
+                report.held += 1;
+                continue;
+            }
             let before = transformed_bounds(&s.transform, s.bounds);
             if deformed {
-                let inst = &self.scene.instances[i];
-                let mesh = &self.scene.meshes[inst.mesh];
-                if let Some(w) = &mesh.skin {
-                    w.skin(
-                        &mesh.positions,
-                        &mesh.normals,
-                        joints,
-                        &mut s.vertices,
-                        &mut s.vertex_normals,
-                    );
-                }
+                std::mem::swap(&mut s.vertices, &mut s.scratch_vertices);
+                std::mem::swap(&mut s.vertex_normals, &mut s.scratch_normals);
                 s.points.follow(
                     mesh,
                     &s.vertices,
@@ -591,14 +646,10 @@ impl Pipeline {
                     &mut s.positions,
                     &mut s.normals,
                 );
-                s.bounds = bounds_of(&s.vertices);
+                s.bounds = bounds;
                 s.joints.clone_from(joints);
                 report.deformed += 1;
                 deformed_list.push(i);
-            }
-            let after = transformed_bounds(&next, s.bounds);
-            if !after.0.is_finite() || !after.1.is_finite() {
-                return Err(SceneError::BadTransform { instance: i });
             }
             swept.push(grow((before.0.min(after.0), before.1.max(after.1))));
             if next != s.transform {
@@ -708,35 +759,48 @@ impl Pipeline {
     }
 }
 
-/// For each skinned, animated instance, the local bounds of its skinned
-/// vertices over its animations (sampled at 30 Hz, at most
-/// [`MAX_BOUND_SAMPLES`] poses), grown by 5% of their extent: room for its
-/// grid.
+/// For each skinned instance, the local bounds of its skinned vertices at
+/// time 0 and, when it is animated, over its animations, grown by 5% of
+/// their extent: room for its grid. Animations loop over their own
+/// durations, so together they repeat only after a common multiple of
+/// them; poses are sampled at 30 Hz over the sum of the distinct durations
+/// (which covers each animation's whole loop against several phases of the
+/// others), at most 60 s and [`MAX_BOUND_SAMPLES`] poses. A pose beyond the
+/// sampled ones can still push points out of the grid: they are dropped and
+/// counted (`TableStats::out_of_grid`), never an error.
 fn skinned_bounds(scene: &Scene, dynamic: &[bool]) -> Vec<Option<(Vec3, Vec3)>> {
     let mut out = vec![None; scene.instances.len()];
     let skinned: Vec<usize> = (0..scene.instances.len())
         .filter(|&i| {
-            dynamic[i]
-                && scene.instances[i].skin.is_some()
+            scene.instances[i].skin.is_some()
                 && scene.meshes[scene.instances[i].mesh].skin.is_some()
         })
         .collect();
     if skinned.is_empty() {
         return out;
     }
-    let duration = scene.duration();
-    let samples = ((duration * 30.0).ceil() as usize).clamp(1, MAX_BOUND_SAMPLES);
+    let mut durations: Vec<f32> = scene
+        .animations
+        .iter()
+        .map(|a| a.duration())
+        .filter(|d| *d > 0.0)
+        .collect();
+    durations.sort_by(f32::total_cmp);
+    durations.dedup();
+    let horizon = durations.iter().sum::<f32>().min(60.0);
+    let samples = ((horizon * 30.0).ceil() as usize).clamp(1, MAX_BOUND_SAMPLES);
     let mut pose = Pose::default();
     for k in 0..=samples {
-        scene.pose_into(duration * k as f32 / samples as f32, &mut pose);
+        scene.pose_into(horizon * k as f32 / samples as f32, &mut pose);
         for &i in &skinned {
+            if k > 0 && !dynamic[i] {
+                continue;
+            }
             let (p, _) = scene.skinned(i, &pose);
             let b = bounds_of(&p);
-            let b = if !b.0.is_finite() || !b.1.is_finite() {
+            if !b.0.is_finite() || !b.1.is_finite() {
                 continue;
-            } else {
-                b
-            };
+            }
             out[i] = Some(match out[i] {
                 Some((lo, hi)) => (b.0.min(lo), b.1.max(hi)),
                 None => b,

@@ -289,3 +289,36 @@ fn accessors_outside_their_buffer_are_refused() {
     );
     assert!(e.to_string().contains("POSITION accessor 0"), "{e}");
 }
+
+#[test]
+fn glb_headers_and_binary_chunks_are_checked() {
+    // A GLB header whose length is below its own 12 bytes (the gltf crate
+    // would subtract and overflow).
+    let e = load_gltf_slice(b"glTF\x02\0\0\0\x00\0\0\0", "short.glb", None).unwrap_err();
+    assert!(e.to_string().contains("GLB header"), "{e}");
+    let e = load_gltf_slice(b"glTF\x02\0", "tiny.glb", None).unwrap_err();
+    assert!(e.to_string().contains("GLB header"), "{e}");
+    // Only buffer 0 may be the binary chunk.
+    let bytes = std::fs::read(data("CornellBox.glb")).unwrap();
+    let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let json = std::str::from_utf8(&bytes[20..20 + json_len]).unwrap();
+    let start = json
+        .find(r#""buffers":["#)
+        .expect("the document lists buffers");
+    let end = start + json[start..].find(']').unwrap();
+    let mut doc = format!("{},{{\"byteLength\":4}}{}", &json[..end], &json[end..]);
+    while doc.len() % 4 != 0 {
+        doc.push(' ');
+    }
+    let bin = &bytes[20 + json_len..];
+    let mut glb = Vec::new();
+    glb.extend_from_slice(b"glTF");
+    glb.extend_from_slice(&2u32.to_le_bytes());
+    glb.extend_from_slice(&((12 + 8 + doc.len() + bin.len()) as u32).to_le_bytes());
+    glb.extend_from_slice(&(doc.len() as u32).to_le_bytes());
+    glb.extend_from_slice(b"JSON");
+    glb.extend_from_slice(doc.as_bytes());
+    glb.extend_from_slice(bin);
+    let e = load_gltf_slice(&glb, "two.glb", None).unwrap_err();
+    assert!(e.to_string().contains("only buffer 0"), "{e}");
+}

@@ -361,3 +361,96 @@ fn culling_waits_for_points_to_come_into_view() {
     assert_eq!(waiting, 0);
     assert!(traced > 10, "{traced}");
 }
+
+#[test]
+fn a_skinned_instance_without_animation_keeps_its_points_in_its_grid() {
+    // The mesh hangs from a node 5 m along x, its skin from a joint at the
+    // origin: the joint matrix moves the vertices 5 m back in the
+    // instance's space, away from the bind-pose bounds.
+    let mut s = Scene::default();
+    let holder = s.add_node("holder", None, Trs::from_translation(Vec3::X * 5.0));
+    let joint = s.add_node("joint", None, Trs::default());
+    s.skins.push(Skin {
+        name: "s".into(),
+        joints: vec![joint],
+        inverse_bind: vec![Affine3A::IDENTITY],
+    });
+    let mut quad = Mesh::quad(Vec3::ZERO, Vec3::X, Vec3::Z);
+    quad.skin = Some(SkinWeights {
+        joints: vec![[0; 4]; 4],
+        weights: vec![[1.0, 0.0, 0.0, 0.0]; 4],
+    });
+    let i = s.add_on_node(quad, holder);
+    s.instances[i].skin = Some(0);
+    let p = Pipeline::new(s, quick()).unwrap();
+    let stats = p.table(i).unwrap().stats();
+    assert!(stats.stored > 0);
+    assert_eq!(stats.out_of_grid, 0, "{stats:?}");
+}
+
+#[test]
+fn a_degenerate_pose_holds_the_instance_and_others_carry_on() {
+    let mut scene = Scene::default();
+    let a = scene.add_node("a", None, Trs::default());
+    let b = scene.add_node("b", None, Trs::default());
+    scene.add_on_node(Mesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5)), a);
+    scene.add_on_node(Mesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5)), b);
+    scene.animations.push(Animation::translation(
+        "slide",
+        a,
+        &[(0.0, Vec3::ZERO), (10.0, Vec3::X * 10.0)],
+    ));
+    // b shrinks to nothing between 1 s and 2 s, then comes back.
+    scene.animations.push(Animation {
+        name: "vanish".into(),
+        channels: vec![Channel {
+            node: b,
+            times: vec![0.0, 1.0, 2.0, 10.0],
+            keys: Keys::Scale(vec![Vec3::ONE, Vec3::ZERO, Vec3::ZERO, Vec3::ONE]),
+            interpolation: Interpolation::Step,
+        }],
+    });
+    let mut p = Pipeline::new(scene, quick()).unwrap();
+    let mut client = Decoder::new(Limits::default());
+    client.receive(&p.keyframe().unwrap().bytes).unwrap();
+    let mut held = 0;
+    for _ in 0..30 {
+        let (frame, r) = p.step(0.1).unwrap();
+        held += r.held;
+        if let Some(f) = frame {
+            client.receive(&f.bytes).unwrap();
+        }
+    }
+    assert!(held >= 9, "b is held while its scale is zero: {held}");
+    let m = client
+        .mirror()
+        .instance(0)
+        .unwrap()
+        .transform()
+        .unwrap()
+        .affine();
+    assert_eq!(
+        m,
+        p.transform(0).unwrap(),
+        "a kept moving and its client followed"
+    );
+    assert!((p.transform(0).unwrap().translation.x - 3.0).abs() < 1e-4);
+}
+
+#[test]
+fn instances_can_be_placed_by_scene_events() {
+    let mut p = Pipeline::new(default_scene(), quick()).unwrap();
+    let to = Affine3A::from_translation(Vec3::new(9.0, 0.25, 10.0));
+    let e = p.place_instance(0, to).unwrap_err();
+    assert!(e.to_string().contains("static"), "{e}");
+    assert!(p.place_instance(99, to).is_err());
+    assert!(
+        p.place_instance(MOVING_BOX, Affine3A::from_scale(Vec3::ZERO))
+            .is_err()
+    );
+    p.place_instance(MOVING_BOX, to).unwrap();
+    for _ in 0..3 {
+        p.step(1.0 / 60.0).unwrap();
+        assert_eq!(p.transform(MOVING_BOX).unwrap(), to);
+    }
+}

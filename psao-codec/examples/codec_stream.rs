@@ -6,7 +6,7 @@
 //! server's table, and AO reconstructed from a mirror at every point is
 //! compared with the value the server traced.
 //!
-//! `cargo run --release -p psao-codec --example stream`
+//! `cargo run --release -p psao-codec --example codec_stream`
 
 #[path = "support/synthetic.rs"]
 mod synthetic;
