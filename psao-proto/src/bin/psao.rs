@@ -1,0 +1,479 @@
+//! `psao`: the PSAO command line.
+//!
+//! - `psao demo`: server and client in one process over loopback QUIC on
+//!   the embedded default scene, with a live status line and a summary;
+//! - `psao serve`: a server for clients elsewhere;
+//! - `psao view`: a headless client.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use psao_codec::Limits;
+use psao_proto::tls::{fingerprint_hex, parse_fingerprint};
+use psao_proto::{
+    ClientConfig, ClientHandle, Ended, Identity, ServerConfig, ServerHandle, ServerStats, Trust,
+    connect, serve,
+};
+use psao_scene::{AoParams, PipelineConfig, Scene, default_scene, load_gltf};
+
+#[derive(Parser)]
+#[command(
+    name = "psao",
+    version,
+    about = "Point-based split ambient occlusion: server, client and demo"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Server and clients in one process over loopback QUIC, on the
+    /// embedded default scene; prints live figures and a summary.
+    Demo {
+        /// Seconds of scene to stream.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f32,
+        /// Server frames per second.
+        #[arg(long, default_value_t = 60)]
+        rate: u16,
+        /// Clients to connect.
+        #[arg(long, default_value_t = 1)]
+        clients: usize,
+        /// Points spawned per square metre (half are kept).
+        #[arg(long, default_value_t = 64.0)]
+        density: f32,
+        /// AO rays per point.
+        #[arg(long, default_value_t = 64)]
+        rays: u32,
+    },
+    /// Serve a scene to clients.
+    Serve {
+        /// A glTF file (default: the embedded default scene).
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// Address to listen on.
+        #[arg(long, default_value = "0.0.0.0:4433")]
+        bind: SocketAddr,
+        /// PEM certificate chain (default: a generated self-signed one).
+        #[arg(long, requires = "key")]
+        cert: Option<PathBuf>,
+        /// PEM private key of --cert.
+        #[arg(long, requires = "cert")]
+        key: Option<PathBuf>,
+        /// Frames per second.
+        #[arg(long, default_value_t = 60)]
+        rate: u16,
+        /// Most clients at once.
+        #[arg(long, default_value_t = 256)]
+        max_clients: usize,
+        /// Most bytes queued for one client before it is resynchronized.
+        #[arg(long, default_value_t = 1 << 20)]
+        queue_bytes: usize,
+        /// Points spawned per square metre (half are kept).
+        #[arg(long, default_value_t = 64.0)]
+        density: f32,
+        /// Stop after this many seconds (default: until Ctrl-C).
+        #[arg(long)]
+        seconds: Option<f32>,
+    },
+    /// Connect to a server and keep a mirror in sync, printing figures.
+    View {
+        /// The server.
+        #[arg(long)]
+        connect: SocketAddr,
+        /// SHA-256 fingerprint of the server's certificate (as `psao serve`
+        /// prints it).
+        #[arg(long, conflicts_with = "ca")]
+        fingerprint: Option<String>,
+        /// PEM file of certificates to trust instead.
+        #[arg(long)]
+        ca: Option<PathBuf>,
+        /// Stop after this many seconds (default: until the server closes).
+        #[arg(long)]
+        seconds: Option<f32>,
+    },
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    let runtime = match tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("error: cannot start the runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let result = runtime.block_on(async {
+        match cli.command {
+            Command::Demo {
+                seconds,
+                rate,
+                clients,
+                density,
+                rays,
+            } => demo(seconds, rate, clients, density, rays).await,
+            Command::Serve {
+                scene,
+                bind,
+                cert,
+                key,
+                rate,
+                max_clients,
+                queue_bytes,
+                density,
+                seconds,
+            } => {
+                let identity = match (cert, key) {
+                    (Some(c), Some(k)) => {
+                        Identity::from_pem_files(&c, &k).map_err(|e| e.to_string())?
+                    }
+                    _ => Identity::self_signed().map_err(|e| e.to_string())?,
+                };
+                let (scene, name) = load_scene(scene.as_deref())?;
+                let config = ServerConfig {
+                    bind,
+                    frame_rate: rate,
+                    max_clients,
+                    max_queue_bytes: queue_bytes,
+                    pipeline: pipeline_config(density, 64),
+                    scene_name: name,
+                    ..ServerConfig::default()
+                };
+                serve_until_stopped(scene, config, &identity, seconds).await
+            }
+            Command::View {
+                connect: addr,
+                fingerprint,
+                ca,
+                seconds,
+            } => {
+                let trust = match (fingerprint, ca) {
+                    (Some(f), _) => {
+                        Trust::Fingerprint(parse_fingerprint(&f).map_err(|e| e.to_string())?)
+                    }
+                    (None, Some(ca)) => Trust::Roots(read_roots(&ca)?),
+                    (None, None) => {
+                        return Err("give --fingerprint (printed by `psao serve`) or --ca".into());
+                    }
+                };
+                view(addr, &trust, seconds).await
+            }
+        }
+    });
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn pipeline_config(density: f32, rays: u32) -> PipelineConfig {
+    PipelineConfig {
+        density,
+        ao: AoParams {
+            rays,
+            ..AoParams::default()
+        },
+        ..PipelineConfig::default()
+    }
+}
+
+fn load_scene(path: Option<&std::path::Path>) -> Result<(Scene, String), String> {
+    match path {
+        None => Ok((default_scene(), "default".into())),
+        Some(p) => {
+            let scene = load_gltf(p).map_err(|e| e.to_string())?;
+            let name = p
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            Ok((scene, name))
+        }
+    }
+}
+
+fn read_roots(
+    path: &std::path::Path,
+) -> Result<Vec<rustls::pki_types::CertificateDer<'static>>, String> {
+    use rustls::pki_types::pem::PemObject;
+    rustls::pki_types::CertificateDer::pem_file_iter(path)
+        .and_then(|it| it.collect::<Result<Vec<_>, _>>())
+        .map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// One status line: server rate, bit rate per client, work per frame.
+fn status(s: &ServerStats, prev: &ServerStats, dt: f64) -> String {
+    let frames = (s.frames - prev.frames).max(1) as f64;
+    let clients = s.clients.max(1) as f64;
+    format!(
+        "{:5.1} fps | {:6.3} Mbit/s per client | traced {:5.0}/frame | sent {:4.0}/frame | step {:5.2} ms | frame age {:5.1} ms | {} clients",
+        (s.frames - prev.frames) as f64 / dt,
+        (s.written_bytes - prev.written_bytes) as f64 * 8.0 / dt / 1e6 / clients,
+        (s.report.traced - prev.report.traced) as f64 / frames,
+        (s.report.updated - prev.report.updated) as f64 / frames,
+        (s.step_time - prev.step_time).as_secs_f64() * 1e3 / frames,
+        s.frame_age * 1e3,
+        s.clients,
+    )
+}
+
+async fn demo(
+    seconds: f32,
+    rate: u16,
+    clients: usize,
+    density: f32,
+    rays: u32,
+) -> Result<(), String> {
+    if !(seconds > 0.0 && seconds <= 3600.0) {
+        return Err("--seconds must be in (0, 3600]".into());
+    }
+    let identity = Identity::self_signed().map_err(|e| e.to_string())?;
+    let config = ServerConfig {
+        frame_rate: rate,
+        pipeline: pipeline_config(density, rays),
+        ..ServerConfig::default()
+    };
+    println!("psao demo: preparing the default scene (points, grids, first trace)...");
+    let t = Instant::now();
+    let server = serve(default_scene(), config, &identity)
+        .await
+        .map_err(|e| e.to_string())?;
+    println!(
+        "server on {} (self-signed certificate, SHA-256 {}), ready in {:.2} s",
+        server.local_addr(),
+        fingerprint_hex(&server.fingerprint()),
+        t.elapsed().as_secs_f64()
+    );
+    let trust = Trust::Fingerprint(server.fingerprint());
+    let mut handles = Vec::new();
+    for _ in 0..clients {
+        let h = connect(
+            server.local_addr(),
+            &trust,
+            ClientConfig {
+                limits: Limits::default(),
+                viewer: false,
+            },
+            Duration::from_secs(10),
+        )
+        .await
+        .map_err(|e| e.to_string())?;
+        handles.push(h);
+    }
+    let welcome = handles[0].with_session(|s| s.welcome().cloned());
+    if let Some(w) = welcome {
+        println!(
+            "{} client(s) joined: scene `{}`, {} Hz, compression {}",
+            clients, w.scene, w.frame_rate, w.compression
+        );
+    }
+    let total = (seconds * rate as f32).round() as u64;
+    let bar = ProgressBar::new(total);
+    bar.set_style(
+        ProgressStyle::with_template("{bar:30} {pos:>5}/{len} frames  {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let start = server.stats();
+    let mut prev = (start.clone(), Instant::now());
+    loop {
+        tokio::time::sleep(Duration::from_millis(250)).await;
+        let s = server.stats();
+        let frames = s.frames - start.frames;
+        bar.set_position(frames.min(total));
+        let dt = prev.1.elapsed().as_secs_f64();
+        bar.set_message(status(&s, &prev.0, dt));
+        prev = (s, Instant::now());
+        if frames >= total {
+            break;
+        }
+        if handles.iter().any(|h| h.ended() != Ended::Running) {
+            bar.abandon();
+            return Err("a client's session ended early".into());
+        }
+    }
+    bar.finish();
+    summarize(server, handles, start).await
+}
+
+/// Stops the server, waits for the clients to apply its last frame,
+/// checks their mirrors against its tables and prints the figures.
+async fn summarize(
+    server: ServerHandle,
+    handles: Vec<ClientHandle>,
+    start: ServerStats,
+) -> Result<(), String> {
+    let (pipeline, end) = server.shutdown(Duration::from_secs(2)).await;
+    let last = end.sequence;
+    let mut in_sync = 0;
+    for h in &handles {
+        let reached = h
+            .wait_for(Duration::from_secs(5), |s| {
+                s.mirror().sequence() == Some(last)
+            })
+            .await;
+        let same = reached
+            && h.with_session(|s| {
+                (0..pipeline.instance_count()).all(|i| {
+                    let t = pipeline.table(i).expect("instance");
+                    s.mirror()
+                        .instance(i as u32)
+                        .is_some_and(|m| m.words() == t.words() && m.buckets() == t.buckets())
+                })
+            });
+        in_sync += same as usize;
+    }
+    let frames = (end.frames - start.frames).max(1) as f64;
+    let secs = end.step_time.as_secs_f64();
+    let stats: Vec<_> = handles
+        .iter()
+        .map(|h| h.with_session(|s| s.stats()))
+        .collect();
+    println!();
+    println!("summary");
+    println!(
+        "  server frames       {} stepped, {} with news, {} keyframes",
+        end.frames, end.sent_frames, end.keyframes
+    );
+    println!(
+        "  server work         {:.2} ms/frame stepping ({:.0} points traced, {:.0} sent per frame)",
+        secs * 1e3 / frames,
+        end.report.traced as f64 / frames,
+        end.report.updated as f64 / frames
+    );
+    println!(
+        "  bytes               {} encoded once, {} written to {} client(s)",
+        end.encoded_bytes,
+        end.written_bytes,
+        handles.len()
+    );
+    for (k, s) in stats.iter().enumerate() {
+        println!(
+            "  client {k}            {} frames applied ({} keyframes), {} failed, {} stale, {} keyframe requests, {:.1} kB received",
+            s.applied,
+            s.keyframes,
+            s.failed,
+            s.stale,
+            s.requests,
+            s.bytes as f64 / 1e3
+        );
+    }
+    println!(
+        "  frame age           {:.1} ms (send to ACK, mean over clients)",
+        end.frame_age * 1e3
+    );
+    println!(
+        "  mirrors             {in_sync} of {} equal to the server's tables at sequence {last}",
+        handles.len()
+    );
+    for h in handles {
+        h.close().await;
+    }
+    if in_sync == stats.len() {
+        Ok(())
+    } else {
+        Err("a client's mirror differs from the server".into())
+    }
+}
+
+async fn serve_until_stopped(
+    scene: Scene,
+    config: ServerConfig,
+    identity: &Identity,
+    seconds: Option<f32>,
+) -> Result<(), String> {
+    let server = serve(scene, config, identity)
+        .await
+        .map_err(|e| e.to_string())?;
+    println!("listening on {}", server.local_addr());
+    println!(
+        "certificate SHA-256 {}",
+        fingerprint_hex(&server.fingerprint())
+    );
+    println!(
+        "connect with: psao view --connect {} --fingerprint {}",
+        server.local_addr(),
+        fingerprint_hex(&server.fingerprint())
+    );
+    let until = seconds.map(|s| Instant::now() + Duration::from_secs_f32(s.max(0.0)));
+    let mut prev = (server.stats(), Instant::now());
+    loop {
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => break,
+            _ = tokio::time::sleep(Duration::from_secs(1)) => {
+                let s = server.stats();
+                println!("{}", status(&s, &prev.0, prev.1.elapsed().as_secs_f64()));
+                prev = (s, Instant::now());
+                if until.is_some_and(|u| Instant::now() >= u) {
+                    break;
+                }
+            }
+        }
+    }
+    println!("shutting down");
+    server.shutdown(Duration::from_secs(2)).await;
+    Ok(())
+}
+
+async fn view(addr: SocketAddr, trust: &Trust, seconds: Option<f32>) -> Result<(), String> {
+    let h = connect(
+        addr,
+        trust,
+        ClientConfig::default(),
+        Duration::from_secs(10),
+    )
+    .await
+    .map_err(|e| e.to_string())?;
+    if let Some(w) = h.with_session(|s| s.welcome().cloned()) {
+        println!(
+            "connected to {addr}: scene `{}`, {} Hz, compression {}, frames up to {} bytes",
+            w.scene, w.frame_rate, w.compression, w.max_frame_bytes
+        );
+    }
+    let until = seconds.map(|s| Instant::now() + Duration::from_secs_f32(s.max(0.0)));
+    let mut prev = (h.with_session(|s| s.stats()), Instant::now());
+    loop {
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        let (s, seq) = h.with_session(|s| {
+            while s.poll_event().is_some() {}
+            (s.stats(), s.mirror().sequence())
+        });
+        let dt = prev.1.elapsed().as_secs_f64();
+        println!(
+            "{:5.1} frames/s | {:6.3} Mbit/s | sequence {:?} | {} keyframes, {} failed, rtt {:.1} ms",
+            (s.applied - prev.0.applied) as f64 / dt,
+            (s.bytes - prev.0.bytes) as f64 * 8.0 / dt / 1e6,
+            seq,
+            s.keyframes,
+            s.failed,
+            h.rtt().as_secs_f64() * 1e3
+        );
+        prev = (s, Instant::now());
+        if let Ended::Closed(c) = h.ended() {
+            println!("session ended: {c}");
+            return Ok(());
+        }
+        if until.is_some_and(|u| Instant::now() >= u) {
+            break;
+        }
+    }
+    h.close().await;
+    Ok(())
+}

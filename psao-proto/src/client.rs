@@ -1,0 +1,267 @@
+//! The client side of a session, sans-IO: bytes from the control and frame
+//! streams in, events and control bytes to send out. It keeps a
+//! [`Decoder`] (and its [`Mirror`]) in sync, asks for keyframes when it
+//! must, and acknowledges frames.
+
+use std::collections::VecDeque;
+
+use bytes::{Bytes, BytesMut};
+use glam::Affine3A;
+use psao_codec::{Compression, DecodeError, Decoder, Event, Limits, Mirror};
+
+use crate::codes::{Close, CloseCode};
+use crate::control::{
+    CameraPose, Control, ControlReader, Hello, KeyframeReason, NoticeCode, VERSION, Welcome,
+};
+use crate::records::RecordReader;
+
+/// What a client accepts and does.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ClientConfig {
+    /// Decoder limits (frame, payload and mirror sizes are announced in
+    /// `HELLO`).
+    pub limits: Limits,
+    /// Whether it will send camera poses.
+    pub viewer: bool,
+}
+
+/// What happened on a session.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ClientEvent {
+    /// The server answered `HELLO`.
+    Welcomed(Welcome),
+    /// A frame was applied; the mirror is at `sequence`.
+    Applied {
+        /// The mirror's sequence.
+        sequence: u32,
+        /// Whether it was a keyframe.
+        keyframe: bool,
+    },
+    /// A frame older than the mirror was ignored.
+    Stale {
+        /// Its sequence.
+        sequence: u32,
+    },
+    /// A delta did not follow the mirror's state: a keyframe was requested.
+    Gap {
+        /// The delta's base.
+        base: u32,
+    },
+    /// A frame failed to decode (the mirror is unchanged): a keyframe was
+    /// requested.
+    DecodeFailed(DecodeError),
+    /// The server said something.
+    Notice {
+        /// About what.
+        code: NoticeCode,
+        /// For people.
+        text: String,
+    },
+}
+
+/// Counters of a client session.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ClientStats {
+    /// Frames applied.
+    pub applied: u64,
+    /// Keyframes among them.
+    pub keyframes: u64,
+    /// Frames that failed to decode.
+    pub failed: u64,
+    /// Stale frames ignored.
+    pub stale: u64,
+    /// Keyframes requested.
+    pub requests: u64,
+    /// Frame bytes received.
+    pub bytes: u64,
+}
+
+/// One client session.
+#[derive(Debug)]
+pub struct ClientSession {
+    config: ClientConfig,
+    welcome: Option<Welcome>,
+    control: ControlReader,
+    records: RecordReader,
+    decoder: Decoder,
+    transmit: BytesMut,
+    events: VecDeque<ClientEvent>,
+    /// A keyframe was requested and has not arrived yet.
+    requested: bool,
+    stats: ClientStats,
+}
+
+/// Bit mask of the compressions this build decodes.
+pub fn decodable_compressions() -> u8 {
+    [Compression::None, Compression::Lz4, Compression::Zstd]
+        .into_iter()
+        .filter(|c| c.available())
+        .fold(0, |m, c| m | 1 << c.id())
+}
+
+impl ClientSession {
+    /// A session that has queued its `HELLO`.
+    pub fn new(config: ClientConfig) -> ClientSession {
+        let mut transmit = BytesMut::new();
+        Control::Hello(Hello {
+            version: VERSION,
+            compressions: decodable_compressions(),
+            point_formats: 1,
+            max_frame_bytes: config.limits.max_frame_bytes.max(65_536),
+            max_payload_bytes: config.limits.max_payload_bytes.max(65_536),
+            max_mirror_bytes: config.limits.max_mirror_bytes,
+            viewer: config.viewer,
+        })
+        .encode(&mut transmit);
+        ClientSession {
+            records: RecordReader::new(config.limits.max_frame_bytes.max(65_536)),
+            decoder: Decoder::new(config.limits),
+            config,
+            welcome: None,
+            control: ControlReader::new(),
+            transmit,
+            events: VecDeque::new(),
+            requested: false,
+            stats: ClientStats::default(),
+        }
+    }
+
+    /// The server's `WELCOME`, once it came.
+    pub fn welcome(&self) -> Option<&Welcome> {
+        self.welcome.as_ref()
+    }
+
+    /// The mirror of the server's grids.
+    pub fn mirror(&self) -> &Mirror {
+        self.decoder.mirror()
+    }
+
+    /// The mirror, to take its change list after uploading.
+    pub fn mirror_mut(&mut self) -> &mut Mirror {
+        self.decoder.mirror_mut()
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> ClientStats {
+        self.stats
+    }
+
+    /// Bytes from the control stream.
+    pub fn on_control(&mut self, mut input: &[u8]) -> Result<(), Close> {
+        while !input.is_empty() {
+            let Some(msg) = self.control.read(&mut input)? else {
+                break;
+            };
+            match msg {
+                Control::Welcome(w) if self.welcome.is_none() => {
+                    let ours = decodable_compressions();
+                    if ours & (1 << w.compression) == 0
+                        || w.max_frame_bytes > self.config.limits.max_frame_bytes.max(65_536)
+                        || w.max_payload_bytes > self.config.limits.max_payload_bytes.max(65_536)
+                    {
+                        return Err(Close::new(
+                            CloseCode::CapabilityMismatch,
+                            "WELCOME chose what HELLO did not offer",
+                        ));
+                    }
+                    self.welcome = Some(w.clone());
+                    self.events.push_back(ClientEvent::Welcomed(w));
+                }
+                Control::Notice { code, text } if self.welcome.is_some() => {
+                    self.events.push_back(ClientEvent::Notice { code, text });
+                }
+                other => {
+                    return Err(Close::new(
+                        CloseCode::ProtocolViolation,
+                        format!(
+                            "control message 0x{:02x} is not for a client here",
+                            other.kind()
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Bytes from the frame stream.
+    pub fn on_frames(&mut self, mut input: &[u8]) -> Result<(), Close> {
+        while !input.is_empty() {
+            let Some(frame) = self.records.read(&mut input)? else {
+                break;
+            };
+            self.stats.bytes += frame.len() as u64 + 4;
+            self.apply(&frame);
+        }
+        Ok(())
+    }
+
+    /// Applies one frame (from a frame record or any other transport, a
+    /// capture file for instance).
+    pub fn apply(&mut self, frame: &[u8]) {
+        match self.decoder.receive(frame) {
+            Ok(Event::Applied { sequence, keyframe }) => {
+                self.stats.applied += 1;
+                if keyframe {
+                    self.stats.keyframes += 1;
+                    self.requested = false;
+                }
+                Control::Ack(sequence).encode(&mut self.transmit);
+                self.events
+                    .push_back(ClientEvent::Applied { sequence, keyframe });
+            }
+            Ok(Event::Stale { sequence, .. }) => {
+                self.stats.stale += 1;
+                self.events.push_back(ClientEvent::Stale { sequence });
+            }
+            Ok(Event::NeedKeyframe { base, .. }) => {
+                self.request(KeyframeReason::Gap);
+                self.events.push_back(ClientEvent::Gap { base });
+            }
+            Err(e) => {
+                self.stats.failed += 1;
+                self.request(KeyframeReason::DecodeError);
+                self.events.push_back(ClientEvent::DecodeFailed(e));
+            }
+        }
+    }
+
+    fn request(&mut self, reason: KeyframeReason) {
+        if self.requested {
+            return;
+        }
+        self.requested = true;
+        self.stats.requests += 1;
+        let sequence = self.decoder.mirror().sequence().unwrap_or(u32::MAX);
+        Control::KeyframeRequest { sequence, reason }.encode(&mut self.transmit);
+    }
+
+    /// Queues a camera pose (only a viewer may; others ignore the call and
+    /// return false).
+    pub fn send_camera(&mut self, pose: CameraPose) -> bool {
+        if !self.config.viewer {
+            return false;
+        }
+        Control::Camera(pose).encode(&mut self.transmit);
+        true
+    }
+
+    /// Queues a request to place an instance.
+    pub fn send_move(&mut self, instance: u32, transform: Affine3A) {
+        Control::MoveInstance {
+            instance,
+            transform,
+        }
+        .encode(&mut self.transmit);
+    }
+
+    /// Control bytes to write, if any.
+    pub fn take_transmit(&mut self) -> Option<Bytes> {
+        (!self.transmit.is_empty()).then(|| self.transmit.split().freeze())
+    }
+
+    /// The next event.
+    pub fn poll_event(&mut self) -> Option<ClientEvent> {
+        self.events.pop_front()
+    }
+}

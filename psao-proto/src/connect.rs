@@ -1,0 +1,274 @@
+//! The reference client over QUIC: connects, negotiates, and keeps a
+//! [`ClientSession`] (and its mirror) in sync in a background task. The
+//! renderer reads the mirror through [`ClientHandle::with_session`].
+
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use bytes::Bytes;
+use tokio::sync::{Notify, mpsc};
+
+use crate::client::{ClientConfig, ClientSession};
+use crate::codes::{Close, CloseCode};
+use crate::control::CameraPose;
+use crate::tls::{TlsError, Trust, client_config};
+
+/// Errors connecting.
+#[derive(Debug, thiserror::Error)]
+pub enum ConnectError {
+    /// TLS setup failed.
+    #[error(transparent)]
+    Tls(#[from] TlsError),
+    /// The connection could not be made.
+    #[error("cannot connect to {addr}: {reason}")]
+    Connect {
+        /// The server.
+        addr: SocketAddr,
+        /// Why.
+        reason: String,
+    },
+    /// The server closed the session.
+    #[error("the server closed the session: {0}")]
+    Closed(Close),
+    /// No `WELCOME` within the timeout.
+    #[error("no WELCOME within {0:?}")]
+    Timeout(Duration),
+}
+
+/// How a session ended.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Ended {
+    /// Still running.
+    Running,
+    /// Closed with this code and reason (by either side).
+    Closed(Close),
+}
+
+struct Shared {
+    session: Mutex<ClientSession>,
+    ended: Mutex<Ended>,
+    changed: Notify,
+}
+
+/// A connected client.
+pub struct ClientHandle {
+    shared: Arc<Shared>,
+    conn: quinn::Connection,
+    endpoint: quinn::Endpoint,
+    uplink: mpsc::UnboundedSender<Uplink>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl std::fmt::Debug for ClientHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ClientHandle")
+            .field("remote", &self.conn.remote_address())
+            .finish()
+    }
+}
+
+enum Uplink {
+    Camera(CameraPose),
+    Move(u32, glam::Affine3A),
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Connects to `addr`, trusting it as `trust` says, and waits for
+/// `WELCOME` (at most `timeout`).
+pub async fn connect(
+    addr: SocketAddr,
+    trust: &Trust,
+    config: ClientConfig,
+    timeout: Duration,
+) -> Result<ClientHandle, ConnectError> {
+    let bind: SocketAddr = if addr.is_ipv6() {
+        "[::]:0".parse().expect("an address")
+    } else {
+        "0.0.0.0:0".parse().expect("an address")
+    };
+    let mut endpoint = quinn::Endpoint::client(bind).map_err(|e| ConnectError::Connect {
+        addr,
+        reason: e.to_string(),
+    })?;
+    endpoint.set_default_client_config(client_config(trust)?);
+    let fail = |reason: String| ConnectError::Connect { addr, reason };
+    let conn = endpoint
+        .connect(addr, "localhost")
+        .map_err(|e| fail(e.to_string()))?
+        .await
+        .map_err(|e| match e {
+            quinn::ConnectionError::ApplicationClosed(c) => ConnectError::Closed(close_of(&c)),
+            e => fail(e.to_string()),
+        })?;
+    let (send, recv) = conn.open_bi().await.map_err(|e| fail(e.to_string()))?;
+    let shared = Arc::new(Shared {
+        session: Mutex::new(ClientSession::new(config)),
+        ended: Mutex::new(Ended::Running),
+        changed: Notify::new(),
+    });
+    let (uplink, rx) = mpsc::unbounded_channel();
+    let task = tokio::spawn(run(shared.clone(), conn.clone(), send, recv, rx));
+    let handle = ClientHandle {
+        shared,
+        conn,
+        endpoint,
+        uplink,
+        task,
+    };
+    let waited = tokio::time::timeout(timeout, async {
+        loop {
+            let notified = handle.shared.changed.notified();
+            if handle.with_session(|s| s.welcome().is_some()) {
+                return Ok(());
+            }
+            if let Ended::Closed(c) = handle.ended() {
+                return Err(ConnectError::Closed(c));
+            }
+            notified.await;
+        }
+    })
+    .await;
+    match waited {
+        Ok(Ok(())) => Ok(handle),
+        Ok(Err(e)) => Err(e),
+        Err(_) => Err(ConnectError::Timeout(timeout)),
+    }
+}
+
+fn close_of(c: &quinn::ApplicationClose) -> Close {
+    Close::new(
+        CloseCode::from_code(c.error_code.into_inner()),
+        String::from_utf8_lossy(&c.reason).into_owned(),
+    )
+}
+
+async fn run(
+    shared: Arc<Shared>,
+    conn: quinn::Connection,
+    mut send: quinn::SendStream,
+    mut recv: quinn::RecvStream,
+    mut uplink: mpsc::UnboundedReceiver<Uplink>,
+) {
+    let mut frames: Option<quinn::RecvStream> = None;
+    let mut cbuf = vec![0u8; 4096];
+    let mut fbuf = vec![0u8; 64 * 1024];
+    let outcome: Result<(), Close> = async {
+        loop {
+            // Send what the session queued (HELLO first, then ACKs and
+            // keyframe requests).
+            let out: Option<Bytes> = lock(&shared.session).take_transmit();
+            if let Some(b) = out {
+                send.write_all(&b)
+                    .await
+                    .map_err(|e| Close::new(CloseCode::NoError, e.to_string()))?;
+            }
+            tokio::select! {
+                r = recv.read(&mut cbuf) => {
+                    match r {
+                        Ok(Some(n)) => lock(&shared.session).on_control(&cbuf[..n])?,
+                        Ok(None) => return Err(Close::new(CloseCode::ProtocolViolation, "the server finished the control stream")),
+                        Err(e) => return Err(Close::new(CloseCode::NoError, e.to_string())),
+                    }
+                }
+                s = conn.accept_uni(), if frames.is_none() => {
+                    frames = Some(s.map_err(|e| Close::new(CloseCode::NoError, e.to_string()))?);
+                }
+                r = async { frames.as_mut().expect("guarded").read(&mut fbuf).await }, if frames.is_some() => {
+                    match r {
+                        Ok(Some(n)) => lock(&shared.session).on_frames(&fbuf[..n])?,
+                        Ok(None) => return Err(Close::new(CloseCode::ProtocolViolation, "the server finished the frame stream")),
+                        Err(e) => return Err(Close::new(CloseCode::NoError, e.to_string())),
+                    }
+                }
+                u = uplink.recv() => {
+                    let mut s = lock(&shared.session);
+                    match u {
+                        Some(Uplink::Camera(c)) => { s.send_camera(c); }
+                        Some(Uplink::Move(i, t)) => s.send_move(i, t),
+                        None => return Ok(()),
+                    }
+                }
+            }
+            shared.changed.notify_waiters();
+        }
+    }
+    .await;
+    let ended = match outcome {
+        Err(close) if close.code != CloseCode::NoError => {
+            conn.close(
+                quinn::VarInt::from_u32(close.code.code()),
+                close.reason.as_bytes(),
+            );
+            close
+        }
+        _ => match conn.closed().await {
+            quinn::ConnectionError::ApplicationClosed(c) => close_of(&c),
+            e => Close::new(CloseCode::NoError, e.to_string()),
+        },
+    };
+    *lock(&shared.ended) = Ended::Closed(ended);
+    shared.changed.notify_waiters();
+}
+
+impl ClientHandle {
+    /// Runs `f` on the session (its mirror, events and counters). Keep it
+    /// short: frames wait while it runs.
+    pub fn with_session<R>(&self, f: impl FnOnce(&mut ClientSession) -> R) -> R {
+        f(&mut lock(&self.shared.session))
+    }
+
+    /// How the session stands.
+    pub fn ended(&self) -> Ended {
+        lock(&self.shared.ended).clone()
+    }
+
+    /// Waits until `f` holds on the session or it ends, at most `timeout`;
+    /// returns whether `f` held.
+    pub async fn wait_for(
+        &self,
+        timeout: Duration,
+        mut f: impl FnMut(&mut ClientSession) -> bool,
+    ) -> bool {
+        tokio::time::timeout(timeout, async {
+            loop {
+                let notified = self.shared.changed.notified();
+                if self.with_session(&mut f) {
+                    return true;
+                }
+                if self.ended() != Ended::Running {
+                    return false;
+                }
+                notified.await;
+            }
+        })
+        .await
+        .unwrap_or(false)
+    }
+
+    /// Sends the camera pose (a viewer client).
+    pub fn send_camera(&self, pose: CameraPose) {
+        let _ = self.uplink.send(Uplink::Camera(pose));
+    }
+
+    /// Asks the server to place an instance.
+    pub fn send_move(&self, instance: u32, transform: glam::Affine3A) {
+        let _ = self.uplink.send(Uplink::Move(instance, transform));
+    }
+
+    /// The round-trip time QUIC measures.
+    pub fn rtt(&self) -> Duration {
+        self.conn.rtt()
+    }
+
+    /// Closes the session (`no_error`) and waits for the endpoint to go
+    /// idle.
+    pub async fn close(self) {
+        self.conn.close(quinn::VarInt::from_u32(0), b"bye");
+        self.task.abort();
+        self.endpoint.wait_idle().await;
+    }
+}

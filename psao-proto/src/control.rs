@@ -1,0 +1,486 @@
+//! Control messages (spec/session.md, section 3): their byte layouts, and an
+//! incremental reader that never buffers more than one message.
+
+use bytes::{Buf, BufMut, BytesMut};
+use glam::{Affine3A, Vec3};
+
+use crate::codes::{Close, CloseCode};
+
+/// Largest `length` of a control message.
+pub const MAX_CONTROL_LEN: usize = 1024;
+
+/// Magic of `HELLO`.
+pub const HELLO_MAGIC: [u8; 4] = *b"PSAO";
+
+/// The protocol version.
+pub const VERSION: u16 = 1;
+
+/// Longest scene name or notice text, bytes.
+pub const MAX_TEXT: usize = 200;
+
+/// Message type ids.
+pub mod kind {
+    /// `HELLO`.
+    pub const HELLO: u8 = 0x01;
+    /// `WELCOME`.
+    pub const WELCOME: u8 = 0x02;
+    /// `CAMERA`.
+    pub const CAMERA: u8 = 0x10;
+    /// `ACK`.
+    pub const ACK: u8 = 0x11;
+    /// `KEYFRAME_REQUEST`.
+    pub const KEYFRAME_REQUEST: u8 = 0x12;
+    /// `MOVE_INSTANCE`.
+    pub const MOVE_INSTANCE: u8 = 0x13;
+    /// `NOTICE`.
+    pub const NOTICE: u8 = 0x20;
+}
+
+/// `HELLO`: what the client decodes and accepts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Hello {
+    /// Protocol version (1).
+    pub version: u16,
+    /// Bit `i`: the client decodes compression id `i`.
+    pub compressions: u8,
+    /// Bit `i`: the client knows point format `i`.
+    pub point_formats: u8,
+    /// Largest frame it accepts.
+    pub max_frame_bytes: u32,
+    /// Largest uncompressed payload it accepts.
+    pub max_payload_bytes: u32,
+    /// Largest mirror it holds.
+    pub max_mirror_bytes: u64,
+    /// Whether it will send `CAMERA`.
+    pub viewer: bool,
+}
+
+/// `WELCOME`: what the server will send.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Welcome {
+    /// Protocol version (1).
+    pub version: u16,
+    /// The compression id every frame uses.
+    pub compression: u8,
+    /// The point format (0).
+    pub point_format: u8,
+    /// Largest frame record of this session.
+    pub max_frame_bytes: u32,
+    /// Largest uncompressed payload of this session.
+    pub max_payload_bytes: u32,
+    /// Nominal frames per second.
+    pub frame_rate: u16,
+    /// Whether the server culls to this client's camera.
+    pub culling: bool,
+    /// The scene's name (at most [`MAX_TEXT`] bytes).
+    pub scene: String,
+}
+
+/// `CAMERA`: the client's view.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraPose {
+    /// The client's clock, ms.
+    pub time_ms: u32,
+    /// Eye, world space.
+    pub eye: Vec3,
+    /// Target, world space.
+    pub target: Vec3,
+    /// Vertical field of view, radians, in (0, pi).
+    pub fov_y: f32,
+    /// Width / height, in [0.001, 1000].
+    pub aspect: f32,
+}
+
+/// Why a keyframe is requested.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KeyframeReason {
+    /// A delta's base is not the mirror's state (0).
+    Gap,
+    /// A frame failed to decode (1).
+    DecodeError,
+    /// Anything else (2).
+    Other,
+}
+
+/// Notice codes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NoticeCode {
+    /// 1: a scene event was refused.
+    EventRefused,
+    /// 2: a keyframe follows because the client fell behind.
+    FellBehind,
+    /// 3 (or any unknown code): something else.
+    Other(u8),
+}
+
+/// A control message.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Control {
+    /// Client to server, first.
+    Hello(Hello),
+    /// Server to client, first.
+    Welcome(Welcome),
+    /// Client to server: its view.
+    Camera(CameraPose),
+    /// Client to server: the sequence its mirror reached.
+    Ack(u32),
+    /// Client to server: a keyframe, please.
+    KeyframeRequest {
+        /// The sequence held (0xFFFFFFFF: none).
+        sequence: u32,
+        /// Why.
+        reason: KeyframeReason,
+    },
+    /// Client to server: place an instance.
+    MoveInstance {
+        /// The instance.
+        instance: u32,
+        /// Local to world.
+        transform: Affine3A,
+    },
+    /// Server to client: for people.
+    Notice {
+        /// What about.
+        code: NoticeCode,
+        /// Text (at most [`MAX_TEXT`] bytes).
+        text: String,
+    },
+}
+
+fn violation(reason: impl Into<String>) -> Close {
+    Close::new(CloseCode::ProtocolViolation, reason)
+}
+
+/// Truncates `s` to at most [`MAX_TEXT`] bytes on a character boundary.
+pub fn clip_text(s: &str) -> &str {
+    let mut end = s.len().min(MAX_TEXT);
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    &s[..end]
+}
+
+impl Control {
+    /// The type id.
+    pub fn kind(&self) -> u8 {
+        match self {
+            Control::Hello(_) => kind::HELLO,
+            Control::Welcome(_) => kind::WELCOME,
+            Control::Camera(_) => kind::CAMERA,
+            Control::Ack(_) => kind::ACK,
+            Control::KeyframeRequest { .. } => kind::KEYFRAME_REQUEST,
+            Control::MoveInstance { .. } => kind::MOVE_INSTANCE,
+            Control::Notice { .. } => kind::NOTICE,
+        }
+    }
+
+    /// Appends the message (length, type, body) to `out`. Texts longer
+    /// than [`MAX_TEXT`] bytes are cut.
+    pub fn encode(&self, out: &mut BytesMut) {
+        let mut body = BytesMut::with_capacity(64);
+        match self {
+            Control::Hello(h) => {
+                body.put_slice(&HELLO_MAGIC);
+                body.put_u16_le(h.version);
+                body.put_u8(h.compressions);
+                body.put_u8(h.point_formats);
+                body.put_u32_le(h.max_frame_bytes);
+                body.put_u32_le(h.max_payload_bytes);
+                body.put_u64_le(h.max_mirror_bytes);
+                body.put_u8(h.viewer as u8);
+            }
+            Control::Welcome(w) => {
+                body.put_u16_le(w.version);
+                body.put_u8(w.compression);
+                body.put_u8(w.point_format);
+                body.put_u32_le(w.max_frame_bytes);
+                body.put_u32_le(w.max_payload_bytes);
+                body.put_u16_le(w.frame_rate);
+                body.put_u8(w.culling as u8);
+                let name = clip_text(&w.scene);
+                body.put_u8(name.len() as u8);
+                body.put_slice(name.as_bytes());
+            }
+            Control::Camera(c) => {
+                body.put_u32_le(c.time_ms);
+                for v in [c.eye, c.target] {
+                    for x in v.to_array() {
+                        body.put_f32_le(x);
+                    }
+                }
+                body.put_f32_le(c.fov_y);
+                body.put_f32_le(c.aspect);
+            }
+            Control::Ack(s) => body.put_u32_le(*s),
+            Control::KeyframeRequest { sequence, reason } => {
+                body.put_u32_le(*sequence);
+                body.put_u8(match reason {
+                    KeyframeReason::Gap => 0,
+                    KeyframeReason::DecodeError => 1,
+                    KeyframeReason::Other => 2,
+                });
+            }
+            Control::MoveInstance {
+                instance,
+                transform,
+            } => {
+                body.put_u32_le(*instance);
+                for x in transform.to_cols_array() {
+                    body.put_f32_le(x);
+                }
+            }
+            Control::Notice { code, text } => {
+                body.put_u8(match code {
+                    NoticeCode::EventRefused => 1,
+                    NoticeCode::FellBehind => 2,
+                    NoticeCode::Other(c) => *c,
+                });
+                let text = clip_text(text);
+                body.put_u8(text.len() as u8);
+                body.put_slice(text.as_bytes());
+            }
+        }
+        out.put_u16_le(body.len() as u16 + 1);
+        out.put_u8(self.kind());
+        out.put_slice(&body);
+    }
+
+    /// The encoded message.
+    pub fn to_bytes(&self) -> BytesMut {
+        let mut b = BytesMut::new();
+        self.encode(&mut b);
+        b
+    }
+
+    /// Parses the body of a message of type `kind`.
+    pub fn decode(kind: u8, mut b: &[u8]) -> Result<Control, Close> {
+        let want = |n: usize, b: &[u8], name: &str| {
+            if b.len() == n {
+                Ok(())
+            } else {
+                Err(violation(format!(
+                    "{name} body is {} bytes, not {n}",
+                    b.len()
+                )))
+            }
+        };
+        let finite = |v: &[f32], name: &str| {
+            if v.iter().all(|x| x.is_finite()) {
+                Ok(())
+            } else {
+                Err(violation(format!("{name} holds a non-finite number")))
+            }
+        };
+        match kind {
+            kind::HELLO => {
+                want(25, b, "HELLO")?;
+                if b[..4] != HELLO_MAGIC {
+                    return Err(violation("HELLO magic is not PSAO"));
+                }
+                b.advance(4);
+                let h = Hello {
+                    version: b.get_u16_le(),
+                    compressions: b.get_u8(),
+                    point_formats: b.get_u8(),
+                    max_frame_bytes: b.get_u32_le(),
+                    max_payload_bytes: b.get_u32_le(),
+                    max_mirror_bytes: b.get_u64_le(),
+                    viewer: false,
+                };
+                let flags = b.get_u8();
+                if h.version != VERSION {
+                    return Err(Close::new(
+                        CloseCode::VersionMismatch,
+                        format!("version {} (this server speaks 1)", h.version),
+                    ));
+                }
+                if h.compressions & 0xF8 != 0 || h.point_formats & 0xFE != 0 || flags & 0xFE != 0 {
+                    return Err(violation("HELLO sets a reserved bit"));
+                }
+                if h.compressions & 1 == 0 || h.point_formats & 1 == 0 {
+                    return Err(violation(
+                        "HELLO must accept compression 0 and point format 0",
+                    ));
+                }
+                if h.max_frame_bytes < 65_536 || h.max_payload_bytes < 65_536 {
+                    return Err(violation("HELLO limits below 65,536 bytes"));
+                }
+                Ok(Control::Hello(Hello {
+                    viewer: flags & 1 == 1,
+                    ..h
+                }))
+            }
+            kind::WELCOME => {
+                if b.len() < 16 {
+                    return Err(violation("WELCOME body shorter than 16 bytes"));
+                }
+                let version = b.get_u16_le();
+                let compression = b.get_u8();
+                let point_format = b.get_u8();
+                let max_frame_bytes = b.get_u32_le();
+                let max_payload_bytes = b.get_u32_le();
+                let frame_rate = b.get_u16_le();
+                let flags = b.get_u8();
+                let n = b.get_u8() as usize;
+                if b.len() != n || n > MAX_TEXT {
+                    return Err(violation("WELCOME scene name length does not add up"));
+                }
+                let scene = std::str::from_utf8(b)
+                    .map_err(|_| violation("WELCOME scene name is not UTF-8"))?
+                    .to_string();
+                if version != VERSION {
+                    return Err(Close::new(
+                        CloseCode::VersionMismatch,
+                        format!("version {version}"),
+                    ));
+                }
+                if flags & 0xFE != 0 {
+                    return Err(violation("WELCOME sets a reserved bit"));
+                }
+                if !(1..=1000).contains(&frame_rate) || compression > 2 || point_format != 0 {
+                    return Err(violation("WELCOME field out of range"));
+                }
+                Ok(Control::Welcome(Welcome {
+                    version,
+                    compression,
+                    point_format,
+                    max_frame_bytes,
+                    max_payload_bytes,
+                    frame_rate,
+                    culling: flags & 1 == 1,
+                    scene,
+                }))
+            }
+            kind::CAMERA => {
+                want(36, b, "CAMERA")?;
+                let time_ms = b.get_u32_le();
+                let mut f = [0f32; 8];
+                for x in &mut f {
+                    *x = b.get_f32_le();
+                }
+                finite(&f, "CAMERA")?;
+                let c = CameraPose {
+                    time_ms,
+                    eye: Vec3::new(f[0], f[1], f[2]),
+                    target: Vec3::new(f[3], f[4], f[5]),
+                    fov_y: f[6],
+                    aspect: f[7],
+                };
+                if c.eye == c.target
+                    || !(c.fov_y > 0.0 && c.fov_y < std::f32::consts::PI)
+                    || !(0.001..=1000.0).contains(&c.aspect)
+                {
+                    return Err(violation("CAMERA field out of range"));
+                }
+                Ok(Control::Camera(c))
+            }
+            kind::ACK => {
+                want(4, b, "ACK")?;
+                Ok(Control::Ack(b.get_u32_le()))
+            }
+            kind::KEYFRAME_REQUEST => {
+                want(5, b, "KEYFRAME_REQUEST")?;
+                let sequence = b.get_u32_le();
+                let reason = match b.get_u8() {
+                    0 => KeyframeReason::Gap,
+                    1 => KeyframeReason::DecodeError,
+                    2 => KeyframeReason::Other,
+                    r => return Err(violation(format!("KEYFRAME_REQUEST reason {r}"))),
+                };
+                Ok(Control::KeyframeRequest { sequence, reason })
+            }
+            kind::MOVE_INSTANCE => {
+                want(52, b, "MOVE_INSTANCE")?;
+                let instance = b.get_u32_le();
+                let mut m = [0f32; 12];
+                for x in &mut m {
+                    *x = b.get_f32_le();
+                }
+                finite(&m, "MOVE_INSTANCE")?;
+                Ok(Control::MoveInstance {
+                    instance,
+                    transform: Affine3A::from_cols_array(&m),
+                })
+            }
+            kind::NOTICE => {
+                if b.len() < 2 {
+                    return Err(violation("NOTICE body shorter than 2 bytes"));
+                }
+                let code = match b.get_u8() {
+                    1 => NoticeCode::EventRefused,
+                    2 => NoticeCode::FellBehind,
+                    c => NoticeCode::Other(c),
+                };
+                let n = b.get_u8() as usize;
+                if b.len() != n || n > MAX_TEXT {
+                    return Err(violation("NOTICE text length does not add up"));
+                }
+                let text = String::from_utf8_lossy(b).into_owned();
+                Ok(Control::Notice { code, text })
+            }
+            k => Err(violation(format!("unknown control message type 0x{k:02x}"))),
+        }
+    }
+}
+
+/// Reads control messages out of a byte stream as it arrives, holding at
+/// most one message (1,027 bytes) at a time.
+#[derive(Debug, Default)]
+pub struct ControlReader {
+    buf: BytesMut,
+    failed: bool,
+}
+
+impl ControlReader {
+    /// A reader with nothing buffered.
+    pub fn new() -> ControlReader {
+        ControlReader::default()
+    }
+
+    /// Takes bytes off `input` (as many as fit the message being read) and
+    /// returns the next complete message, if any. Call again while it
+    /// returns messages and `input` is not empty. After an error the
+    /// reader stays failed.
+    pub fn read(&mut self, input: &mut &[u8]) -> Result<Option<Control>, Close> {
+        if self.failed {
+            return Err(violation("control stream already failed"));
+        }
+        let r = self.read_inner(input);
+        if r.is_err() {
+            self.failed = true;
+        }
+        r
+    }
+
+    fn read_inner(&mut self, input: &mut &[u8]) -> Result<Option<Control>, Close> {
+        if self.buf.len() < 2 {
+            let take = (2 - self.buf.len()).min(input.len());
+            self.buf.extend_from_slice(&input[..take]);
+            input.advance(take);
+            if self.buf.len() < 2 {
+                return Ok(None);
+            }
+        }
+        let length = u16::from_le_bytes([self.buf[0], self.buf[1]]) as usize;
+        if length == 0 || length > MAX_CONTROL_LEN {
+            return Err(Close::new(
+                CloseCode::MessageTooLarge,
+                format!("control message length {length} (allowed 1..=1024)"),
+            ));
+        }
+        let need = 2 + length - self.buf.len();
+        let take = need.min(input.len());
+        self.buf.extend_from_slice(&input[..take]);
+        input.advance(take);
+        if self.buf.len() < 2 + length {
+            return Ok(None);
+        }
+        let msg = self.buf.split_to(2 + length);
+        Control::decode(msg[2], &msg[3..]).map(Some)
+    }
+
+    /// Bytes of a message read so far (for tests of the bound).
+    pub fn buffered(&self) -> usize {
+        self.buf.len()
+    }
+}

@@ -1,0 +1,131 @@
+//! The frames waiting for one client, bounded in bytes (spec/session.md,
+//! section 5.2): a slow client falls behind and is resynchronized with a
+//! keyframe; it never makes the server queue without bound.
+
+use std::collections::VecDeque;
+
+use bytes::Bytes;
+
+/// What [`Outbox::push_delta`] did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pushed {
+    /// Queued.
+    Queued,
+    /// Not queued: the client waits for a keyframe (it just joined, asked
+    /// for one, or fell behind).
+    Skipped,
+    /// It did not fit: every queued frame was dropped and the client is now
+    /// behind.
+    FellBehind,
+}
+
+/// Frames waiting to be written to one client.
+#[derive(Debug)]
+pub struct Outbox {
+    queue: VecDeque<Bytes>,
+    queued_bytes: usize,
+    max_bytes: usize,
+    /// Waiting for a keyframe: deltas are skipped until one is queued.
+    awaiting_keyframe: bool,
+    /// Fell behind: a keyframe is due once the queue has drained.
+    behind: bool,
+    /// How many times it fell behind.
+    falls: u64,
+    /// Frames dropped or skipped.
+    dropped: u64,
+}
+
+impl Outbox {
+    /// An outbox holding at most `max_bytes` of frames (at least one frame
+    /// always fits when the queue is empty). A new client waits for its
+    /// first keyframe.
+    pub fn new(max_bytes: usize) -> Outbox {
+        Outbox {
+            queue: VecDeque::new(),
+            queued_bytes: 0,
+            max_bytes,
+            awaiting_keyframe: true,
+            behind: false,
+            falls: 0,
+            dropped: 0,
+        }
+    }
+
+    /// Offers a delta.
+    pub fn push_delta(&mut self, frame: Bytes) -> Pushed {
+        if self.awaiting_keyframe {
+            self.dropped += 1;
+            return Pushed::Skipped;
+        }
+        if !self.queue.is_empty() && self.queued_bytes + frame.len() > self.max_bytes {
+            self.dropped += self.queue.len() as u64 + 1;
+            self.queue.clear();
+            self.queued_bytes = 0;
+            self.awaiting_keyframe = true;
+            self.behind = true;
+            self.falls += 1;
+            return Pushed::FellBehind;
+        }
+        self.queued_bytes += frame.len();
+        self.queue.push_back(frame);
+        Pushed::Queued
+    }
+
+    /// Whether the client needs a keyframe now: it waits for one and
+    /// nothing is left to write before it.
+    pub fn wants_keyframe(&self) -> bool {
+        self.awaiting_keyframe && self.queue.is_empty()
+    }
+
+    /// Whether it fell behind since its last keyframe.
+    pub fn is_behind(&self) -> bool {
+        self.behind
+    }
+
+    /// Asks for a keyframe (the client requested one): deltas are skipped
+    /// until it is queued.
+    pub fn request_keyframe(&mut self) {
+        self.awaiting_keyframe = true;
+    }
+
+    /// Queues a keyframe (whatever the queue holds: it may exceed the bound
+    /// by this one frame). Returns whether the client had fallen behind.
+    pub fn push_keyframe(&mut self, frame: Bytes) -> bool {
+        self.queued_bytes += frame.len();
+        self.queue.push_back(frame);
+        self.awaiting_keyframe = false;
+        std::mem::take(&mut self.behind)
+    }
+
+    /// The next frame to write.
+    pub fn pop(&mut self) -> Option<Bytes> {
+        let f = self.queue.pop_front()?;
+        self.queued_bytes -= f.len();
+        Some(f)
+    }
+
+    /// Bytes queued.
+    pub fn queued_bytes(&self) -> usize {
+        self.queued_bytes
+    }
+
+    /// Frames queued.
+    pub fn len(&self) -> usize {
+        self.queue.len()
+    }
+
+    /// Whether nothing is queued.
+    pub fn is_empty(&self) -> bool {
+        self.queue.is_empty()
+    }
+
+    /// How many times the client fell behind.
+    pub fn falls(&self) -> u64 {
+        self.falls
+    }
+
+    /// Frames dropped or skipped for this client.
+    pub fn dropped(&self) -> u64 {
+        self.dropped
+    }
+}

@@ -1,0 +1,251 @@
+//! The server side of one connection, sans-IO: control bytes and the time
+//! in, events and bytes to send out. It negotiates (spec/session.md, 3.1,
+//! 3.2), enforces the handshake timeout and the uplink rate, and turns
+//! uplink messages into events for the server.
+
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+use glam::Affine3A;
+
+use crate::codes::{Close, CloseCode};
+use crate::control::{
+    CameraPose, Control, ControlReader, Hello, KeyframeReason, NoticeCode, VERSION, Welcome,
+};
+
+/// How long a client may take to send `HELLO`.
+pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Uplink messages a client may send in a burst (and per second).
+pub const UPLINK_RATE: f64 = 256.0;
+
+/// What the server offers every client.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Offer {
+    /// The compression id of the stream (frames are encoded once).
+    pub compression: u8,
+    /// Largest frame it sends.
+    pub max_frame_bytes: u32,
+    /// Largest uncompressed payload it sends.
+    pub max_payload_bytes: u32,
+    /// Bytes of the mirror a client needs for the scene.
+    pub mirror_bytes: u64,
+    /// Nominal frames per second.
+    pub frame_rate: u16,
+    /// The scene's name.
+    pub scene: String,
+}
+
+/// Checks a client's `HELLO` against the offer; the `WELCOME` to send, or
+/// why the connection must close.
+pub fn negotiate(hello: &Hello, offer: &Offer) -> Result<Welcome, Close> {
+    let mismatch = |why: String| Err(Close::new(CloseCode::CapabilityMismatch, why));
+    if hello.compressions & (1 << offer.compression) == 0 {
+        return mismatch(format!(
+            "the stream uses compression {}, which the client does not decode",
+            offer.compression
+        ));
+    }
+    if hello.max_frame_bytes < offer.max_frame_bytes
+        || hello.max_payload_bytes < offer.max_payload_bytes
+    {
+        return mismatch(format!(
+            "frames up to {} bytes ({} uncompressed), the client accepts {} ({})",
+            offer.max_frame_bytes,
+            offer.max_payload_bytes,
+            hello.max_frame_bytes,
+            hello.max_payload_bytes
+        ));
+    }
+    if hello.max_mirror_bytes < offer.mirror_bytes {
+        return mismatch(format!(
+            "the scene needs a {} byte mirror, the client holds {}",
+            offer.mirror_bytes, hello.max_mirror_bytes
+        ));
+    }
+    Ok(Welcome {
+        version: VERSION,
+        compression: offer.compression,
+        point_format: 0,
+        max_frame_bytes: offer.max_frame_bytes,
+        max_payload_bytes: offer.max_payload_bytes,
+        frame_rate: offer.frame_rate,
+        culling: false,
+        scene: offer.scene.clone(),
+    })
+}
+
+/// A token bucket: `rate` tokens per second, at most `rate` banked.
+#[derive(Clone, Copy, Debug)]
+pub struct TokenBucket {
+    rate: f64,
+    tokens: f64,
+    at: Instant,
+}
+
+impl TokenBucket {
+    /// A full bucket.
+    pub fn new(rate: f64, now: Instant) -> TokenBucket {
+        TokenBucket {
+            rate,
+            tokens: rate,
+            at: now,
+        }
+    }
+
+    /// Takes one token; false when empty.
+    pub fn take(&mut self, now: Instant) -> bool {
+        let dt = now.saturating_duration_since(self.at).as_secs_f64();
+        self.tokens = (self.tokens + dt * self.rate).min(self.rate);
+        self.at = now;
+        if self.tokens >= 1.0 {
+            self.tokens -= 1.0;
+            true
+        } else {
+            false
+        }
+    }
+}
+
+/// What a client asked for.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ServerEvent {
+    /// The handshake is done: send these bytes (`WELCOME`), then a
+    /// keyframe on the frame stream.
+    Welcomed {
+        /// The encoded `WELCOME`.
+        bytes: Bytes,
+        /// Whether the client will send camera poses.
+        viewer: bool,
+    },
+    /// The client's view.
+    Camera(CameraPose),
+    /// The client's mirror reached this sequence.
+    Ack(u32),
+    /// The client needs a keyframe.
+    KeyframeRequested(KeyframeReason),
+    /// The client asks to place an instance.
+    Move {
+        /// The instance.
+        instance: u32,
+        /// Local to world.
+        transform: Affine3A,
+    },
+}
+
+/// The state of one connection.
+#[derive(Debug)]
+pub struct ServerConn {
+    offer: Offer,
+    reader: ControlReader,
+    bucket: TokenBucket,
+    opened: Instant,
+    hello: Option<Hello>,
+}
+
+impl ServerConn {
+    /// A connection opened at `now`.
+    pub fn new(offer: Offer, now: Instant) -> ServerConn {
+        ServerConn {
+            offer,
+            reader: ControlReader::new(),
+            bucket: TokenBucket::new(UPLINK_RATE, now),
+            opened: now,
+            hello: None,
+        }
+    }
+
+    /// The client's `HELLO`, once it came.
+    pub fn hello(&self) -> Option<&Hello> {
+        self.hello.as_ref()
+    }
+
+    /// When the handshake times out (`None` once `HELLO` came).
+    pub fn deadline(&self) -> Option<Instant> {
+        self.hello
+            .is_none()
+            .then(|| self.opened + HANDSHAKE_TIMEOUT)
+    }
+
+    /// Checks the handshake deadline.
+    pub fn on_timer(&self, now: Instant) -> Result<(), Close> {
+        match self.deadline() {
+            Some(d) if now >= d => Err(Close::new(
+                CloseCode::HandshakeTimeout,
+                "no HELLO within 5 s",
+            )),
+            _ => Ok(()),
+        }
+    }
+
+    /// Bytes from the control stream at `now`; appends what they ask for
+    /// to `events`.
+    pub fn on_control(
+        &mut self,
+        mut input: &[u8],
+        now: Instant,
+        events: &mut Vec<ServerEvent>,
+    ) -> Result<(), Close> {
+        self.on_timer(now)?;
+        while !input.is_empty() {
+            let Some(msg) = self.reader.read(&mut input)? else {
+                break;
+            };
+            if !self.bucket.take(now) {
+                return Err(Close::new(
+                    CloseCode::RateExceeded,
+                    "more than 256 messages a second",
+                ));
+            }
+            let event = match (msg, &self.hello) {
+                (Control::Hello(h), None) => {
+                    let welcome = negotiate(&h, &self.offer)?;
+                    self.hello = Some(h);
+                    ServerEvent::Welcomed {
+                        bytes: Control::Welcome(welcome).to_bytes().freeze(),
+                        viewer: h.viewer,
+                    }
+                }
+                (m, None) => {
+                    return Err(Close::new(
+                        CloseCode::ProtocolViolation,
+                        format!("message 0x{:02x} before HELLO", m.kind()),
+                    ));
+                }
+                (Control::Camera(c), Some(h)) if h.viewer => ServerEvent::Camera(c),
+                (Control::Ack(s), Some(_)) => ServerEvent::Ack(s),
+                (Control::KeyframeRequest { reason, .. }, Some(_)) => {
+                    ServerEvent::KeyframeRequested(reason)
+                }
+                (
+                    Control::MoveInstance {
+                        instance,
+                        transform,
+                    },
+                    Some(_),
+                ) => ServerEvent::Move {
+                    instance,
+                    transform,
+                },
+                (m, Some(_)) => {
+                    return Err(Close::new(
+                        CloseCode::ProtocolViolation,
+                        format!("message 0x{:02x} is not for a server here", m.kind()),
+                    ));
+                }
+            };
+            events.push(event);
+        }
+        Ok(())
+    }
+}
+
+/// A `NOTICE` as bytes.
+pub fn notice(code: NoticeCode, text: &str) -> Bytes {
+    Control::Notice {
+        code,
+        text: text.to_string(),
+    }
+    .to_bytes()
+    .freeze()
+}
