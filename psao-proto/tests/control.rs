@@ -1,0 +1,292 @@
+//! Control messages and frame records against spec/session.md: the
+//! examples of its section 8, round trips, and the bounds of the readers.
+
+use glam::{Affine3A, Vec3};
+use proptest::prelude::*;
+use psao_proto::control::*;
+use psao_proto::records::{RecordReader, record_prefix};
+use psao_proto::{Close, CloseCode};
+
+/// The hex blocks of spec/session.md, by message name.
+fn spec_examples() -> Vec<(String, Vec<u8>)> {
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../spec/session.md"))
+        .expect("spec/session.md");
+    let mut out = Vec::new();
+    let mut lines = text.lines();
+    while let Some(line) = lines.next() {
+        let Some(name) = line.strip_prefix("```hex ") else {
+            continue;
+        };
+        let mut bytes = Vec::new();
+        for l in lines.by_ref() {
+            if l.starts_with("```") {
+                break;
+            }
+            for b in l.split_whitespace() {
+                bytes.push(u8::from_str_radix(b, 16).expect("hex"));
+            }
+        }
+        out.push((name.trim().to_string(), bytes));
+    }
+    out
+}
+
+fn described(name: &str) -> Control {
+    match name {
+        "HELLO" => Control::Hello(Hello {
+            version: 1,
+            compressions: 0b111,
+            point_formats: 1,
+            max_frame_bytes: 1 << 20,
+            max_payload_bytes: 1 << 20,
+            max_mirror_bytes: 1 << 30,
+            viewer: true,
+        }),
+        "WELCOME" => Control::Welcome(Welcome {
+            version: 1,
+            compression: 2,
+            point_format: 0,
+            max_frame_bytes: 1 << 20,
+            max_payload_bytes: 1 << 20,
+            frame_rate: 60,
+            culling: false,
+            scene: "default".into(),
+        }),
+        "CAMERA" => Control::Camera(CameraPose {
+            time_ms: 1000,
+            eye: Vec3::new(0.0, 1.5, 5.0),
+            target: Vec3::Y,
+            fov_y: 1.0,
+            aspect: 2.0,
+        }),
+        "ACK" => Control::Ack(7),
+        "KEYFRAME_REQUEST" => Control::KeyframeRequest {
+            sequence: u32::MAX,
+            reason: KeyframeReason::Gap,
+        },
+        "MOVE_INSTANCE" => Control::MoveInstance {
+            instance: 14,
+            transform: Affine3A::from_translation(Vec3::new(1.0, 0.0, 2.0)),
+        },
+        "NOTICE" => Control::Notice {
+            code: NoticeCode::FellBehind,
+            text: "behind".into(),
+        },
+        other => panic!("no description for example {other}"),
+    }
+}
+
+#[test]
+fn the_spec_examples_match_the_code() {
+    let examples = spec_examples();
+    let names: Vec<&str> = examples.iter().map(|e| e.0.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "HELLO",
+            "WELCOME",
+            "CAMERA",
+            "ACK",
+            "KEYFRAME_REQUEST",
+            "MOVE_INSTANCE",
+            "NOTICE"
+        ],
+        "every message type has an example"
+    );
+    for (name, bytes) in examples {
+        let msg = described(&name);
+        assert_eq!(
+            &msg.to_bytes()[..],
+            &bytes[..],
+            "{name} encodes as in the spec"
+        );
+        let mut input = &bytes[..];
+        let got = ControlReader::new().read(&mut input).unwrap();
+        assert_eq!(got, Some(msg), "{name} decodes as in the spec");
+        assert!(input.is_empty());
+    }
+    assert_eq!(record_prefix(&[0u8; 40]), [0x28, 0, 0, 0]);
+}
+
+fn code_of(bytes: &[u8]) -> CloseCode {
+    let mut input = bytes;
+    let mut r = ControlReader::new();
+    loop {
+        match r.read(&mut input) {
+            Err(Close { code, .. }) => return code,
+            Ok(Some(_)) => {}
+            Ok(None) if input.is_empty() => panic!("no error for {bytes:02x?}"),
+            Ok(None) => {}
+        }
+    }
+}
+
+#[test]
+fn malformed_messages_close_with_the_specified_code() {
+    use CloseCode::*;
+    assert_eq!(code_of(&[0, 0]), MessageTooLarge, "length 0");
+    assert_eq!(code_of(&[0x01, 0x04, 0x11]), MessageTooLarge, "length 1025");
+    assert_eq!(code_of(&[0xff, 0xff]), MessageTooLarge);
+    assert_eq!(code_of(&[1, 0, 0x7f]), ProtocolViolation, "unknown type");
+    assert_eq!(
+        code_of(&[4, 0, 0x11, 1, 2, 3]),
+        ProtocolViolation,
+        "short ACK"
+    );
+    assert_eq!(
+        code_of(&[6, 0, 0x11, 1, 2, 3, 4, 5]),
+        ProtocolViolation,
+        "long ACK"
+    );
+    assert_eq!(
+        code_of(&[6, 0, 0x12, 0, 0, 0, 0, 3]),
+        ProtocolViolation,
+        "reason 3"
+    );
+    let mut hello = described("HELLO").to_bytes().to_vec();
+    hello[3] = b'X';
+    assert_eq!(code_of(&hello), ProtocolViolation, "magic");
+    let mut hello = described("HELLO").to_bytes().to_vec();
+    hello[7] = 2;
+    assert_eq!(code_of(&hello), VersionMismatch);
+    let mut hello = described("HELLO").to_bytes().to_vec();
+    hello[27] = 0x81;
+    assert_eq!(code_of(&hello), ProtocolViolation, "reserved flag");
+    let mut hello = described("HELLO").to_bytes().to_vec();
+    hello[9] = 0x06;
+    assert_eq!(
+        code_of(&hello),
+        ProtocolViolation,
+        "compression 0 must be accepted"
+    );
+    let mut cam = described("CAMERA").to_bytes().to_vec();
+    cam[7..11].copy_from_slice(&f32::NAN.to_le_bytes());
+    assert_eq!(code_of(&cam), ProtocolViolation, "NaN");
+    let mut cam = described("CAMERA").to_bytes().to_vec();
+    cam[31..35].copy_from_slice(&4.0f32.to_le_bytes());
+    assert_eq!(code_of(&cam), ProtocolViolation, "field of view above pi");
+    let mut welcome = described("WELCOME").to_bytes().to_vec();
+    welcome[18] = 9;
+    assert_eq!(code_of(&welcome), ProtocolViolation, "name length");
+    // A failed reader stays failed.
+    let mut r = ControlReader::new();
+    assert!(r.read(&mut &[0u8, 0][..]).is_err());
+    assert!(r.read(&mut &described("ACK").to_bytes()[..]).is_err());
+}
+
+#[test]
+fn readers_hold_at_most_one_message() {
+    // Byte by byte, a stream of messages comes out whole and in order, and
+    // the reader never holds more than one message.
+    let msgs: Vec<Control> = ["HELLO", "ACK", "NOTICE", "MOVE_INSTANCE", "WELCOME"]
+        .iter()
+        .map(|n| described(n))
+        .collect();
+    let stream: Vec<u8> = msgs.iter().flat_map(|m| m.to_bytes().to_vec()).collect();
+    let mut r = ControlReader::new();
+    let mut got = Vec::new();
+    for b in &stream {
+        let mut input = std::slice::from_ref(b);
+        if let Some(m) = r.read(&mut input).unwrap() {
+            got.push(m);
+        }
+        assert!(r.buffered() <= 1027);
+    }
+    assert_eq!(got, msgs);
+    // A 1,024-byte message is the largest.
+    let mut big = vec![0x00, 0x04, 0x20, 3, 200];
+    big.extend(std::iter::repeat_n(b'a', 200));
+    big.resize(1026, 0);
+    assert_eq!(
+        code_of(&big[..]),
+        CloseCode::ProtocolViolation,
+        "text length does not add up"
+    );
+    // Frame records: split anywhere, bounded by the negotiated size.
+    let frames: Vec<Vec<u8>> = (0..5).map(|k| vec![k as u8; 32 + 17 * k]).collect();
+    let mut stream = Vec::new();
+    for f in &frames {
+        stream.extend_from_slice(&record_prefix(f));
+        stream.extend_from_slice(f);
+    }
+    for chunk in [1, 3, 7, 1000] {
+        let mut r = RecordReader::new(1000);
+        let mut out = Vec::new();
+        for piece in stream.chunks(chunk) {
+            let mut input = piece;
+            while !input.is_empty() {
+                if let Some(f) = r.read(&mut input).unwrap() {
+                    out.push(f.to_vec());
+                }
+            }
+        }
+        assert_eq!(out, frames, "chunks of {chunk}");
+    }
+    let mut r = RecordReader::new(1000);
+    assert_eq!(
+        r.read(&mut &1001u32.to_le_bytes()[..]).unwrap_err().code,
+        CloseCode::ProtocolViolation
+    );
+    let mut r = RecordReader::new(1000);
+    assert!(
+        r.read(&mut &31u32.to_le_bytes()[..]).is_err(),
+        "shorter than a header"
+    );
+}
+
+proptest! {
+    #[test]
+    fn control_messages_round_trip(
+        seq in any::<u32>(),
+        inst in any::<u32>(),
+        f in prop::array::uniform12(-1e6f32..1e6),
+        text in "[a-z ]{0,250}",
+        code in 1u8..=3,
+        flags in any::<bool>(),
+    ) {
+        let msgs = [
+            Control::Ack(seq),
+            Control::KeyframeRequest { sequence: seq, reason: KeyframeReason::DecodeError },
+            Control::MoveInstance { instance: inst, transform: Affine3A::from_cols_array(&f) },
+            Control::Notice {
+                code: match code { 1 => NoticeCode::EventRefused, 2 => NoticeCode::FellBehind, c => NoticeCode::Other(c) },
+                text: text.clone(),
+            },
+            Control::Welcome(Welcome {
+                version: 1, compression: 1, point_format: 0, max_frame_bytes: seq,
+                max_payload_bytes: inst, frame_rate: 30, culling: flags, scene: text.clone(),
+            }),
+        ];
+        for m in msgs {
+            let bytes = m.to_bytes();
+            let mut input = &bytes[..];
+            let back = ControlReader::new().read(&mut input).unwrap().unwrap();
+            // Texts are cut to 200 bytes.
+            let want = match m {
+                Control::Notice { code, text } => Control::Notice { code, text: clip_text(&text).to_string() },
+                Control::Welcome(w) => Control::Welcome(Welcome { scene: clip_text(&w.scene).to_string(), ..w }),
+                m => m,
+            };
+            prop_assert_eq!(back, want);
+        }
+    }
+
+    #[test]
+    fn any_bytes_never_panic_the_readers(bytes in prop::collection::vec(any::<u8>(), 0..2000)) {
+        let mut input = &bytes[..];
+        let mut r = ControlReader::new();
+        while !input.is_empty() {
+            match r.read(&mut input) {
+                Ok(_) => prop_assert!(r.buffered() <= 1027),
+                Err(_) => break,
+            }
+        }
+        let mut input = &bytes[..];
+        let mut r = RecordReader::new(1 << 16);
+        while !input.is_empty() {
+            if r.read(&mut input).is_err() {
+                break;
+            }
+        }
+    }
+}

@@ -1,0 +1,348 @@
+//! The sans-IO session core: negotiation, the server's handshake deadline
+//! and uplink rate, the bounded outbox, and the client's resync logic.
+
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+use glam::{Affine3A, Vec3};
+use psao_codec::{Compression, Encoder, EncoderConfig, GridTable, InstanceDef, Limits};
+use psao_proto::control::{CameraPose, Control, Hello, KeyframeReason};
+use psao_proto::*;
+
+fn offer() -> Offer {
+    Offer {
+        compression: 2,
+        max_frame_bytes: 1 << 20,
+        max_payload_bytes: 1 << 20,
+        mirror_bytes: 1 << 16,
+        frame_rate: 60,
+        scene: "test".into(),
+    }
+}
+
+fn hello() -> Hello {
+    Hello {
+        version: 1,
+        compressions: 0b111,
+        point_formats: 1,
+        max_frame_bytes: 1 << 20,
+        max_payload_bytes: 1 << 20,
+        max_mirror_bytes: 1 << 30,
+        viewer: false,
+    }
+}
+
+#[test]
+fn negotiation_refuses_what_the_client_cannot_take() {
+    let w = negotiate(&hello(), &offer()).unwrap();
+    assert_eq!(
+        (w.compression, w.frame_rate, w.scene.as_str()),
+        (2, 60, "test")
+    );
+    let code = |h: Hello| negotiate(&h, &offer()).unwrap_err().code;
+    assert_eq!(
+        code(Hello {
+            compressions: 0b011,
+            ..hello()
+        }),
+        CloseCode::CapabilityMismatch
+    );
+    assert_eq!(
+        code(Hello {
+            max_frame_bytes: 1 << 19,
+            ..hello()
+        }),
+        CloseCode::CapabilityMismatch
+    );
+    assert_eq!(
+        code(Hello {
+            max_mirror_bytes: 100,
+            ..hello()
+        }),
+        CloseCode::CapabilityMismatch
+    );
+}
+
+fn bytes(c: Control) -> Bytes {
+    c.to_bytes().freeze()
+}
+
+#[test]
+fn the_server_wants_hello_first_once_and_in_time() {
+    let t0 = Instant::now();
+    let mut events = Vec::new();
+    // Anything before HELLO.
+    let mut s = ServerConn::new(offer(), t0);
+    let e = s
+        .on_control(&bytes(Control::Ack(3)), t0, &mut events)
+        .unwrap_err();
+    assert_eq!(e.code, CloseCode::ProtocolViolation);
+    // HELLO, then WELCOME comes out; a second HELLO is a violation.
+    let mut s = ServerConn::new(offer(), t0);
+    s.on_control(&bytes(Control::Hello(hello())), t0, &mut events)
+        .unwrap();
+    assert!(matches!(
+        events.pop(),
+        Some(ServerEvent::Welcomed { viewer: false, .. })
+    ));
+    let e = s
+        .on_control(&bytes(Control::Hello(hello())), t0, &mut events)
+        .unwrap_err();
+    assert_eq!(e.code, CloseCode::ProtocolViolation);
+    // A wrong version.
+    let mut s = ServerConn::new(offer(), t0);
+    let e = s
+        .on_control(
+            &bytes(Control::Hello(Hello {
+                version: 2,
+                ..hello()
+            })),
+            t0,
+            &mut events,
+        )
+        .unwrap_err();
+    assert_eq!(e.code, CloseCode::VersionMismatch);
+    // Too late.
+    let s = ServerConn::new(offer(), t0);
+    assert!(s.on_timer(t0 + Duration::from_secs(4)).is_ok());
+    assert_eq!(
+        s.on_timer(t0 + Duration::from_secs(5)).unwrap_err().code,
+        CloseCode::HandshakeTimeout
+    );
+    // A camera from a client that did not say it is a viewer.
+    let mut s = ServerConn::new(offer(), t0);
+    s.on_control(&bytes(Control::Hello(hello())), t0, &mut events)
+        .unwrap();
+    let cam = CameraPose {
+        time_ms: 0,
+        eye: Vec3::Z,
+        target: Vec3::ZERO,
+        fov_y: 1.0,
+        aspect: 1.5,
+    };
+    let e = s
+        .on_control(&bytes(Control::Camera(cam)), t0, &mut events)
+        .unwrap_err();
+    assert_eq!(e.code, CloseCode::ProtocolViolation);
+}
+
+#[test]
+fn the_uplink_rate_is_bounded() {
+    let t0 = Instant::now();
+    let mut events = Vec::new();
+    let mut s = ServerConn::new(offer(), t0);
+    s.on_control(&bytes(Control::Hello(hello())), t0, &mut events)
+        .unwrap();
+    // 255 more messages in the same instant fit the bucket of 256...
+    let mut burst = Vec::new();
+    for k in 0..255 {
+        burst.extend_from_slice(&bytes(Control::Ack(k)));
+    }
+    s.on_control(&burst, t0, &mut events).unwrap();
+    // ...the next does not, until time refills it.
+    let one = bytes(Control::Ack(9));
+    let mut again = ServerConn::new(offer(), t0);
+    let mut all = bytes(Control::Hello(hello())).to_vec();
+    all.extend_from_slice(&burst);
+    all.extend_from_slice(&one);
+    let e = again.on_control(&all, t0, &mut events).unwrap_err();
+    assert_eq!(e.code, CloseCode::RateExceeded);
+    assert!(
+        s.on_control(&one, t0 + Duration::from_millis(10), &mut events)
+            .is_ok()
+    );
+}
+
+#[test]
+fn the_outbox_is_bounded_and_resyncs_with_a_keyframe() {
+    let mut o = Outbox::new(1000);
+    assert!(o.wants_keyframe(), "a new client waits for a keyframe");
+    assert_eq!(o.push_delta(Bytes::from(vec![0; 100])), Pushed::Skipped);
+    assert!(!o.push_keyframe(Bytes::from(vec![1; 300])));
+    for _ in 0..7 {
+        assert_eq!(o.push_delta(Bytes::from(vec![2; 100])), Pushed::Queued);
+    }
+    assert_eq!(o.queued_bytes(), 1000);
+    // The reader stalls: the next delta does not fit.
+    assert_eq!(o.push_delta(Bytes::from(vec![3; 100])), Pushed::FellBehind);
+    assert_eq!(o.queued_bytes(), 0);
+    assert!(o.is_behind() && o.wants_keyframe());
+    assert_eq!(o.push_delta(Bytes::from(vec![4; 100])), Pushed::Skipped);
+    assert!(
+        o.push_keyframe(Bytes::from(vec![5; 300])),
+        "it had fallen behind"
+    );
+    assert!(!o.is_behind());
+    assert_eq!(o.pop().unwrap()[0], 5);
+    assert_eq!(o.falls(), 1);
+    // However long the stall, the queue never holds more than the bound
+    // plus one keyframe.
+    let mut most = 0;
+    for k in 0..10_000u32 {
+        if o.wants_keyframe() {
+            o.push_keyframe(Bytes::from(vec![6; 300]));
+        }
+        o.push_delta(Bytes::from(vec![7; 10 + (k % 200) as usize]));
+        most = most.max(o.queued_bytes());
+    }
+    assert!(most <= 1000 + 300, "{most}");
+    // A requested keyframe waits until the queue ahead of it has drained.
+    let mut o = Outbox::new(1000);
+    o.push_keyframe(Bytes::from(vec![1; 10]));
+    o.push_delta(Bytes::from(vec![2; 10]));
+    o.request_keyframe();
+    assert!(!o.wants_keyframe());
+    o.pop();
+    o.pop();
+    assert!(o.wants_keyframe());
+}
+
+/// A one-instance server table and encoder, for driving a client session.
+fn server() -> (GridTable, Encoder) {
+    let def = InstanceDef {
+        origin: Vec3::ZERO,
+        cell_size: Vec3::splat(0.5),
+        dims: glam::UVec3::splat(8),
+        table_log2: 6,
+        bucket_capacity: 8,
+        cell_capacity: 7,
+        cell_pool: 128,
+        point_format: 0,
+        radius: 0.1,
+        t_n: 0.1,
+        t_d: 0.7,
+    };
+    let table = GridTable::new(0, def, 64).unwrap();
+    let enc = Encoder::new(EncoderConfig {
+        compression: Compression::Lz4,
+        ..EncoderConfig::default()
+    });
+    (table, enc)
+}
+
+#[test]
+fn the_client_acks_asks_for_one_keyframe_on_a_gap_and_resyncs() {
+    let (mut table, mut enc) = server();
+    let mut c = ClientSession::new(ClientConfig::default());
+    let hello = c.take_transmit().unwrap();
+    assert_eq!(hello[2], 0x01, "HELLO first");
+    // Frames before WELCOME are fine (streams race).
+    let mut kf = enc.keyframe();
+    kf.snapshot(&table).unwrap();
+    let kf = kf.finish().unwrap().unwrap();
+    let record = |b: &[u8]| {
+        let mut r = (b.len() as u32).to_le_bytes().to_vec();
+        r.extend_from_slice(b);
+        r
+    };
+    c.on_frames(&record(&kf.bytes)).unwrap();
+    assert!(matches!(
+        c.poll_event(),
+        Some(ClientEvent::Applied { keyframe: true, .. })
+    ));
+    let ack = c.take_transmit().unwrap();
+    assert_eq!(&ack[..], &bytes(Control::Ack(kf.sequence))[..]);
+    // Three deltas; the client misses the second.
+    let mut deltas = Vec::new();
+    for k in 0..3u32 {
+        table
+            .set_point(k, Vec3::splat(1.0 + k as f32 * 0.5), Vec3::Y, 0.5)
+            .unwrap();
+        let mut d = enc.delta();
+        d.changes(&mut table);
+        deltas.push(d.finish().unwrap().unwrap());
+    }
+    c.on_frames(&record(&deltas[0].bytes)).unwrap();
+    c.on_frames(&record(&deltas[2].bytes)).unwrap();
+    c.on_frames(&record(&deltas[2].bytes)).unwrap();
+    let events: Vec<_> = std::iter::from_fn(|| c.poll_event()).collect();
+    assert!(matches!(
+        events[0],
+        ClientEvent::Applied {
+            keyframe: false,
+            ..
+        }
+    ));
+    assert!(matches!(events[1], ClientEvent::Gap { .. }));
+    let sent = c.take_transmit().unwrap();
+    let want_ack = bytes(Control::Ack(deltas[0].sequence));
+    let want_req = bytes(Control::KeyframeRequest {
+        sequence: deltas[0].sequence,
+        reason: KeyframeReason::Gap,
+    });
+    assert_eq!(
+        &sent[..],
+        [&want_ack[..], &want_req[..]].concat(),
+        "one request for two gaps"
+    );
+    assert_eq!(c.stats().requests, 1);
+    // A corrupt frame leaves the mirror as it was.
+    let before = c.mirror().instance(0).unwrap().words().to_vec();
+    let mut bad = deltas[2].bytes.to_vec();
+    bad[40] ^= 0xFF;
+    c.on_frames(&record(&bad)).unwrap();
+    assert_eq!(c.mirror().instance(0).unwrap().words(), &before[..]);
+    // The keyframe resyncs it to the server's table.
+    let mut kf = enc.keyframe();
+    kf.snapshot(&table).unwrap();
+    let kf = kf.finish().unwrap().unwrap();
+    c.on_frames(&record(&kf.bytes)).unwrap();
+    assert_eq!(c.mirror().instance(0).unwrap().words(), table.words());
+    // A record longer than the client accepts closes the session.
+    let mut c = ClientSession::new(ClientConfig {
+        limits: Limits {
+            max_frame_bytes: 65_536,
+            ..Limits::default()
+        },
+        viewer: false,
+    });
+    let e = c.on_frames(&(70_000u32).to_le_bytes()).unwrap_err();
+    assert_eq!(e.code, CloseCode::ProtocolViolation);
+    // So does a WELCOME that picks what HELLO did not offer, or a second one.
+    let mut c = ClientSession::new(ClientConfig::default());
+    let mut w = negotiate(&hello_of(&mut c), &offer()).unwrap();
+    w.max_frame_bytes = u32::MAX;
+    assert_eq!(
+        c.on_control(&bytes(Control::Welcome(w))).unwrap_err().code,
+        CloseCode::CapabilityMismatch
+    );
+}
+
+fn hello_of(c: &mut ClientSession) -> Hello {
+    let b = c.take_transmit().unwrap();
+    match Control::decode(b[2], &b[3..]).unwrap() {
+        Control::Hello(h) => h,
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn move_requests_and_cameras_leave_the_client_as_specified() {
+    let mut c = ClientSession::new(ClientConfig {
+        viewer: true,
+        ..ClientConfig::default()
+    });
+    c.take_transmit();
+    let t = Affine3A::from_translation(Vec3::X);
+    c.send_move(4, t);
+    let pose = CameraPose {
+        time_ms: 5,
+        eye: Vec3::Z,
+        target: Vec3::ZERO,
+        fov_y: 1.0,
+        aspect: 2.0,
+    };
+    assert!(c.send_camera(pose));
+    let sent = c.take_transmit().unwrap();
+    let want = [
+        bytes(Control::MoveInstance {
+            instance: 4,
+            transform: t,
+        }),
+        bytes(Control::Camera(pose)),
+    ]
+    .concat();
+    assert_eq!(&sent[..], &want[..]);
+    let mut not_viewer = ClientSession::new(ClientConfig::default());
+    assert!(!not_viewer.send_camera(pose));
+}
