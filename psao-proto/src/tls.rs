@@ -12,6 +12,10 @@ use rustls::pki_types::{CertificateDer, PrivateKeyDer, ServerName, UnixTime};
 use rustls::{DigitallySignedStruct, SignatureScheme};
 use sha2::{Digest, Sha256};
 
+/// The server's QUIC send window per connection (bytes written to a
+/// client and not yet acknowledged by it).
+pub const SEND_WINDOW: u64 = 512 * 1024;
+
 /// The ALPN protocol id.
 pub const ALPN: &[u8] = b"psao/1";
 
@@ -126,6 +130,9 @@ pub fn server_config(
     // Clients open one bidirectional stream and no unidirectional one.
     transport.max_concurrent_bidi_streams(1u32.into());
     transport.max_concurrent_uni_streams(0u32.into());
+    // Bytes written but not yet acknowledged, per connection: with the
+    // outbox bound this caps what a stalled client costs the server.
+    transport.send_window(SEND_WINDOW);
     transport.max_idle_timeout(Some(
         quinn::IdleTimeout::try_from(idle_timeout)
             .map_err(|e| TlsError::Config(format!("idle timeout: {e}")))?,

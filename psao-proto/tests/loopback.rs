@@ -1,0 +1,253 @@
+//! Server and clients over loopback QUIC: many clients in sync, a late
+//! joiner, a client that stops reading (bounded server memory), one that
+//! vanishes without closing, a lossy reordering link, and clients sending
+//! malformed or oversized messages, which are closed with the specified
+//! code while the others keep being served.
+
+use std::time::Duration;
+
+use glam::{Affine3A, Vec3};
+use psao_proto::control::{Control, Hello};
+use psao_proto::relay::{Impairment, Relay};
+use psao_proto::tls::client_config;
+use psao_proto::*;
+use psao_scene::{Animation, AoParams, Mesh, Pipeline, PipelineConfig, Scene, Trs};
+
+/// A floor and a box sliding over it: something changes every frame.
+fn small_scene() -> Scene {
+    let mut s = Scene::default();
+    s.add(
+        Mesh::quad(Vec3::new(-3.0, 0.0, -3.0), Vec3::Z * 6.0, Vec3::X * 6.0).subdivided(2),
+        Affine3A::IDENTITY,
+    );
+    let node = s.add_node("box", None, Trs::default());
+    s.add_on_node(Mesh::cuboid(Vec3::splat(-0.3), Vec3::splat(0.3)), node);
+    s.animations.push(Animation::translation(
+        "slide",
+        node,
+        &[
+            (0.0, Vec3::new(-2.0, 0.3, 0.0)),
+            (2.0, Vec3::new(2.0, 0.3, 0.0)),
+            (4.0, Vec3::new(-2.0, 0.3, 0.0)),
+        ],
+    ));
+    s
+}
+
+fn config(max_queue_bytes: usize) -> ServerConfig {
+    ServerConfig {
+        max_queue_bytes,
+        idle_timeout: Duration::from_secs(2),
+        pipeline: PipelineConfig {
+            density: 64.0,
+            ao: AoParams {
+                rays: 8,
+                ..AoParams::default()
+            },
+            ..PipelineConfig::default()
+        },
+        ..ServerConfig::default()
+    }
+}
+
+async fn client(server: &ServerHandle, addr: Option<std::net::SocketAddr>) -> ClientHandle {
+    connect(
+        addr.unwrap_or(server.local_addr()),
+        &Trust::Fingerprint(server.fingerprint()),
+        ClientConfig::default(),
+        Duration::from_secs(10),
+    )
+    .await
+    .expect("connects")
+}
+
+/// Whether the client's mirror equals the server's tables.
+fn in_sync(c: &ClientHandle, p: &Pipeline) -> bool {
+    c.with_session(|s| {
+        (0..p.instance_count()).all(|i| {
+            let t = p.table(i).unwrap();
+            s.mirror()
+                .instance(i as u32)
+                .is_some_and(|m| m.words() == t.words() && m.buckets() == t.buckets())
+        })
+    })
+}
+
+/// A bare QUIC connection that has sent `HELLO` and read `WELCOME`, for
+/// clients that misbehave. Its streams accept at most 4 KiB unread.
+async fn raw(server: &ServerHandle) -> (quinn::Endpoint, quinn::Connection, quinn::SendStream) {
+    let mut ep = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
+    let mut cc = client_config(&Trust::Fingerprint(server.fingerprint())).unwrap();
+    let mut transport = quinn::TransportConfig::default();
+    transport.stream_receive_window(4096u32.into());
+    transport.receive_window(8192u32.into());
+    cc.transport_config(std::sync::Arc::new(transport));
+    ep.set_default_client_config(cc);
+    let conn = ep
+        .connect(server.local_addr(), "localhost")
+        .unwrap()
+        .await
+        .unwrap();
+    let (mut send, mut recv) = conn.open_bi().await.unwrap();
+    let hello = Control::Hello(Hello {
+        version: 1,
+        compressions: 0b111,
+        point_formats: 1,
+        max_frame_bytes: 1 << 26,
+        max_payload_bytes: 1 << 26,
+        max_mirror_bytes: 1 << 30,
+        viewer: false,
+    });
+    send.write_all(&hello.to_bytes()).await.unwrap();
+    let mut len = [0u8; 2];
+    recv.read_exact(&mut len).await.unwrap();
+    let mut body = vec![0u8; u16::from_le_bytes(len) as usize];
+    recv.read_exact(&mut body).await.unwrap();
+    assert_eq!(body[0], 0x02, "WELCOME");
+    (ep, conn, send)
+}
+
+async fn close_code(conn: &quinn::Connection) -> CloseCode {
+    match tokio::time::timeout(Duration::from_secs(10), conn.closed()).await {
+        Ok(quinn::ConnectionError::ApplicationClosed(c)) => {
+            CloseCode::from_code(c.error_code.into_inner())
+        }
+        other => panic!("not closed by the application: {other:?}"),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn many_clients_late_slow_vanishing_and_misbehaving() {
+    let id = Identity::self_signed().unwrap();
+    let queue = 4 * 1024;
+    let server = serve(small_scene(), config(queue), &id).await.unwrap();
+    let mut good = Vec::new();
+    for _ in 0..3 {
+        good.push(client(&server, None).await);
+    }
+    // A client that stops reading its frames.
+    let (_slow_ep, slow, _slow_send) = raw(&server).await;
+    let _frames = slow.accept_uni().await.unwrap();
+    // A client behind a relay that will vanish.
+    let relay = Relay::start(server.local_addr(), Impairment::default())
+        .await
+        .unwrap();
+    let vanishing = client(&server, Some(relay.addr())).await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    // A late joiner.
+    good.push(client(&server, None).await);
+    assert!(good[3].with_session(|s| s.stats().keyframes) <= 1);
+    // Misbehaving clients: an unknown message type, and an oversized one.
+    let (_ep1, bad1, mut send1) = raw(&server).await;
+    send1.write_all(&[1, 0, 0x7f]).await.unwrap();
+    let (_ep2, bad2, mut send2) = raw(&server).await;
+    send2.write_all(&[0xff, 0x7f]).await.unwrap();
+    assert_eq!(close_code(&bad1).await, CloseCode::ProtocolViolation);
+    assert_eq!(close_code(&bad2).await, CloseCode::MessageTooLarge);
+    // The vanishing client goes quiet without closing.
+    relay.cut(true);
+    let joined = server.stats().clients;
+    let mut most_queued = 0;
+    for _ in 0..30 {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        most_queued = most_queued.max(server.stats().max_queued);
+    }
+    // It is dropped after the idle timeout (2 s).
+    let mut left = false;
+    for _ in 0..40 {
+        if server.stats().clients < joined {
+            left = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert!(left, "the vanished client was dropped");
+    let stats = server.stats();
+    assert!(stats.falls > 0, "the stalled client fell behind: {stats:?}");
+    // A stalled client costs at most the queue bound plus one keyframe.
+    let keyframe = 64 * 1024;
+    assert!(most_queued <= queue + keyframe, "{most_queued}");
+    let (pipeline, end) = server.shutdown(Duration::from_secs(3)).await;
+    for (k, c) in good.iter().enumerate() {
+        let reached = c
+            .wait_for(Duration::from_secs(5), |s| {
+                s.mirror().sequence() == Some(end.sequence)
+            })
+            .await;
+        assert!(reached, "client {k} reached the last sequence");
+        assert!(in_sync(c, &pipeline), "client {k} mirrors the server");
+        let s = c.with_session(|s| s.stats());
+        assert_eq!(s.failed, 0, "client {k}: {s:?}");
+    }
+    // Encoded once: the bytes written to clients are a multiple of the
+    // bytes encoded, not re-encoded per client.
+    assert!(end.written_bytes > 3 * end.encoded_bytes);
+    drop(vanishing);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lossy_reordering_link_keeps_the_stream_consistent() {
+    let id = Identity::self_signed().unwrap();
+    let server = serve(small_scene(), config(1 << 20), &id).await.unwrap();
+    let relay = Relay::start(
+        server.local_addr(),
+        Impairment {
+            drop: 0.05,
+            delay: Duration::from_millis(5),
+            jitter: Duration::from_millis(50),
+            seed: 7,
+        },
+    )
+    .await
+    .unwrap();
+    let c = client(&server, Some(relay.addr())).await;
+    let direct = client(&server, None).await;
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    assert!(relay.dropped() > 0, "the relay dropped datagrams");
+    let (pipeline, end) = server.shutdown(Duration::from_secs(5)).await;
+    for c in [&c, &direct] {
+        assert!(
+            c.wait_for(Duration::from_secs(10), |s| s.mirror().sequence()
+                == Some(end.sequence))
+                .await
+        );
+        assert!(in_sync(c, &pipeline));
+        assert_eq!(c.with_session(|s| s.stats().failed), 0);
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scene_events_move_instances_for_everyone() {
+    let id = Identity::self_signed().unwrap();
+    let server = serve(small_scene(), config(1 << 20), &id).await.unwrap();
+    let a = client(&server, None).await;
+    let b = client(&server, None).await;
+    let to = Affine3A::from_translation(Vec3::new(0.5, 1.0, 0.5));
+    a.send_move(1, to);
+    // The static floor cannot move: refused with a notice.
+    a.send_move(0, to);
+    let moved = b
+        .wait_for(Duration::from_secs(5), |s| {
+            s.mirror()
+                .instance(1)
+                .and_then(|m| m.transform())
+                .is_some_and(|t| t.affine() == to)
+        })
+        .await;
+    assert!(moved, "the other client sees the move");
+    let noticed = a
+        .wait_for(Duration::from_secs(5), |s| {
+            std::iter::from_fn(|| s.poll_event()).any(|e| {
+                matches!(
+                    e,
+                    ClientEvent::Notice {
+                        code: control::NoticeCode::EventRefused,
+                        ..
+                    }
+                )
+            })
+        })
+        .await;
+    assert!(noticed, "the refusal comes back as a notice");
+    server.shutdown(Duration::from_secs(1)).await;
+}
