@@ -100,11 +100,11 @@ pub async fn connect(
         .connect(addr, "localhost")
         .map_err(|e| fail(e.to_string()))?
         .await
-        .map_err(|e| match e {
-            quinn::ConnectionError::ApplicationClosed(c) => ConnectError::Closed(close_of(&c)),
-            e => fail(e.to_string()),
-        })?;
-    let (send, recv) = conn.open_bi().await.map_err(|e| fail(e.to_string()))?;
+        .map_err(|e| connection_error(e, addr))?;
+    let (send, recv) = conn
+        .open_bi()
+        .await
+        .map_err(|e| connection_error(e, addr))?;
     let shared = Arc::new(Shared {
         session: Mutex::new(ClientSession::new(config)),
         ended: Mutex::new(Ended::Running),
@@ -136,6 +136,16 @@ pub async fn connect(
         Ok(Ok(())) => Ok(handle),
         Ok(Err(e)) => Err(e),
         Err(_) => Err(ConnectError::Timeout(timeout)),
+    }
+}
+
+fn connection_error(e: quinn::ConnectionError, addr: SocketAddr) -> ConnectError {
+    match e {
+        quinn::ConnectionError::ApplicationClosed(c) => ConnectError::Closed(close_of(&c)),
+        e => ConnectError::Connect {
+            addr,
+            reason: e.to_string(),
+        },
     }
 }
 

@@ -251,3 +251,44 @@ async fn scene_events_move_instances_for_everyone() {
     assert!(noticed, "the refusal comes back as a notice");
     server.shutdown(Duration::from_secs(1)).await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_server_says_so() {
+    let id = Identity::self_signed().unwrap();
+    let server = serve(
+        small_scene(),
+        ServerConfig {
+            max_clients: 1,
+            ..config(1 << 20)
+        },
+        &id,
+    )
+    .await
+    .unwrap();
+    let first = client(&server, None).await;
+    let second = connect(
+        server.local_addr(),
+        &Trust::Fingerprint(server.fingerprint()),
+        ClientConfig::default(),
+        Duration::from_secs(10),
+    )
+    .await;
+    match second {
+        Err(ConnectError::Closed(c)) => assert_eq!(c.code, CloseCode::ServerFull),
+        other => panic!("{other:?}"),
+    }
+    // A client that pins another fingerprint does not connect at all.
+    let wrong = connect(
+        server.local_addr(),
+        &Trust::Fingerprint([0; 32]),
+        ClientConfig::default(),
+        Duration::from_secs(10),
+    )
+    .await;
+    assert!(
+        matches!(wrong, Err(ConnectError::Connect { .. })),
+        "{wrong:?}"
+    );
+    first.close().await;
+    server.shutdown(Duration::from_secs(1)).await;
+}

@@ -292,14 +292,25 @@ async fn demo(
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let start = server.stats();
+    let (started, cpu0) = (Instant::now(), cpu_seconds());
     let mut prev = (start.clone(), Instant::now());
+    // Without a terminal the bar is hidden: print a line a second instead.
+    let mut printed = Instant::now();
     loop {
         tokio::time::sleep(Duration::from_millis(250)).await;
         let s = server.stats();
         let frames = s.frames - start.frames;
         bar.set_position(frames.min(total));
         let dt = prev.1.elapsed().as_secs_f64();
-        bar.set_message(status(&s, &prev.0, dt));
+        let line = status(&s, &prev.0, dt);
+        if bar.is_hidden() {
+            if printed.elapsed() >= Duration::from_secs(1) {
+                println!("{line}");
+                printed = Instant::now();
+            }
+        } else {
+            bar.set_message(line);
+        }
         prev = (s, Instant::now());
         if frames >= total {
             break;
@@ -310,7 +321,19 @@ async fn demo(
         }
     }
     bar.finish();
-    summarize(server, handles, start).await
+    let wall = started.elapsed().as_secs_f64();
+    let cpu = cpu_seconds().zip(cpu0).map(|(a, b)| a - b);
+    summarize(server, handles, start, wall, cpu).await
+}
+
+/// CPU seconds this process has used (user + system), where /proc tells.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may hold spaces), from field 3.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
 }
 
 /// Stops the server, waits for the clients to apply its last frame,
@@ -319,6 +342,8 @@ async fn summarize(
     server: ServerHandle,
     handles: Vec<ClientHandle>,
     start: ServerStats,
+    wall: f64,
+    cpu: Option<f64>,
 ) -> Result<(), String> {
     let (pipeline, end) = server.shutdown(Duration::from_secs(2)).await;
     let last = end.sequence;
@@ -349,8 +374,22 @@ async fn summarize(
     println!();
     println!("summary");
     println!(
-        "  server frames       {} stepped, {} with news, {} keyframes",
-        end.frames, end.sent_frames, end.keyframes
+        "  server frames       {} stepped in {wall:.2} s ({:.1} fps), {} with news, {} keyframes",
+        end.frames,
+        (end.frames - start.frames) as f64 / wall,
+        end.sent_frames,
+        end.keyframes
+    );
+    if let Some(cpu) = cpu {
+        println!(
+            "  process CPU         {cpu:.2} s over {wall:.2} s ({:.0}% of one core; server and {} client(s) together)",
+            100.0 * cpu / wall,
+            handles.len()
+        );
+    }
+    println!(
+        "  per client          {:.3} Mbit/s",
+        end.written_bytes as f64 * 8.0 / wall / 1e6 / handles.len().max(1) as f64
     );
     println!(
         "  server work         {:.2} ms/frame stepping ({:.0} points traced, {:.0} sent per frame)",
