@@ -23,6 +23,9 @@ pub struct ClientConfig {
     pub limits: Limits,
     /// Whether it will send camera poses.
     pub viewer: bool,
+    /// Whether received frames are kept for [`ClientSession::take_captured`]
+    /// (recording a session).
+    pub capture: bool,
 }
 
 /// What happened on a session.
@@ -89,6 +92,7 @@ pub struct ClientSession {
     /// A keyframe was requested and has not arrived yet.
     requested: bool,
     stats: ClientStats,
+    captured: Vec<Bytes>,
 }
 
 /// Bit mask of the compressions this build decodes.
@@ -123,6 +127,7 @@ impl ClientSession {
             events: VecDeque::new(),
             requested: false,
             stats: ClientStats::default(),
+            captured: Vec::new(),
         }
     }
 
@@ -192,6 +197,9 @@ impl ClientSession {
             };
             self.stats.bytes += frame.len() as u64 + 4;
             self.apply(&frame);
+            if self.config.capture {
+                self.captured.push(frame);
+            }
         }
         Ok(())
     }
@@ -258,6 +266,12 @@ impl ClientSession {
     /// Control bytes to write, if any.
     pub fn take_transmit(&mut self) -> Option<Bytes> {
         (!self.transmit.is_empty()).then(|| self.transmit.split().freeze())
+    }
+
+    /// Frames received since the last call, when capturing (the caller
+    /// drains them after every [`on_frames`](Self::on_frames)).
+    pub fn take_captured(&mut self) -> Vec<Bytes> {
+        std::mem::take(&mut self.captured)
     }
 
     /// The next event.

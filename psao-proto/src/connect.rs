@@ -45,8 +45,19 @@ pub enum Ended {
     Closed(Close),
 }
 
+/// Most bytes of captured frames held for [`ClientHandle::take_captured`].
+pub const MAX_CAPTURED_BYTES: usize = 64 << 20;
+
+#[derive(Default)]
+struct Captured {
+    frames: Vec<(std::time::Instant, Bytes)>,
+    bytes: usize,
+    dropped: u64,
+}
+
 struct Shared {
     session: Mutex<ClientSession>,
+    captured: Mutex<Captured>,
     ended: Mutex<Ended>,
     changed: Notify,
 }
@@ -107,6 +118,7 @@ pub async fn connect(
         .map_err(|e| connection_error(e, addr))?;
     let shared = Arc::new(Shared {
         session: Mutex::new(ClientSession::new(config)),
+        captured: Mutex::new(Captured::default()),
         ended: Mutex::new(Ended::Running),
         changed: Notify::new(),
     });
@@ -189,7 +201,25 @@ async fn run(
                 }
                 r = async { frames.as_mut().expect("guarded").read(&mut fbuf).await }, if frames.is_some() => {
                     match r {
-                        Ok(Some(n)) => lock(&shared.session).on_frames(&fbuf[..n])?,
+                        Ok(Some(n)) => {
+                            let got = {
+                                let mut s = lock(&shared.session);
+                                s.on_frames(&fbuf[..n])?;
+                                s.take_captured()
+                            };
+                            if !got.is_empty() {
+                                let now = std::time::Instant::now();
+                                let mut c = lock(&shared.captured);
+                                for f in got {
+                                    if c.bytes + f.len() > MAX_CAPTURED_BYTES {
+                                        c.dropped += 1;
+                                        continue;
+                                    }
+                                    c.bytes += f.len();
+                                    c.frames.push((now, f));
+                                }
+                            }
+                        }
                         Ok(None) => return Err(Close::new(CloseCode::ProtocolViolation, "the server finished the frame stream")),
                         Err(e) => return Err(Close::new(CloseCode::NoError, e.to_string())),
                     }
@@ -257,6 +287,18 @@ impl ClientHandle {
         })
         .await
         .unwrap_or(false)
+    }
+
+    /// Frames received since the last call, with their arrival times (a
+    /// client made with `capture` set), and how many were dropped because
+    /// more than [`MAX_CAPTURED_BYTES`] waited.
+    pub fn take_captured(&self) -> (Vec<(std::time::Instant, Bytes)>, u64) {
+        let mut c = lock(&self.shared.captured);
+        c.bytes = 0;
+        (
+            std::mem::take(&mut c.frames),
+            std::mem::take(&mut c.dropped),
+        )
     }
 
     /// Sends the camera pose (a viewer client).

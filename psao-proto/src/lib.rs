@@ -13,11 +13,13 @@
 //! - [`serve`] and [`connect`]: the I/O (quinn and tokio), with TLS from
 //!   [`tls`] (certificate files, or a self-signed certificate whose
 //!   fingerprint clients pin);
-//! - [`relay`]: a lossy, reordering UDP relay for testing over loopback.
+//! - [`relay`]: a lossy, reordering UDP relay for testing over loopback;
+//! - [`capture`]: capture files of received frames (spec/capture.md).
 //!
 //! The `psao` binary (`src/bin/psao.rs`) runs the demo, a server and a
 //! viewer.
 
+pub mod capture;
 pub mod client;
 pub mod codes;
 pub mod connect;

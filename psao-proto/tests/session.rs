@@ -294,7 +294,7 @@ fn the_client_acks_asks_for_one_keyframe_on_a_gap_and_resyncs() {
             max_frame_bytes: 65_536,
             ..Limits::default()
         },
-        viewer: false,
+        ..ClientConfig::default()
     });
     let e = c.on_frames(&(70_000u32).to_le_bytes()).unwrap_err();
     assert_eq!(e.code, CloseCode::ProtocolViolation);

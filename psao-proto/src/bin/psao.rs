@@ -3,7 +3,10 @@
 //! - `psao demo`: server and client in one process over loopback QUIC on
 //!   the embedded default scene, with a live status line and a summary;
 //! - `psao serve`: a server for clients elsewhere;
-//! - `psao view`: a headless client.
+//! - `psao view`: a headless client;
+//! - `psao record`: a client that writes what it receives to a capture
+//!   file (spec/capture.md);
+//! - `psao inspect`: decodes a capture file frame by frame.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -98,6 +101,34 @@ enum Command {
         #[arg(long)]
         seconds: Option<f32>,
     },
+    /// Connect to a server and write every frame received to a capture
+    /// file (spec/capture.md).
+    Record {
+        /// The server.
+        #[arg(long)]
+        connect: SocketAddr,
+        /// SHA-256 fingerprint of the server's certificate.
+        #[arg(long, conflicts_with = "ca")]
+        fingerprint: Option<String>,
+        /// PEM file of certificates to trust instead.
+        #[arg(long)]
+        ca: Option<PathBuf>,
+        /// The capture file to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Stop after this many seconds (default: until the server closes).
+        #[arg(long)]
+        seconds: Option<f32>,
+    },
+    /// Decode a capture file frame by frame and print what each frame is
+    /// and does to a mirror.
+    Inspect {
+        /// The capture file.
+        file: PathBuf,
+        /// Print only the summary.
+        #[arg(long)]
+        quiet: bool,
+    },
 }
 
 fn main() -> ExitCode {
@@ -162,18 +193,15 @@ fn main() -> ExitCode {
                 fingerprint,
                 ca,
                 seconds,
-            } => {
-                let trust = match (fingerprint, ca) {
-                    (Some(f), _) => {
-                        Trust::Fingerprint(parse_fingerprint(&f).map_err(|e| e.to_string())?)
-                    }
-                    (None, Some(ca)) => Trust::Roots(read_roots(&ca)?),
-                    (None, None) => {
-                        return Err("give --fingerprint (printed by `psao serve`) or --ca".into());
-                    }
-                };
-                view(addr, &trust, seconds).await
-            }
+            } => view(addr, &trust_of(fingerprint, ca)?, seconds).await,
+            Command::Record {
+                connect: addr,
+                fingerprint,
+                ca,
+                out,
+                seconds,
+            } => record(addr, &trust_of(fingerprint, ca)?, &out, seconds).await,
+            Command::Inspect { file, quiet } => inspect(&file, quiet),
         }
     });
     match result {
@@ -183,6 +211,126 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+fn trust_of(fingerprint: Option<String>, ca: Option<PathBuf>) -> Result<Trust, String> {
+    match (fingerprint, ca) {
+        (Some(f), _) => Ok(Trust::Fingerprint(
+            parse_fingerprint(&f).map_err(|e| e.to_string())?,
+        )),
+        (None, Some(ca)) => Ok(Trust::Roots(read_roots(&ca)?)),
+        (None, None) => Err("give --fingerprint (printed by `psao serve`) or --ca".into()),
+    }
+}
+
+async fn record(
+    addr: SocketAddr,
+    trust: &Trust,
+    out: &std::path::Path,
+    seconds: Option<f32>,
+) -> Result<(), String> {
+    use psao_proto::capture::CaptureWriter;
+    let file = std::fs::File::create(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    let mut writer =
+        CaptureWriter::new(std::io::BufWriter::new(file)).map_err(|e| e.to_string())?;
+    let config = ClientConfig {
+        capture: true,
+        ..ClientConfig::default()
+    };
+    let h = connect(addr, trust, config, Duration::from_secs(10))
+        .await
+        .map_err(|e| e.to_string())?;
+    let start = Instant::now();
+    let until = seconds.map(|s| start + Duration::from_secs_f32(s.max(0.0)));
+    let (mut frames, mut bytes, mut dropped) = (0u64, 0u64, 0u64);
+    loop {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        let (got, lost) = h.take_captured();
+        dropped += lost;
+        for (at, f) in got {
+            let t = at.saturating_duration_since(start).as_micros() as u64;
+            writer.write(t, &f).map_err(|e| e.to_string())?;
+            frames += 1;
+            bytes += f.len() as u64;
+        }
+        let ended = h.ended() != Ended::Running;
+        if ended || until.is_some_and(|u| Instant::now() >= u) {
+            break;
+        }
+    }
+    writer.finish().map_err(|e| e.to_string())?;
+    h.close().await;
+    println!(
+        "recorded {frames} frames ({bytes} bytes) in {:.1} s to {}{}",
+        start.elapsed().as_secs_f64(),
+        out.display(),
+        if dropped > 0 {
+            format!("; {dropped} frames dropped (the writer fell behind)")
+        } else {
+            String::new()
+        }
+    );
+    Ok(())
+}
+
+fn inspect(path: &std::path::Path, quiet: bool) -> Result<(), String> {
+    use psao_codec::{Decoder, Event, FrameHeader};
+    use psao_proto::capture::CaptureReader;
+    let file = std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let limits = Limits::default();
+    let reader = CaptureReader::new(std::io::BufReader::new(file), limits.max_frame_bytes)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut decoder = Decoder::new(limits);
+    let (mut n, mut keyframes, mut bytes, mut failed) = (0u64, 0u64, 0u64, 0u64);
+    let mut last_time = 0;
+    for record in reader {
+        let r = record.map_err(|e| format!("{}: {e}", path.display()))?;
+        n += 1;
+        bytes += r.frame.len() as u64;
+        last_time = r.time_us;
+        let header = FrameHeader::parse(&r.frame);
+        let outcome = match decoder.receive(&r.frame) {
+            Ok(Event::Applied { sequence, keyframe }) => {
+                keyframes += keyframe as u64;
+                format!("applied, mirror at {sequence}")
+            }
+            Ok(Event::Stale { .. }) => "stale".to_string(),
+            Ok(Event::NeedKeyframe { have, .. }) => {
+                format!("needs a keyframe (mirror at {have:?})")
+            }
+            Err(e) => {
+                failed += 1;
+                format!("error: {e}")
+            }
+        };
+        if !quiet {
+            match header {
+                Ok(h) => println!(
+                    "#{n:<6} {:9.3} ms {:7} bytes  {} seq {:<6} base {:<6} {:?} {} messages  -> {outcome}",
+                    r.time_us as f64 / 1e3,
+                    r.frame.len(),
+                    if h.keyframe { "keyframe" } else { "delta   " },
+                    h.sequence,
+                    h.base_sequence,
+                    h.compression,
+                    h.message_count,
+                ),
+                Err(e) => println!(
+                    "#{n:<6} {:9.3} ms {:7} bytes  bad header: {e}",
+                    r.time_us as f64 / 1e3,
+                    r.frame.len()
+                ),
+            }
+        }
+    }
+    let instances = decoder.mirror().instances().count();
+    println!(
+        "{}: {n} frames ({keyframes} keyframes, {failed} failed), {bytes} bytes over {:.3} s; mirror at sequence {:?} with {instances} instances",
+        path.display(),
+        last_time as f64 / 1e6,
+        decoder.mirror().sequence()
+    );
+    Ok(())
 }
 
 fn pipeline_config(density: f32, rays: u32) -> PipelineConfig {
@@ -270,7 +418,7 @@ async fn demo(
             &trust,
             ClientConfig {
                 limits: Limits::default(),
-                viewer: false,
+                ..ClientConfig::default()
             },
             Duration::from_secs(10),
         )
