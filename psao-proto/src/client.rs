@@ -91,6 +91,11 @@ pub struct ClientSession {
     events: VecDeque<ClientEvent>,
     /// A keyframe was requested and has not arrived yet.
     requested: bool,
+    /// Frames since that request (a lost request is repeated after about
+    /// 2 s of frames).
+    since_request: u32,
+    /// Frames applied since the last `ACK`.
+    since_ack: u32,
     stats: ClientStats,
     captured: Vec<Bytes>,
 }
@@ -126,6 +131,8 @@ impl ClientSession {
             transmit,
             events: VecDeque::new(),
             requested: false,
+            since_request: 0,
+            since_ack: u32::MAX,
             stats: ClientStats::default(),
             captured: Vec::new(),
         }
@@ -214,7 +221,17 @@ impl ClientSession {
                     self.stats.keyframes += 1;
                     self.requested = false;
                 }
-                Control::Ack(sequence).encode(&mut self.transmit);
+                // At most about 10 ACKs a second (spec/session.md, 3.4),
+                // and always one for a keyframe.
+                let every = self
+                    .welcome
+                    .as_ref()
+                    .map_or(6, |w| (w.frame_rate as u32 / 10).max(1));
+                self.since_ack = self.since_ack.saturating_add(1);
+                if keyframe || self.since_ack >= every {
+                    self.since_ack = 0;
+                    Control::Ack(sequence).encode(&mut self.transmit);
+                }
                 self.events
                     .push_back(ClientEvent::Applied { sequence, keyframe });
             }
@@ -236,11 +253,24 @@ impl ClientSession {
 
     fn request(&mut self, reason: KeyframeReason) {
         if self.requested {
-            return;
+            // One request per keyframe awaited; repeated only if none came
+            // within about 2 s of frames.
+            self.since_request += 1;
+            let patience = self
+                .welcome
+                .as_ref()
+                .map_or(120, |w| 2 * w.frame_rate as u32);
+            if self.since_request < patience {
+                return;
+            }
         }
         self.requested = true;
+        self.since_request = 0;
         self.stats.requests += 1;
-        let sequence = self.decoder.mirror().sequence().unwrap_or(u32::MAX);
+        let (sequence, reason) = match self.decoder.mirror().sequence() {
+            Some(s) => (s, reason),
+            None => (0, KeyframeReason::NoState),
+        };
         Control::KeyframeRequest { sequence, reason }.encode(&mut self.transmit);
     }
 

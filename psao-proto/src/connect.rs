@@ -176,6 +176,9 @@ async fn run(
     mut uplink: mpsc::UnboundedReceiver<Uplink>,
 ) {
     let mut frames: Option<quinn::RecvStream> = None;
+    // The server finishes the frame stream when it shuts down; the
+    // connection close follows.
+    let mut frames_done = false;
     let mut cbuf = vec![0u8; 4096];
     let mut fbuf = vec![0u8; 64 * 1024];
     let outcome: Result<(), Close> = async {
@@ -199,7 +202,7 @@ async fn run(
                 s = conn.accept_uni(), if frames.is_none() => {
                     frames = Some(s.map_err(|e| Close::new(CloseCode::NoError, e.to_string()))?);
                 }
-                r = async { frames.as_mut().expect("guarded").read(&mut fbuf).await }, if frames.is_some() => {
+                r = async { frames.as_mut().expect("guarded").read(&mut fbuf).await }, if frames.is_some() && !frames_done => {
                     match r {
                         Ok(Some(n)) => {
                             let got = {
@@ -220,7 +223,7 @@ async fn run(
                                 }
                             }
                         }
-                        Ok(None) => return Err(Close::new(CloseCode::ProtocolViolation, "the server finished the frame stream")),
+                        Ok(None) => frames_done = true,
                         Err(e) => return Err(Close::new(CloseCode::NoError, e.to_string())),
                     }
                 }

@@ -100,6 +100,8 @@ pub enum KeyframeReason {
     DecodeError,
     /// Anything else (2).
     Other,
+    /// The client holds no state yet (3); `sequence` is 0.
+    NoState,
 }
 
 /// Notice codes.
@@ -218,6 +220,7 @@ impl Control {
                     KeyframeReason::Gap => 0,
                     KeyframeReason::DecodeError => 1,
                     KeyframeReason::Other => 2,
+                    KeyframeReason::NoState => 3,
                 });
             }
             Control::MoveInstance {
@@ -273,10 +276,19 @@ impl Control {
         };
         match kind {
             kind::HELLO => {
-                want(25, b, "HELLO")?;
-                if b[..4] != HELLO_MAGIC {
+                // Magic and version first: a later version's HELLO may
+                // have another size.
+                if b.len() < 6 || b[..4] != HELLO_MAGIC {
                     return Err(violation("HELLO magic is not PSAO"));
                 }
+                let version = u16::from_le_bytes([b[4], b[5]]);
+                if version != VERSION {
+                    return Err(Close::new(
+                        CloseCode::VersionMismatch,
+                        format!("version {version} (this server speaks 1)"),
+                    ));
+                }
+                want(25, b, "HELLO")?;
                 b.advance(4);
                 let h = Hello {
                     version: b.get_u16_le(),
@@ -385,6 +397,7 @@ impl Control {
                     0 => KeyframeReason::Gap,
                     1 => KeyframeReason::DecodeError,
                     2 => KeyframeReason::Other,
+                    3 => KeyframeReason::NoState,
                     r => return Err(violation(format!("KEYFRAME_REQUEST reason {r}"))),
                 };
                 Ok(Control::KeyframeRequest { sequence, reason })
@@ -424,7 +437,7 @@ impl Control {
 }
 
 /// Reads control messages out of a byte stream as it arrives, holding at
-/// most one message (1,027 bytes) at a time.
+/// most one message (1,026 bytes) at a time.
 #[derive(Debug, Default)]
 pub struct ControlReader {
     buf: BytesMut,

@@ -139,6 +139,8 @@ struct HubState {
 struct Hub {
     state: Mutex<HubState>,
     stop: AtomicBool,
+    /// Writer tasks still running.
+    writers: std::sync::atomic::AtomicUsize,
     /// Wakes the pipeline thread when a client needs a keyframe.
     offer: Offer,
     config: ServerConfig,
@@ -208,21 +210,15 @@ impl ServerHandle {
             .ok()
             .flatten()
             .and_then(|r| r.ok());
+        // Writers drain their outboxes, finish their frame streams and wait
+        // (up to 1 s) for the client to acknowledge them.
+        for c in self.hub.lock().clients.values() {
+            c.wake.notify_one();
+        }
         let until = Instant::now() + grace;
-        while Instant::now() < until {
-            let drained = self
-                .hub
-                .lock()
-                .clients
-                .values()
-                .all(|c| c.outbox.is_empty());
-            if drained {
-                break;
-            }
+        while Instant::now() < until && self.hub.writers.load(Ordering::SeqCst) > 0 {
             tokio::time::sleep(Duration::from_millis(5)).await;
         }
-        // Give writers a moment to finish the record in flight.
-        tokio::time::sleep(Duration::from_millis(20)).await;
         let stats = self.stats();
         self.endpoint.close(
             quinn::VarInt::from_u32(CloseCode::ServerShutdown.code()),
@@ -276,6 +272,7 @@ pub async fn serve(
     let hub = Arc::new(Hub {
         state: Mutex::new(HubState::default()),
         stop: AtomicBool::new(false),
+        writers: std::sync::atomic::AtomicUsize::new(0),
         offer,
         config,
     });
@@ -499,7 +496,12 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                     };
                     id = Some(client);
                     info!(remote = %conn.remote_address(), client, "client joined");
-                    tokio::spawn(write_loop(hub.clone(), client, wake, control, frames));
+                    hub.writers.fetch_add(1, Ordering::SeqCst);
+                    let h = hub.clone();
+                    tokio::spawn(async move {
+                        write_loop(h.clone(), client, wake, control, frames).await;
+                        h.writers.fetch_sub(1, Ordering::SeqCst);
+                    });
                 }
                 ServerEvent::Ack(seq) => {
                     if let Some(c) = id {
@@ -577,12 +579,14 @@ async fn write_loop(
                 }
                 hub.lock().stats.written_bytes += 4 + f.len() as u64;
             }
-            None => {
-                if hub.stop.load(Ordering::SeqCst) && !hub.lock().clients.contains_key(&client) {
-                    return;
-                }
-                wake.notified().await;
+            None if hub.stop.load(Ordering::SeqCst) => {
+                // Shutting down and drained: end the frame stream after the
+                // last whole record, and let the client acknowledge it.
+                let _ = frames.finish();
+                let _ = tokio::time::timeout(Duration::from_secs(1), frames.stopped()).await;
+                return;
             }
+            None => wake.notified().await,
         }
     }
 }

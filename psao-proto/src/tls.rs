@@ -133,6 +133,8 @@ pub fn server_config(
     // Bytes written but not yet acknowledged, per connection: with the
     // outbox bound this caps what a stalled client costs the server.
     transport.send_window(SEND_WINDOW);
+    // No QUIC datagrams in version 1: do not advertise them.
+    transport.datagram_receive_buffer_size(None);
     transport.max_idle_timeout(Some(
         quinn::IdleTimeout::try_from(idle_timeout)
             .map_err(|e| TlsError::Config(format!("idle timeout: {e}")))?,
@@ -183,6 +185,7 @@ pub fn client_config(trust: &Trust) -> Result<quinn::ClientConfig, TlsError> {
     transport.max_concurrent_uni_streams(1u32.into());
     // Keep a quiet session alive through the server's idle timeout.
     transport.keep_alive_interval(Some(std::time::Duration::from_secs(1)));
+    transport.datagram_receive_buffer_size(None);
     config.transport_config(Arc::new(transport));
     Ok(config)
 }

@@ -61,8 +61,8 @@ fn described(name: &str) -> Control {
         }),
         "ACK" => Control::Ack(7),
         "KEYFRAME_REQUEST" => Control::KeyframeRequest {
-            sequence: u32::MAX,
-            reason: KeyframeReason::Gap,
+            sequence: 0,
+            reason: KeyframeReason::NoState,
         },
         "MOVE_INSTANCE" => Control::MoveInstance {
             instance: 14,
@@ -139,9 +139,9 @@ fn malformed_messages_close_with_the_specified_code() {
         "long ACK"
     );
     assert_eq!(
-        code_of(&[6, 0, 0x12, 0, 0, 0, 0, 3]),
+        code_of(&[6, 0, 0x12, 0, 0, 0, 0, 4]),
         ProtocolViolation,
-        "reason 3"
+        "reason 4"
     );
     let mut hello = described("HELLO").to_bytes().to_vec();
     hello[3] = b'X';
@@ -190,7 +190,7 @@ fn readers_hold_at_most_one_message() {
         if let Some(m) = r.read(&mut input).unwrap() {
             got.push(m);
         }
-        assert!(r.buffered() <= 1027);
+        assert!(r.buffered() <= 1026);
     }
     assert_eq!(got, msgs);
     // A 1,024-byte message is the largest.
@@ -277,7 +277,7 @@ proptest! {
         let mut r = ControlReader::new();
         while !input.is_empty() {
             match r.read(&mut input) {
-                Ok(_) => prop_assert!(r.buffered() <= 1027),
+                Ok(_) => prop_assert!(r.buffered() <= 1026),
                 Err(_) => break,
             }
         }
