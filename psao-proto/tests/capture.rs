@@ -125,10 +125,8 @@ proptest! {
         let mut v = b"PSAOCAP1\x01\0\0\0\0\0\0\0".to_vec();
         v.extend_from_slice(&bytes);
         if let Ok(r) = CaptureReader::new(&v[..], 256) {
-            for rec in r {
-                if let Ok(rec) = rec {
-                    prop_assert!(rec.frame.len() <= 256);
-                }
+            for rec in r.flatten() {
+                prop_assert!(rec.frame.len() <= 256);
             }
         }
     }
