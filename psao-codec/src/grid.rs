@@ -110,9 +110,10 @@ impl InstanceDef {
         if self.dims.min_element() == 0 || !key_fits(self.dims) {
             return Err(DefError::Dims);
         }
-        // Entry and word indices must fit u32.
-        let entries = (1u64 << self.table_log2.min(63)) * self.bucket_capacity as u64;
-        if self.table_log2 > MAX_TABLE_LOG2 || entries > u32::MAX as u64 {
+        // Entry and word indices must fit u32 (exact arithmetic: a
+        // hostile `table_log2` must not overflow the product).
+        let entries = (1u128 << self.table_log2.min(63)) * self.bucket_capacity as u128;
+        if self.table_log2 > MAX_TABLE_LOG2 || entries > u32::MAX as u128 {
             return Err(DefError::TableSize);
         }
         if !(1..=MAX_BUCKET_CAPACITY).contains(&self.bucket_capacity) {

@@ -274,3 +274,17 @@ fn xor_and_ao_deltas_roll_back_by_their_inverse() {
     d.receive(&good.bytes).unwrap();
     assert_eq!(d.mirror().instance(1).unwrap().words(), table.words());
 }
+
+#[test]
+fn definitions_with_huge_tables_are_refused_without_overflow() {
+    // table_log2 up to 255 times a bucket capacity of 255: the size
+    // arithmetic is exact (found by fuzzing with overflow checks on).
+    for table_log2 in [32u8, 57, 63, 64, 200, 255] {
+        let def = InstanceDef {
+            table_log2,
+            bucket_capacity: 255,
+            ..small_def()
+        };
+        assert_eq!(def.validate(), Err(DefError::TableSize), "{table_log2}");
+    }
+}
