@@ -10,7 +10,7 @@
 //!   resynchronizing with a keyframe): the server's session logic;
 //! - [`ClientSession`]: the client's session logic around a
 //!   [`psao_codec::Decoder`];
-//! - [`serve`] and [`connect`]: the I/O (quinn and tokio), with TLS from
+//! - [`serve()`] and [`connect()`]: the I/O (quinn and tokio), with TLS from
 //!   [`tls`] (certificate files, or a self-signed certificate whose
 //!   fingerprint clients pin);
 //! - [`relay`]: a lossy, reordering UDP relay for testing over loopback;
