@@ -98,7 +98,15 @@ pub struct ClientSession {
     since_ack: u32,
     stats: ClientStats,
     captured: Vec<Bytes>,
+    /// Events dropped because the queue was full.
+    events_dropped: u64,
+    /// A keyframe request made before `WELCOME`, sent when it comes.
+    deferred: Option<Control>,
 }
+
+/// Most events a session queues; older ones are dropped when the caller
+/// does not poll.
+pub const MAX_EVENTS: usize = 1024;
 
 /// Bit mask of the compressions this build decodes.
 pub fn decodable_compressions() -> u8 {
@@ -135,6 +143,8 @@ impl ClientSession {
             since_ack: u32::MAX,
             stats: ClientStats::default(),
             captured: Vec::new(),
+            events_dropped: 0,
+            deferred: None,
         }
     }
 
@@ -176,11 +186,19 @@ impl ClientSession {
                             "WELCOME chose what HELLO did not offer",
                         ));
                     }
+                    self.records.limit(w.max_frame_bytes);
                     self.welcome = Some(w.clone());
-                    self.events.push_back(ClientEvent::Welcomed(w));
+                    self.push_event(ClientEvent::Welcomed(w));
+                    // Whatever frames arrived before WELCOME asked for is
+                    // sent now (nothing but HELLO goes out before it).
+                    if let Some(Control::KeyframeRequest { sequence, reason }) =
+                        self.deferred.take()
+                    {
+                        Control::KeyframeRequest { sequence, reason }.encode(&mut self.transmit);
+                    }
                 }
                 Control::Notice { code, text } if self.welcome.is_some() => {
-                    self.events.push_back(ClientEvent::Notice { code, text });
+                    self.push_event(ClientEvent::Notice { code, text });
                 }
                 other => {
                     return Err(Close::new(
@@ -228,25 +246,24 @@ impl ClientSession {
                     .as_ref()
                     .map_or(6, |w| (w.frame_rate as u32 / 10).max(1));
                 self.since_ack = self.since_ack.saturating_add(1);
-                if keyframe || self.since_ack >= every {
+                if (keyframe || self.since_ack >= every) && self.welcome.is_some() {
                     self.since_ack = 0;
                     Control::Ack(sequence).encode(&mut self.transmit);
                 }
-                self.events
-                    .push_back(ClientEvent::Applied { sequence, keyframe });
+                self.push_event(ClientEvent::Applied { sequence, keyframe });
             }
             Ok(Event::Stale { sequence, .. }) => {
                 self.stats.stale += 1;
-                self.events.push_back(ClientEvent::Stale { sequence });
+                self.push_event(ClientEvent::Stale { sequence });
             }
             Ok(Event::NeedKeyframe { base, .. }) => {
                 self.request(KeyframeReason::Gap);
-                self.events.push_back(ClientEvent::Gap { base });
+                self.push_event(ClientEvent::Gap { base });
             }
             Err(e) => {
                 self.stats.failed += 1;
                 self.request(KeyframeReason::DecodeError);
-                self.events.push_back(ClientEvent::DecodeFailed(e));
+                self.push_event(ClientEvent::DecodeFailed(e));
             }
         }
     }
@@ -271,7 +288,25 @@ impl ClientSession {
             Some(s) => (s, reason),
             None => (0, KeyframeReason::NoState),
         };
-        Control::KeyframeRequest { sequence, reason }.encode(&mut self.transmit);
+        let msg = Control::KeyframeRequest { sequence, reason };
+        if self.welcome.is_some() {
+            msg.encode(&mut self.transmit);
+        } else {
+            self.deferred = Some(msg);
+        }
+    }
+
+    fn push_event(&mut self, e: ClientEvent) {
+        if self.events.len() >= MAX_EVENTS {
+            self.events.pop_front();
+            self.events_dropped += 1;
+        }
+        self.events.push_back(e);
+    }
+
+    /// Events dropped because more than [`MAX_EVENTS`] waited unpolled.
+    pub fn events_dropped(&self) -> u64 {
+        self.events_dropped
     }
 
     /// Queues a camera pose (only a viewer may; others ignore the call and

@@ -108,7 +108,7 @@ pub async fn connect(
     endpoint.set_default_client_config(client_config(trust)?);
     let fail = |reason: String| ConnectError::Connect { addr, reason };
     let conn = endpoint
-        .connect(addr, "localhost")
+        .connect(addr, trust.server_name())
         .map_err(|e| fail(e.to_string()))?
         .await
         .map_err(|e| connection_error(e, addr))?;
@@ -154,10 +154,30 @@ pub async fn connect(
 fn connection_error(e: quinn::ConnectionError, addr: SocketAddr) -> ConnectError {
     match e {
         quinn::ConnectionError::ApplicationClosed(c) => ConnectError::Closed(close_of(&c)),
+        quinn::ConnectionError::ConnectionClosed(c)
+            if c.error_code == quinn::TransportErrorCode::CONNECTION_REFUSED =>
+        {
+            ConnectError::Closed(Close::new(CloseCode::ServerFull, "connection refused"))
+        }
         e => ConnectError::Connect {
             addr,
             reason: e.to_string(),
         },
+    }
+}
+
+/// How a closed connection reads as a session close (spec/session.md 7:
+/// transport errors and idle timeouts count as `internal_error`).
+fn close_of_error(e: quinn::ConnectionError) -> Close {
+    match e {
+        quinn::ConnectionError::ApplicationClosed(c) => close_of(&c),
+        quinn::ConnectionError::LocallyClosed => Close::new(CloseCode::NoError, "closed here"),
+        quinn::ConnectionError::ConnectionClosed(c)
+            if c.error_code == quinn::TransportErrorCode::CONNECTION_REFUSED =>
+        {
+            Close::new(CloseCode::ServerFull, "connection refused")
+        }
+        e => Close::new(CloseCode::InternalError, e.to_string()),
     }
 }
 
@@ -196,7 +216,8 @@ async fn run(
                     match r {
                         Ok(Some(n)) => lock(&shared.session).on_control(&cbuf[..n])?,
                         Ok(None) => return Err(Close::new(CloseCode::ProtocolViolation, "the server finished the control stream")),
-                        Err(e) => return Err(Close::new(CloseCode::NoError, e.to_string())),
+                        Err(quinn::ReadError::Reset(_)) => return Err(Close::new(CloseCode::ProtocolViolation, "the server reset the control stream")),
+                        Err(e) => return Err(Close::new(CloseCode::InternalError, e.to_string())),
                     }
                 }
                 s = conn.accept_uni(), if frames.is_none() => {
@@ -224,7 +245,8 @@ async fn run(
                             }
                         }
                         Ok(None) => frames_done = true,
-                        Err(e) => return Err(Close::new(CloseCode::NoError, e.to_string())),
+                        Err(quinn::ReadError::Reset(_)) => return Err(Close::new(CloseCode::ProtocolViolation, "the server reset the frame stream")),
+                        Err(e) => return Err(Close::new(CloseCode::InternalError, e.to_string())),
                     }
                 }
                 u = uplink.recv() => {
@@ -232,7 +254,8 @@ async fn run(
                     match u {
                         Some(Uplink::Camera(c)) => { s.send_camera(c); }
                         Some(Uplink::Move(i, t)) => s.send_move(i, t),
-                        None => return Ok(()),
+                        // The handle is gone: end the session.
+                        None => return Err(Close::new(CloseCode::NoError, "client dropped")),
                     }
                 }
             }
@@ -240,18 +263,21 @@ async fn run(
         }
     }
     .await;
-    let ended = match outcome {
-        Err(close) if close.code != CloseCode::NoError => {
+    // The connection may already be closed (by the server, or lost): its
+    // reason wins; otherwise close it with ours.
+    let ended = match conn.close_reason() {
+        Some(e) => close_of_error(e),
+        None => {
+            let close = match outcome {
+                Err(c) => c,
+                Ok(()) => Close::new(CloseCode::NoError, "bye"),
+            };
             conn.close(
                 quinn::VarInt::from_u32(close.code.code()),
                 close.reason.as_bytes(),
             );
             close
         }
-        _ => match conn.closed().await {
-            quinn::ConnectionError::ApplicationClosed(c) => close_of(&c),
-            e => Close::new(CloseCode::NoError, e.to_string()),
-        },
     };
     *lock(&shared.ended) = Ended::Closed(ended);
     shared.changed.notify_waiters();

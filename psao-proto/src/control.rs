@@ -428,7 +428,9 @@ impl Control {
                 if b.len() != n || n > MAX_TEXT {
                     return Err(violation("NOTICE text length does not add up"));
                 }
-                let text = String::from_utf8_lossy(b).into_owned();
+                let text = std::str::from_utf8(b)
+                    .map_err(|_| violation("NOTICE text is not UTF-8"))?
+                    .to_string();
                 Ok(Control::Notice { code, text })
             }
             k => Err(violation(format!("unknown control message type 0x{k:02x}"))),

@@ -22,7 +22,8 @@ pub enum Pushed {
 /// Frames waiting to be written to one client.
 #[derive(Debug)]
 pub struct Outbox {
-    queue: VecDeque<Bytes>,
+    /// Frames, each marked whether it is a keyframe.
+    queue: VecDeque<(Bytes, bool)>,
     queued_bytes: usize,
     max_bytes: usize,
     /// Waiting for a keyframe: deltas are skipped until one is queued.
@@ -33,12 +34,15 @@ pub struct Outbox {
     falls: u64,
     /// Frames dropped or skipped.
     dropped: u64,
+    /// Bytes of the keyframe waiting in the queue (not counted against the
+    /// bound on deltas), 0 when none waits.
+    keyframe_bytes: usize,
 }
 
 impl Outbox {
-    /// An outbox holding at most `max_bytes` of frames (at least one frame
-    /// always fits when the queue is empty). A new client waits for its
-    /// first keyframe.
+    /// An outbox holding at most `max_bytes` of deltas (one always fits
+    /// when none is queued) besides the keyframe waiting ahead of them. A
+    /// new client waits for its first keyframe.
     pub fn new(max_bytes: usize) -> Outbox {
         Outbox {
             queue: VecDeque::new(),
@@ -48,6 +52,7 @@ impl Outbox {
             behind: false,
             falls: 0,
             dropped: 0,
+            keyframe_bytes: 0,
         }
     }
 
@@ -57,17 +62,19 @@ impl Outbox {
             self.dropped += 1;
             return Pushed::Skipped;
         }
-        if !self.queue.is_empty() && self.queued_bytes + frame.len() > self.max_bytes {
+        let deltas = self.queued_bytes - self.keyframe_bytes;
+        if deltas > 0 && deltas + frame.len() > self.max_bytes {
             self.dropped += self.queue.len() as u64 + 1;
             self.queue.clear();
             self.queued_bytes = 0;
+            self.keyframe_bytes = 0;
             self.awaiting_keyframe = true;
             self.behind = true;
             self.falls += 1;
             return Pushed::FellBehind;
         }
         self.queued_bytes += frame.len();
-        self.queue.push_back(frame);
+        self.queue.push_back((frame, false));
         Pushed::Queued
     }
 
@@ -83,24 +90,30 @@ impl Outbox {
     }
 
     /// Asks for a keyframe (the client requested one): deltas are skipped
-    /// until it is queued.
+    /// until it is queued. A keyframe already queued answers the request.
     pub fn request_keyframe(&mut self) {
-        self.awaiting_keyframe = true;
+        if self.keyframe_bytes == 0 {
+            self.awaiting_keyframe = true;
+        }
     }
 
     /// Queues a keyframe (whatever the queue holds: it may exceed the bound
     /// by this one frame). Returns whether the client had fallen behind.
     pub fn push_keyframe(&mut self, frame: Bytes) -> bool {
         self.queued_bytes += frame.len();
-        self.queue.push_back(frame);
+        self.keyframe_bytes += frame.len();
+        self.queue.push_back((frame, true));
         self.awaiting_keyframe = false;
         std::mem::take(&mut self.behind)
     }
 
     /// The next frame to write.
     pub fn pop(&mut self) -> Option<Bytes> {
-        let f = self.queue.pop_front()?;
+        let (f, keyframe) = self.queue.pop_front()?;
         self.queued_bytes -= f.len();
+        if keyframe {
+            self.keyframe_bytes -= f.len();
+        }
         Some(f)
     }
 

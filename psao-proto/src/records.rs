@@ -32,6 +32,11 @@ impl RecordReader {
         }
     }
 
+    /// Lowers the largest record accepted from now on (after `WELCOME`).
+    pub fn limit(&mut self, max_frame_bytes: u32) {
+        self.max_frame_bytes = self.max_frame_bytes.min(max_frame_bytes);
+    }
+
     /// Takes bytes off `input` and returns the next whole frame, if any.
     /// Call again while it returns frames and `input` is not empty.
     pub fn read(&mut self, input: &mut &[u8]) -> Result<Option<Bytes>, Close> {

@@ -7,7 +7,8 @@
 //! client's [`Outbox`]. A writer task per client drains its outbox onto the
 //! client's frame stream. A client that cannot keep up falls behind (its
 //! queued frames are dropped) and gets a keyframe once it has drained, so
-//! a stalled client costs at most `max_queue_bytes` plus one keyframe.
+//! a stalled client costs at most `max_queue_bytes` of deltas, one
+//! keyframe, the frame being written, 16 notices and the QUIC send window.
 
 use std::collections::{HashMap, VecDeque};
 use std::net::SocketAddr;
@@ -84,6 +85,9 @@ pub enum ServeError {
     /// A setting is out of range.
     #[error("setting `{0}` is out of range")]
     Setting(&'static str),
+    /// The server failed while stopping.
+    #[error("server stopped abnormally: {0}")]
+    Stopped(String),
 }
 
 /// Counters of a running server.
@@ -136,9 +140,16 @@ struct HubState {
     sent_at: VecDeque<(u32, Instant)>,
 }
 
+/// Most notices waiting for one client (the oldest are dropped).
+const MAX_NOTICES: usize = 16;
+
 struct Hub {
     state: Mutex<HubState>,
+    /// The pipeline thread stops stepping.
     stop: AtomicBool,
+    /// Writers finish their frame streams once drained (set after the
+    /// pipeline's last frame was queued).
+    closing: AtomicBool,
     /// Writer tasks still running.
     writers: std::sync::atomic::AtomicUsize,
     /// Wakes the pipeline thread when a client needs a keyframe.
@@ -150,6 +161,17 @@ impl Hub {
     fn lock(&self) -> MutexGuard<'_, HubState> {
         // A panic while holding the lock leaves counters only; go on.
         self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+impl Slot {
+    /// Queues a notice, keeping at most [`MAX_NOTICES`].
+    fn notice(&mut self, n: Bytes) {
+        if self.notices.len() >= MAX_NOTICES {
+            self.notices.remove(0);
+        }
+        self.notices.push(n);
+        self.wake.notify_one();
     }
 }
 
@@ -202,7 +224,11 @@ impl ServerHandle {
     /// `grace`), closes every connection with `server_shutdown` and
     /// returns the pipeline (its tables are what in-sync clients mirror)
     /// and the final counters.
-    pub async fn shutdown(mut self, grace: Duration) -> (Pipeline, ServerStats) {
+    pub async fn shutdown(
+        mut self,
+        grace: Duration,
+    ) -> Result<(Pipeline, ServerStats), ServeError> {
+        self.acceptor.abort();
         self.hub.stop.store(true, Ordering::SeqCst);
         let stepper = self.stepper.take();
         let pipeline = tokio::task::spawn_blocking(move || stepper.map(|h| h.join()))
@@ -210,8 +236,10 @@ impl ServerHandle {
             .ok()
             .flatten()
             .and_then(|r| r.ok());
-        // Writers drain their outboxes, finish their frame streams and wait
-        // (up to 1 s) for the client to acknowledge them.
+        // The last frame is queued: writers drain their outboxes, finish
+        // their frame streams and wait (up to 1 s) for the client to
+        // acknowledge them.
+        self.hub.closing.store(true, Ordering::SeqCst);
         for c in self.hub.lock().clients.values() {
             c.wake.notify_one();
         }
@@ -224,12 +252,10 @@ impl ServerHandle {
             quinn::VarInt::from_u32(CloseCode::ServerShutdown.code()),
             b"server shutdown",
         );
-        self.acceptor.abort();
         self.endpoint.wait_idle().await;
-        (
-            pipeline.expect("the pipeline thread returns its pipeline"),
-            stats,
-        )
+        let pipeline =
+            pipeline.ok_or(ServeError::Stopped("the pipeline thread panicked".into()))?;
+        Ok((pipeline, stats))
     }
 }
 
@@ -272,6 +298,7 @@ pub async fn serve(
     let hub = Arc::new(Hub {
         state: Mutex::new(HubState::default()),
         stop: AtomicBool::new(false),
+        closing: AtomicBool::new(false),
         writers: std::sync::atomic::AtomicUsize::new(0),
         offer,
         config,
@@ -317,6 +344,8 @@ fn step_loop(mut pipeline: Pipeline, hub: &Hub) -> Pipeline {
     let dt = 1.0 / hub.config.frame_rate as f32;
     let period = Duration::from_secs_f64(1.0 / hub.config.frame_rate as f64);
     let mut next = Instant::now() + period;
+    let mut cached_keyframe: Option<(u32, Bytes)> = None;
+    let mut last_sequence: Option<u32> = None;
     while !hub.stop.load(Ordering::SeqCst) {
         // Scene events first, so the frame carries them.
         let moves = std::mem::take(&mut hub.lock().moves);
@@ -324,8 +353,7 @@ fn step_loop(mut pipeline: Pipeline, hub: &Hub) -> Pipeline {
             if let Err(e) = pipeline.place_instance(instance as usize, t) {
                 let n = notice(NoticeCode::EventRefused, &e.to_string());
                 if let Some(c) = hub.lock().clients.get_mut(&client) {
-                    c.notices.push(n);
-                    c.wake.notify_one();
+                    c.notice(n);
                 }
             }
         }
@@ -345,6 +373,7 @@ fn step_loop(mut pipeline: Pipeline, hub: &Hub) -> Pipeline {
             s.stats.step_time += step_time;
             s.stats.report.accumulate(&report);
             if let Some(f) = &frame {
+                last_sequence = Some(f.sequence);
                 s.stats.sent_frames += 1;
                 s.stats.encoded_bytes += f.bytes.len() as u64;
                 s.stats.sequence = f.sequence;
@@ -364,15 +393,28 @@ fn step_loop(mut pipeline: Pipeline, hub: &Hub) -> Pipeline {
             s.clients.values().any(|c| c.outbox.wants_keyframe())
         };
         if wants_keyframe {
-            match pipeline.keyframe() {
+            // One keyframe per state: clients asking at the same sequence
+            // share it, however many ask or how often.
+            let cached = cached_keyframe
+                .as_ref()
+                .filter(|(seq, _)| frame.is_none() && Some(*seq) == last_sequence)
+                .map(|(_, b)| b.clone());
+            let kf = match cached {
+                Some(b) => Ok(b),
+                None => pipeline.keyframe().map(|kf| {
+                    hub.lock().stats.keyframes += 1;
+                    last_sequence = Some(kf.sequence);
+                    cached_keyframe = Some((kf.sequence, kf.bytes.clone()));
+                    kf.bytes
+                }),
+            };
+            match kf {
                 Ok(kf) => {
                     let mut s = hub.lock();
-                    s.stats.keyframes += 1;
-                    s.stats.sequence = kf.sequence;
                     for c in s.clients.values_mut() {
                         if c.outbox.wants_keyframe() {
-                            if c.outbox.push_keyframe(kf.bytes.clone()) {
-                                c.notices.push(notice(
+                            if c.outbox.push_keyframe(kf.clone()) {
+                                c.notice(notice(
                                     NoticeCode::FellBehind,
                                     "fell behind; resynchronizing with a keyframe",
                                 ));
@@ -441,7 +483,7 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
     let mut id = None;
     let mut buf = vec![0u8; 2048];
     let mut events = Vec::new();
-    let result = loop {
+    let result = 'read: loop {
         let read = match session.deadline() {
             Some(d) => tokio::select! {
                 r = recv.read(&mut buf) => r,
@@ -459,6 +501,12 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                     "the client finished its control stream",
                 ));
             }
+            Err(quinn::ReadError::Reset(_)) => {
+                break Err(Close::new(
+                    CloseCode::ProtocolViolation,
+                    "the client reset its control stream",
+                ));
+            }
             Err(_) => break Ok(()),
         };
         if let Err(close) = session.on_control(&buf[..n], Instant::now(), &mut events) {
@@ -470,16 +518,22 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                     let Some(mut control) = send.take() else {
                         continue;
                     };
+                    if hub.lock().clients.len() >= hub.config.max_clients {
+                        break 'read Err(Close::new(CloseCode::ServerFull, "server full"));
+                    }
                     if control.write_all(&bytes).await.is_err() {
-                        return Ok(());
+                        break 'read Ok(());
                     }
                     let frames = match conn.open_uni().await {
                         Ok(s) => s,
-                        Err(_) => return Ok(()),
+                        Err(_) => break 'read Ok(()),
                     };
                     let wake = Arc::new(Notify::new());
                     let client = {
                         let mut s = hub.lock();
+                        if s.clients.len() >= hub.config.max_clients {
+                            break 'read Err(Close::new(CloseCode::ServerFull, "server full"));
+                        }
                         let client = s.next_id;
                         s.next_id += 1;
                         s.stats.accepted += 1;
@@ -497,10 +551,24 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                     id = Some(client);
                     info!(remote = %conn.remote_address(), client, "client joined");
                     hub.writers.fetch_add(1, Ordering::SeqCst);
-                    let h = hub.clone();
+                    let (h, conn) = (hub.clone(), conn.clone());
                     tokio::spawn(async move {
-                        write_loop(h.clone(), client, wake, control, frames).await;
+                        let streams = write_loop(&h, client, wake, control, frames).await;
                         h.writers.fetch_sub(1, Ordering::SeqCst);
+                        match streams {
+                            // Shutting down: hold the streams until the
+                            // connection closes, so that dropping them
+                            // does not finish the control stream first.
+                            Some(streams) => {
+                                conn.closed().await;
+                                drop(streams);
+                            }
+                            // A stream was stopped or reset by the client.
+                            None => conn.close(
+                                quinn::VarInt::from_u32(CloseCode::ProtocolViolation.code()),
+                                b"a stream was stopped",
+                            ),
+                        }
                     });
                 }
                 ServerEvent::Ack(seq) => {
@@ -528,11 +596,10 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                     if hub.config.allow_events {
                         s.moves.push((c, instance, transform));
                     } else if let Some(slot) = s.clients.get_mut(&c) {
-                        slot.notices.push(notice(
+                        slot.notice(notice(
                             NoticeCode::EventRefused,
                             "this server does not accept scene events",
                         ));
-                        slot.wake.notify_one();
                     }
                 }
                 ServerEvent::Camera(_) => {}
@@ -550,41 +617,38 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
     result
 }
 
-/// Writes a client's notices and frames until it leaves.
+/// Writes a client's notices and frames until it leaves (`None`, also
+/// when a write fails) or the server shuts down (the streams, the frame
+/// stream finished, to be held until the connection closes).
 async fn write_loop(
-    hub: Arc<Hub>,
+    hub: &Hub,
     client: u64,
     wake: Arc<Notify>,
     mut control: quinn::SendStream,
     mut frames: quinn::SendStream,
-) {
+) -> Option<(quinn::SendStream, quinn::SendStream)> {
     loop {
         let (notices, frame) = {
             let mut s = hub.lock();
-            let Some(slot) = s.clients.get_mut(&client) else {
-                return;
-            };
+            let slot = s.clients.get_mut(&client)?;
             (std::mem::take(&mut slot.notices), slot.outbox.pop())
         };
         for n in notices {
-            if control.write_all(&n).await.is_err() {
-                return;
-            }
+            control.write_all(&n).await.ok()?;
         }
         match frame {
             Some(f) => {
                 let prefix = record_prefix(&f);
-                if frames.write_all(&prefix).await.is_err() || frames.write_all(&f).await.is_err() {
-                    return;
-                }
+                frames.write_all(&prefix).await.ok()?;
+                frames.write_all(&f).await.ok()?;
                 hub.lock().stats.written_bytes += 4 + f.len() as u64;
             }
-            None if hub.stop.load(Ordering::SeqCst) => {
+            None if hub.closing.load(Ordering::SeqCst) => {
                 // Shutting down and drained: end the frame stream after the
                 // last whole record, and let the client acknowledge it.
                 let _ = frames.finish();
                 let _ = tokio::time::timeout(Duration::from_secs(1), frames.stopped()).await;
-                return;
+                return Some((control, frames));
             }
             None => wake.notified().await,
         }

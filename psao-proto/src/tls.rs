@@ -147,8 +147,23 @@ pub fn server_config(
 pub enum Trust {
     /// The end-entity certificate must have this SHA-256.
     Fingerprint([u8; 32]),
-    /// The chain must verify against these roots.
-    Roots(Vec<CertificateDer<'static>>),
+    /// The chain must verify against these roots, for this server name.
+    Roots {
+        /// Trusted root certificates.
+        roots: Vec<CertificateDer<'static>>,
+        /// The name the certificate must carry (the host connected to).
+        name: String,
+    },
+}
+
+impl Trust {
+    /// The server name to send and check (SNI `localhost` when pinning).
+    pub fn server_name(&self) -> &str {
+        match self {
+            Trust::Fingerprint(_) => "localhost",
+            Trust::Roots { name, .. } => name,
+        }
+    }
 }
 
 /// The client's QUIC configuration.
@@ -164,7 +179,7 @@ pub fn client_config(trust: &Trust) -> Result<quinn::ClientConfig, TlsError> {
                 provider: provider(),
             }))
             .with_no_client_auth(),
-        Trust::Roots(roots) => {
+        Trust::Roots { roots, .. } => {
             let mut store = rustls::RootCertStore::empty();
             for r in roots {
                 store

@@ -212,5 +212,5 @@ async fn a_recorded_session_replays_into_a_mirror() {
     let live = rec.with_session(|s| s.mirror().sequence());
     assert!(decoder.mirror().sequence() <= live);
     rec.close().await;
-    server.shutdown(Duration::from_secs(1)).await;
+    server.shutdown(Duration::from_secs(1)).await.unwrap();
 }

@@ -168,6 +168,11 @@ fn malformed_messages_close_with_the_specified_code() {
     let mut welcome = described("WELCOME").to_bytes().to_vec();
     welcome[18] = 9;
     assert_eq!(code_of(&welcome), ProtocolViolation, "name length");
+    assert_eq!(
+        code_of(&[5, 0, 0x20, 1, 2, 0xff, 0xfe]),
+        ProtocolViolation,
+        "NOTICE text not UTF-8"
+    );
     // A failed reader stays failed.
     let mut r = ControlReader::new();
     assert!(r.read(&mut &[0u8, 0][..]).is_err());

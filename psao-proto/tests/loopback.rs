@@ -75,7 +75,13 @@ fn in_sync(c: &ClientHandle, p: &Pipeline) -> bool {
 
 /// A bare QUIC connection that has sent `HELLO` and read `WELCOME`, for
 /// clients that misbehave. Its streams accept at most 4 KiB unread.
-async fn raw(server: &ServerHandle) -> (quinn::Endpoint, quinn::Connection, quinn::SendStream) {
+async fn raw(
+    server: &ServerHandle,
+) -> (
+    quinn::Endpoint,
+    quinn::Connection,
+    (quinn::SendStream, quinn::RecvStream),
+) {
     let mut ep = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
     let mut cc = client_config(&Trust::Fingerprint(server.fingerprint())).unwrap();
     let mut transport = quinn::TransportConfig::default();
@@ -104,7 +110,9 @@ async fn raw(server: &ServerHandle) -> (quinn::Endpoint, quinn::Connection, quin
     let mut body = vec![0u8; u16::from_le_bytes(len) as usize];
     recv.read_exact(&mut body).await.unwrap();
     assert_eq!(body[0], 0x02, "WELCOME");
-    (ep, conn, send)
+    // The control stream stays open both ways (dropping the receiving
+    // half would stop the server's sending half: a violation of its own).
+    (ep, conn, (send, recv))
 }
 
 async fn close_code(conn: &quinn::Connection) -> CloseCode {
@@ -138,10 +146,10 @@ async fn many_clients_late_slow_vanishing_and_misbehaving() {
     good.push(client(&server, None).await);
     assert!(good[3].with_session(|s| s.stats().keyframes) <= 1);
     // Misbehaving clients: an unknown message type, and an oversized one.
-    let (_ep1, bad1, mut send1) = raw(&server).await;
-    send1.write_all(&[1, 0, 0x7f]).await.unwrap();
-    let (_ep2, bad2, mut send2) = raw(&server).await;
-    send2.write_all(&[0xff, 0x7f]).await.unwrap();
+    let (_ep1, bad1, mut ctl1) = raw(&server).await;
+    ctl1.0.write_all(&[1, 0, 0x7f]).await.unwrap();
+    let (_ep2, bad2, mut ctl2) = raw(&server).await;
+    ctl2.0.write_all(&[0xff, 0x7f]).await.unwrap();
     assert_eq!(close_code(&bad1).await, CloseCode::ProtocolViolation);
     assert_eq!(close_code(&bad2).await, CloseCode::MessageTooLarge);
     // The vanishing client goes quiet without closing.
@@ -167,7 +175,7 @@ async fn many_clients_late_slow_vanishing_and_misbehaving() {
     // A stalled client costs at most the queue bound plus one keyframe.
     let keyframe = 64 * 1024;
     assert!(most_queued <= queue + keyframe, "{most_queued}");
-    let (pipeline, end) = server.shutdown(Duration::from_secs(3)).await;
+    let (pipeline, end) = server.shutdown(Duration::from_secs(3)).await.unwrap();
     for (k, c) in good.iter().enumerate() {
         let reached = c
             .wait_for(Duration::from_secs(5), |s| {
@@ -204,7 +212,7 @@ async fn a_lossy_reordering_link_keeps_the_stream_consistent() {
     let direct = client(&server, None).await;
     tokio::time::sleep(Duration::from_secs(2)).await;
     assert!(relay.dropped() > 0, "the relay dropped datagrams");
-    let (pipeline, end) = server.shutdown(Duration::from_secs(5)).await;
+    let (pipeline, end) = server.shutdown(Duration::from_secs(5)).await.unwrap();
     for c in [&c, &direct] {
         assert!(
             c.wait_for(Duration::from_secs(10), |s| s.mirror().sequence()
@@ -213,6 +221,14 @@ async fn a_lossy_reordering_link_keeps_the_stream_consistent() {
         );
         assert!(in_sync(c, &pipeline));
         assert_eq!(c.with_session(|s| s.stats().failed), 0);
+    }
+    // Both see the server's shutdown as such (not as a protocol error).
+    for c in [&c, &direct] {
+        c.wait_for(Duration::from_secs(5), |_| false).await;
+        match c.ended() {
+            Ended::Closed(close) => assert_eq!(close.code, CloseCode::ServerShutdown, "{close}"),
+            Ended::Running => panic!("still running after shutdown"),
+        }
     }
 }
 
@@ -249,7 +265,7 @@ async fn scene_events_move_instances_for_everyone() {
         })
         .await;
     assert!(noticed, "the refusal comes back as a notice");
-    server.shutdown(Duration::from_secs(1)).await;
+    server.shutdown(Duration::from_secs(1)).await.unwrap();
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -290,5 +306,5 @@ async fn a_full_server_says_so() {
         "{wrong:?}"
     );
     first.close().await;
-    server.shutdown(Duration::from_secs(1)).await;
+    server.shutdown(Duration::from_secs(1)).await.unwrap();
 }

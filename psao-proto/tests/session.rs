@@ -159,10 +159,11 @@ fn the_outbox_is_bounded_and_resyncs_with_a_keyframe() {
     assert!(o.wants_keyframe(), "a new client waits for a keyframe");
     assert_eq!(o.push_delta(Bytes::from(vec![0; 100])), Pushed::Skipped);
     assert!(!o.push_keyframe(Bytes::from(vec![1; 300])));
-    for _ in 0..7 {
+    // The bound is on deltas: 1000 bytes of them behind the keyframe.
+    for _ in 0..10 {
         assert_eq!(o.push_delta(Bytes::from(vec![2; 100])), Pushed::Queued);
     }
-    assert_eq!(o.queued_bytes(), 1000);
+    assert_eq!(o.queued_bytes(), 1300);
     // The reader stalls: the next delta does not fit.
     assert_eq!(o.push_delta(Bytes::from(vec![3; 100])), Pushed::FellBehind);
     assert_eq!(o.queued_bytes(), 0);
@@ -186,13 +187,27 @@ fn the_outbox_is_bounded_and_resyncs_with_a_keyframe() {
         most = most.max(o.queued_bytes());
     }
     assert!(most <= 1000 + 300, "{most}");
+    // A keyframe larger than the bound does not make the next deltas
+    // overflow: the bound is on the deltas queued behind it.
+    let mut o = Outbox::new(1000);
+    o.push_keyframe(Bytes::from(vec![1; 5000]));
+    for _ in 0..10 {
+        assert_eq!(o.push_delta(Bytes::from(vec![2; 100])), Pushed::Queued);
+    }
+    assert_eq!(o.queued_bytes(), 6000);
+    assert_eq!(o.push_delta(Bytes::from(vec![3; 100])), Pushed::FellBehind);
+    // A request while a keyframe waits is answered by that keyframe.
+    let mut o = Outbox::new(1000);
+    o.push_keyframe(Bytes::from(vec![1; 10]));
+    o.request_keyframe();
+    assert_eq!(o.push_delta(Bytes::from(vec![2; 10])), Pushed::Queued);
     // A requested keyframe waits until the queue ahead of it has drained.
     let mut o = Outbox::new(1000);
     o.push_keyframe(Bytes::from(vec![1; 10]));
     o.push_delta(Bytes::from(vec![2; 10]));
+    o.pop();
     o.request_keyframe();
     assert!(!o.wants_keyframe());
-    o.pop();
     o.pop();
     assert!(o.wants_keyframe());
 }
@@ -224,9 +239,9 @@ fn server() -> (GridTable, Encoder) {
 fn the_client_acks_asks_for_one_keyframe_on_a_gap_and_resyncs() {
     let (mut table, mut enc) = server();
     let mut c = ClientSession::new(ClientConfig::default());
-    let hello = c.take_transmit().unwrap();
-    assert_eq!(hello[2], 0x01, "HELLO first");
-    // Frames before WELCOME are fine (streams race).
+    let hello = hello_of(&mut c);
+    // Frames before WELCOME are fine (streams race), but nothing but HELLO
+    // goes out before it.
     let mut kf = enc.keyframe();
     kf.snapshot(&table).unwrap();
     let kf = kf.finish().unwrap().unwrap();
@@ -240,8 +255,10 @@ fn the_client_acks_asks_for_one_keyframe_on_a_gap_and_resyncs() {
         c.poll_event(),
         Some(ClientEvent::Applied { keyframe: true, .. })
     ));
-    let ack = c.take_transmit().unwrap();
-    assert_eq!(&ack[..], &bytes(Control::Ack(kf.sequence))[..]);
+    assert!(c.take_transmit().is_none(), "no ACK before WELCOME");
+    let welcome = negotiate(&hello, &offer()).unwrap();
+    c.on_control(&bytes(Control::Welcome(welcome))).unwrap();
+    assert!(matches!(c.poll_event(), Some(ClientEvent::Welcomed(_))));
     // Three deltas; the client misses the second.
     let mut deltas = Vec::new();
     for k in 0..3u32 {
@@ -264,15 +281,19 @@ fn the_client_acks_asks_for_one_keyframe_on_a_gap_and_resyncs() {
         }
     ));
     assert!(matches!(events[1], ClientEvent::Gap { .. }));
-    // Deltas are acknowledged about 10 times a second (every 6th frame
-    // before WELCOME tells the rate), keyframes always: here only the
-    // request goes out, once for two gaps.
+    // The first delta after WELCOME is acknowledged (then about 10 a
+    // second at 60 Hz: every 6th), and one request goes out for two gaps.
     let sent = c.take_transmit().unwrap();
+    let want_ack = bytes(Control::Ack(deltas[0].sequence));
     let want_req = bytes(Control::KeyframeRequest {
         sequence: deltas[0].sequence,
         reason: KeyframeReason::Gap,
     });
-    assert_eq!(&sent[..], &want_req[..], "one request for two gaps");
+    assert_eq!(
+        &sent[..],
+        [&want_ack[..], &want_req[..]].concat(),
+        "one request for two gaps"
+    );
     assert_eq!(c.stats().requests, 1);
     // A corrupt frame leaves the mirror as it was.
     let before = c.mirror().instance(0).unwrap().words().to_vec();

@@ -46,8 +46,8 @@ enum Command {
         #[arg(long, default_value_t = 60)]
         rate: u16,
         /// Clients to connect.
-        #[arg(long, default_value_t = 1)]
-        clients: usize,
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=1000))]
+        clients: u16,
         /// Points spawned per square metre (half are kept).
         #[arg(long, default_value_t = 64.0)]
         density: f32,
@@ -97,6 +97,10 @@ enum Command {
         /// PEM file of certificates to trust instead.
         #[arg(long)]
         ca: Option<PathBuf>,
+        /// With --ca: the name the server's certificate must carry
+        /// (default localhost).
+        #[arg(long, requires = "ca")]
+        name: Option<String>,
         /// Stop after this many seconds (default: until the server closes).
         #[arg(long)]
         seconds: Option<f32>,
@@ -113,6 +117,10 @@ enum Command {
         /// PEM file of certificates to trust instead.
         #[arg(long)]
         ca: Option<PathBuf>,
+        /// With --ca: the name the server's certificate must carry
+        /// (default localhost).
+        #[arg(long, requires = "ca")]
+        name: Option<String>,
         /// The capture file to write.
         #[arg(long)]
         out: PathBuf,
@@ -158,7 +166,7 @@ fn main() -> ExitCode {
                 clients,
                 density,
                 rays,
-            } => demo(seconds, rate, clients, density, rays).await,
+            } => demo(seconds, rate, clients as usize, density, rays).await,
             Command::Serve {
                 scene,
                 bind,
@@ -192,15 +200,17 @@ fn main() -> ExitCode {
                 connect: addr,
                 fingerprint,
                 ca,
+                name,
                 seconds,
-            } => view(addr, &trust_of(fingerprint, ca)?, seconds).await,
+            } => view(addr, &trust_of(fingerprint, ca, name)?, seconds).await,
             Command::Record {
                 connect: addr,
                 fingerprint,
                 ca,
+                name,
                 out,
                 seconds,
-            } => record(addr, &trust_of(fingerprint, ca)?, &out, seconds).await,
+            } => record(addr, &trust_of(fingerprint, ca, name)?, &out, seconds).await,
             Command::Inspect { file, quiet } => inspect(&file, quiet),
         }
     });
@@ -213,12 +223,24 @@ fn main() -> ExitCode {
     }
 }
 
-fn trust_of(fingerprint: Option<String>, ca: Option<PathBuf>) -> Result<Trust, String> {
+/// A duration of `s` seconds, clamped to [0, 10^7] (NaN reads as 0).
+fn seconds_of(s: f32) -> Duration {
+    Duration::from_secs_f32(if s.is_nan() { 0.0 } else { s.clamp(0.0, 1e7) })
+}
+
+fn trust_of(
+    fingerprint: Option<String>,
+    ca: Option<PathBuf>,
+    name: Option<String>,
+) -> Result<Trust, String> {
     match (fingerprint, ca) {
         (Some(f), _) => Ok(Trust::Fingerprint(
             parse_fingerprint(&f).map_err(|e| e.to_string())?,
         )),
-        (None, Some(ca)) => Ok(Trust::Roots(read_roots(&ca)?)),
+        (None, Some(ca)) => Ok(Trust::Roots {
+            roots: read_roots(&ca)?,
+            name: name.unwrap_or_else(|| "localhost".into()),
+        }),
         (None, None) => Err("give --fingerprint (printed by `psao serve`) or --ca".into()),
     }
 }
@@ -241,7 +263,7 @@ async fn record(
         .await
         .map_err(|e| e.to_string())?;
     let start = Instant::now();
-    let until = seconds.map(|s| start + Duration::from_secs_f32(s.max(0.0)));
+    let until = seconds.map(|s| start + seconds_of(s));
     let (mut frames, mut bytes, mut dropped) = (0u64, 0u64, 0u64);
     loop {
         tokio::time::sleep(Duration::from_millis(50)).await;
@@ -257,6 +279,15 @@ async fn record(
         if ended || until.is_some_and(|u| Instant::now() >= u) {
             break;
         }
+    }
+    // Frames that came after the last look.
+    let (got, lost) = h.take_captured();
+    dropped += lost;
+    for (at, f) in got {
+        let t = at.saturating_duration_since(start).as_micros() as u64;
+        writer.write(t, &f).map_err(|e| e.to_string())?;
+        frames += 1;
+        bytes += f.len() as u64;
     }
     writer.finish().map_err(|e| e.to_string())?;
     h.close().await;
@@ -493,7 +524,10 @@ async fn summarize(
     wall: f64,
     cpu: Option<f64>,
 ) -> Result<(), String> {
-    let (pipeline, end) = server.shutdown(Duration::from_secs(2)).await;
+    let (pipeline, end) = server
+        .shutdown(Duration::from_secs(2))
+        .await
+        .map_err(|e| e.to_string())?;
     let last = end.sequence;
     let mut in_sync = 0;
     for h in &handles {
@@ -604,7 +638,7 @@ async fn serve_until_stopped(
         server.local_addr(),
         fingerprint_hex(&server.fingerprint())
     );
-    let until = seconds.map(|s| Instant::now() + Duration::from_secs_f32(s.max(0.0)));
+    let until = seconds.map(|s| Instant::now() + seconds_of(s));
     let mut prev = (server.stats(), Instant::now());
     loop {
         tokio::select! {
@@ -620,7 +654,10 @@ async fn serve_until_stopped(
         }
     }
     println!("shutting down");
-    server.shutdown(Duration::from_secs(2)).await;
+    server
+        .shutdown(Duration::from_secs(2))
+        .await
+        .map_err(|e| e.to_string())?;
     Ok(())
 }
 
@@ -639,7 +676,7 @@ async fn view(addr: SocketAddr, trust: &Trust, seconds: Option<f32>) -> Result<(
             w.scene, w.frame_rate, w.compression, w.max_frame_bytes
         );
     }
-    let until = seconds.map(|s| Instant::now() + Duration::from_secs_f32(s.max(0.0)));
+    let until = seconds.map(|s| Instant::now() + seconds_of(s));
     let mut prev = (h.with_session(|s| s.stats()), Instant::now());
     loop {
         tokio::time::sleep(Duration::from_secs(1)).await;
