@@ -162,31 +162,32 @@ fn keep_masks(masks: Vec<TriangleMask>) -> Vec<TriangleMask> {
 impl TriangleBvh {
     /// Builds a wide BVH (obvhs CWBVH, "fast" preset).
     pub fn new(geometry: Geometry) -> TriangleBvh {
-        let tris = to_triangles(&geometry.triangles);
-        let accel = (!tris.is_empty()).then(|| {
-            Accel::Wide(build_cwbvh_from_tris(
-                &tris,
-                BvhBuildParams::fast_build(),
-                &mut Duration::default(),
-            ))
-        });
-        TriangleBvh {
-            accel,
-            tris,
-            masks: keep_masks(geometry.masks),
-        }
+        TriangleBvh::build(geometry, false)
     }
 
     /// Builds a binary BVH that [`refit`](Self::refit) can update when the
     /// triangles move (the tree stays, its boxes follow).
     pub fn refittable(geometry: Geometry) -> TriangleBvh {
+        TriangleBvh::build(geometry, true)
+    }
+
+    fn build(geometry: Geometry, refittable: bool) -> TriangleBvh {
         let tris = to_triangles(&geometry.triangles);
+        let params = BvhBuildParams::fast_build();
         let accel = (!tris.is_empty()).then(|| {
-            Accel::Binary(build_bvh2_from_tris(
-                &tris,
-                BvhBuildParams::fast_build(),
-                &mut Duration::default(),
-            ))
+            if refittable {
+                Accel::Binary(build_bvh2_from_tris(
+                    &tris,
+                    params,
+                    &mut Duration::default(),
+                ))
+            } else {
+                Accel::Wide(build_cwbvh_from_tris(
+                    &tris,
+                    params,
+                    &mut Duration::default(),
+                ))
+            }
         });
         TriangleBvh {
             accel,

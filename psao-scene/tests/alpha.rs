@@ -37,6 +37,19 @@ fn masked_ceiling(y: f32, cells: u32, factor: f32) -> Mesh {
     m
 }
 
+/// A mesh's triangles with their alpha masks, for a BVH.
+fn geometry(mesh: &Mesh) -> Geometry {
+    let mut g = Geometry::default();
+    let mask = mesh.alpha.clone().map(Arc::new);
+    for t in 0..mesh.triangle_count() {
+        g.triangles.push(mesh.triangle(t));
+        let i = &mesh.indices[3 * t..3 * t + 3];
+        g.masks
+            .push(mask.as_ref().map(|m| (m.clone(), [i[0], i[1], i[2]])));
+    }
+    g
+}
+
 #[test]
 fn textures_sample_nearest_with_repeat() {
     let t = AlphaTexture {
@@ -112,15 +125,7 @@ fn rays_pass_through_holes() {
         ..AoParams::default()
     };
     let ao_under = |ceiling: Mesh| {
-        let mut g = Geometry::default();
-        let mask = ceiling.alpha.clone().map(Arc::new);
-        for t in 0..ceiling.triangle_count() {
-            g.triangles.push(ceiling.triangle(t));
-            let i = &ceiling.indices[3 * t..3 * t + 3];
-            g.masks
-                .push(mask.as_ref().map(|m| (m.clone(), [i[0], i[1], i[2]])));
-        }
-        let bvh = Arc::new(TriangleBvh::new(g));
+        let bvh = Arc::new(TriangleBvh::new(geometry(&ceiling)));
         let tracer = AoTracer::from_layers(vec![Layer::world(bvh)]);
         tracer.trace(&[Vec3::ZERO], &[Vec3::Y], &params).unwrap().ao[0]
     };
@@ -134,17 +139,10 @@ fn rays_pass_through_holes() {
         "half the ceiling: {solid} < {checker} < {open}"
     );
     // The same through a placed, refittable layer.
-    let ceiling = masked_ceiling(0.0, 16, 1.0);
-    let mut g = Geometry::default();
-    let mask = ceiling.alpha.clone().map(Arc::new);
-    for t in 0..ceiling.triangle_count() {
-        g.triangles.push(ceiling.triangle(t));
-        let i = &ceiling.indices[3 * t..3 * t + 3];
-        g.masks
-            .push(mask.as_ref().map(|m| (m.clone(), [i[0], i[1], i[2]])));
-    }
     let placed = Layer::placed(
-        Arc::new(TriangleBvh::refittable(g)),
+        Arc::new(TriangleBvh::refittable(geometry(&masked_ceiling(
+            0.0, 16, 1.0,
+        )))),
         glam::Affine3A::from_translation(Vec3::Y * 0.5),
     );
     let through_layer = AoTracer::from_layers(vec![placed])

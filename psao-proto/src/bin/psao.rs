@@ -87,46 +87,17 @@ enum Command {
     },
     /// Connect to a server and keep a mirror in sync, printing figures.
     View {
-        /// The server.
-        #[arg(long)]
-        connect: SocketAddr,
-        /// SHA-256 fingerprint of the server's certificate (as `psao serve`
-        /// prints it).
-        #[arg(long, conflicts_with = "ca")]
-        fingerprint: Option<String>,
-        /// PEM file of certificates to trust instead.
-        #[arg(long)]
-        ca: Option<PathBuf>,
-        /// With --ca: the name the server's certificate must carry
-        /// (default localhost).
-        #[arg(long, requires = "ca")]
-        name: Option<String>,
-        /// Stop after this many seconds (default: until the server closes).
-        #[arg(long)]
-        seconds: Option<f32>,
+        #[command(flatten)]
+        server: ServerArgs,
     },
     /// Connect to a server and write every frame received to a capture
     /// file (spec/capture.md).
     Record {
-        /// The server.
-        #[arg(long)]
-        connect: SocketAddr,
-        /// SHA-256 fingerprint of the server's certificate.
-        #[arg(long, conflicts_with = "ca")]
-        fingerprint: Option<String>,
-        /// PEM file of certificates to trust instead.
-        #[arg(long)]
-        ca: Option<PathBuf>,
-        /// With --ca: the name the server's certificate must carry
-        /// (default localhost).
-        #[arg(long, requires = "ca")]
-        name: Option<String>,
+        #[command(flatten)]
+        server: ServerArgs,
         /// The capture file to write.
         #[arg(long)]
         out: PathBuf,
-        /// Stop after this many seconds (default: until the server closes).
-        #[arg(long)]
-        seconds: Option<f32>,
     },
     /// Decode a capture file frame by frame and print what each frame is
     /// and does to a mirror.
@@ -137,6 +108,28 @@ enum Command {
         #[arg(long)]
         quiet: bool,
     },
+}
+
+/// Where a client connects and how it trusts the server.
+#[derive(clap::Args)]
+struct ServerArgs {
+    /// The server.
+    #[arg(long)]
+    connect: SocketAddr,
+    /// SHA-256 fingerprint of the server's certificate (as `psao serve`
+    /// prints it).
+    #[arg(long, conflicts_with = "ca")]
+    fingerprint: Option<String>,
+    /// PEM file of certificates to trust instead.
+    #[arg(long)]
+    ca: Option<PathBuf>,
+    /// With --ca: the name the server's certificate must carry (default
+    /// localhost).
+    #[arg(long, requires = "ca")]
+    name: Option<String>,
+    /// Stop after this many seconds (default: until the server closes).
+    #[arg(long)]
+    seconds: Option<f32>,
 }
 
 fn main() -> ExitCode {
@@ -196,21 +189,14 @@ fn main() -> ExitCode {
                 };
                 serve_until_stopped(scene, config, &identity, seconds).await
             }
-            Command::View {
-                connect: addr,
-                fingerprint,
-                ca,
-                name,
-                seconds,
-            } => view(addr, &trust_of(fingerprint, ca, name)?, seconds).await,
-            Command::Record {
-                connect: addr,
-                fingerprint,
-                ca,
-                name,
-                out,
-                seconds,
-            } => record(addr, &trust_of(fingerprint, ca, name)?, &out, seconds).await,
+            Command::View { server } => {
+                let trust = trust_of(server.fingerprint, server.ca, server.name)?;
+                view(server.connect, &trust, server.seconds).await
+            }
+            Command::Record { server, out } => {
+                let trust = trust_of(server.fingerprint, server.ca, server.name)?;
+                record(server.connect, &trust, &out, server.seconds).await
+            }
             Command::Inspect { file, quiet } => inspect(&file, quiet),
         }
     });
