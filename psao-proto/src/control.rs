@@ -323,6 +323,14 @@ impl Control {
                 }))
             }
             kind::WELCOME => {
+                // The version first: a later version's WELCOME may have
+                // another layout.
+                if b.len() >= 2 && u16::from_le_bytes([b[0], b[1]]) != VERSION {
+                    return Err(Close::new(
+                        CloseCode::VersionMismatch,
+                        format!("version {}", u16::from_le_bytes([b[0], b[1]])),
+                    ));
+                }
                 if b.len() < 16 {
                     return Err(violation("WELCOME body shorter than 16 bytes"));
                 }

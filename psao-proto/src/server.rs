@@ -259,6 +259,21 @@ impl ServerHandle {
     }
 }
 
+impl Drop for ServerHandle {
+    /// A handle dropped without [`shutdown`](ServerHandle::shutdown) still
+    /// stops the server: stepping ends, the listener goes and every
+    /// connection is closed with `server_shutdown`.
+    fn drop(&mut self) {
+        self.hub.stop.store(true, Ordering::SeqCst);
+        self.hub.closing.store(true, Ordering::SeqCst);
+        self.acceptor.abort();
+        self.endpoint.close(
+            quinn::VarInt::from_u32(CloseCode::ServerShutdown.code()),
+            b"server shutdown",
+        );
+    }
+}
+
 /// Starts a server streaming `scene`.
 pub async fn serve(
     scene: Scene,

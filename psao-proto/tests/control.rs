@@ -168,6 +168,13 @@ fn malformed_messages_close_with_the_specified_code() {
     let mut welcome = described("WELCOME").to_bytes().to_vec();
     welcome[18] = 9;
     assert_eq!(code_of(&welcome), ProtocolViolation, "name length");
+    // A later version's WELCOME, of another size, is a version mismatch.
+    assert_eq!(code_of(&[4, 0, 0x02, 2, 0, 9]), VersionMismatch);
+    assert_eq!(
+        code_of(&[4, 0, 0x01, b'P', b'S', b'A']),
+        ProtocolViolation,
+        "short HELLO"
+    );
     assert_eq!(
         code_of(&[5, 0, 0x20, 1, 2, 0xff, 0xfe]),
         ProtocolViolation,

@@ -305,6 +305,13 @@ async fn a_full_server_says_so() {
         matches!(wrong, Err(ConnectError::Connect { .. })),
         "{wrong:?}"
     );
+    // Dropping the handle without shutdown() still stops the server, and
+    // its client hears so.
+    drop(server);
+    first.wait_for(Duration::from_secs(5), |_| false).await;
+    match first.ended() {
+        Ended::Closed(close) => assert_eq!(close.code, CloseCode::ServerShutdown, "{close}"),
+        Ended::Running => panic!("still running after the server was dropped"),
+    }
     first.close().await;
-    server.shutdown(Duration::from_secs(1)).await.unwrap();
 }
