@@ -251,8 +251,7 @@ async fn record(
     let start = Instant::now();
     let until = seconds.map(|s| start + seconds_of(s));
     let (mut frames, mut bytes, mut dropped) = (0u64, 0u64, 0u64);
-    loop {
-        tokio::time::sleep(Duration::from_millis(50)).await;
+    let mut drain = |writer: &mut CaptureWriter<_>| -> Result<(), String> {
         let (got, lost) = h.take_captured();
         dropped += lost;
         for (at, f) in got {
@@ -261,20 +260,18 @@ async fn record(
             frames += 1;
             bytes += f.len() as u64;
         }
+        Ok(())
+    };
+    loop {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        drain(&mut writer)?;
         let ended = h.ended() != Ended::Running;
         if ended || until.is_some_and(|u| Instant::now() >= u) {
             break;
         }
     }
     // Frames that came after the last look.
-    let (got, lost) = h.take_captured();
-    dropped += lost;
-    for (at, f) in got {
-        let t = at.saturating_duration_since(start).as_micros() as u64;
-        writer.write(t, &f).map_err(|e| e.to_string())?;
-        frames += 1;
-        bytes += f.len() as u64;
-    }
+    drain(&mut writer)?;
     writer.finish().map_err(|e| e.to_string())?;
     h.close().await;
     println!(
