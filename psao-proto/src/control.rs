@@ -267,13 +267,6 @@ impl Control {
                 )))
             }
         };
-        let finite = |v: &[f32], name: &str| {
-            if v.iter().all(|x| x.is_finite()) {
-                Ok(())
-            } else {
-                Err(violation(format!("{name} holds a non-finite number")))
-            }
-        };
         match kind {
             kind::HELLO => {
                 // Magic and version first: a later version's HELLO may
@@ -374,11 +367,7 @@ impl Control {
             kind::CAMERA => {
                 want(36, b, "CAMERA")?;
                 let time_ms = b.get_u32_le();
-                let mut f = [0f32; 8];
-                for x in &mut f {
-                    *x = b.get_f32_le();
-                }
-                finite(&f, "CAMERA")?;
+                let f: [f32; 8] = finite_f32s(&mut b, "CAMERA")?;
                 let c = CameraPose {
                     time_ms,
                     eye: Vec3::new(f[0], f[1], f[2]),
@@ -413,11 +402,7 @@ impl Control {
             kind::MOVE_INSTANCE => {
                 want(52, b, "MOVE_INSTANCE")?;
                 let instance = b.get_u32_le();
-                let mut m = [0f32; 12];
-                for x in &mut m {
-                    *x = b.get_f32_le();
-                }
-                finite(&m, "MOVE_INSTANCE")?;
+                let m: [f32; 12] = finite_f32s(&mut b, "MOVE_INSTANCE")?;
                 Ok(Control::MoveInstance {
                     instance,
                     transform: Affine3A::from_cols_array(&m),
@@ -443,6 +428,20 @@ impl Control {
             }
             k => Err(violation(format!("unknown control message type 0x{k:02x}"))),
         }
+    }
+}
+
+/// Reads `N` little-endian f32s off `b` (which holds at least `4 N`
+/// bytes); a non-finite one is a violation in message `name`.
+fn finite_f32s<const N: usize>(b: &mut &[u8], name: &str) -> Result<[f32; N], Close> {
+    let mut out = [0f32; N];
+    for x in &mut out {
+        *x = b.get_f32_le();
+    }
+    if out.iter().all(|x| x.is_finite()) {
+        Ok(out)
+    } else {
+        Err(violation(format!("{name} holds a non-finite number")))
     }
 }
 
