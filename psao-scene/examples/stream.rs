@@ -18,7 +18,6 @@
 
 use std::time::Instant;
 
-use glam::{Affine3A, Vec3};
 use psao_codec::{Decoder, Event, Limits};
 use psao_scene::*;
 
@@ -37,27 +36,12 @@ fn flag(name: &str) -> bool {
 
 /// A glTF file standing on a floor 2 m wider than it on every side.
 fn gltf_scene(path: &str) -> Scene {
-    let mut s = load_gltf(std::path::Path::new(path)).unwrap_or_else(|e| {
-        eprintln!("error: {e}");
-        std::process::exit(2)
-    });
-    let tris = s.world_triangles().expect("a loaded scene is valid");
-    let (lo, hi) = tris.iter().flatten().fold(
-        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
-        |(lo, hi), &p| (lo.min(p), hi.max(p)),
-    );
-    let (lo, hi) = (lo - Vec3::splat(2.0), hi + Vec3::splat(2.0));
-    let size = hi - lo;
-    s.add(
-        Mesh::quad(
-            Vec3::new(lo.x, lo.y + 2.0, lo.z),
-            Vec3::Z * size.z,
-            Vec3::X * size.x,
-        )
-        .subdivided(2),
-        Affine3A::IDENTITY,
-    );
-    s
+    load_gltf(std::path::Path::new(path))
+        .and_then(stage)
+        .unwrap_or_else(|e| {
+            eprintln!("error: {e}");
+            std::process::exit(2)
+        })
 }
 
 fn main() {

@@ -280,6 +280,29 @@ impl TriangleBvh {
         if found { hit.t } else { f32::INFINITY }
     }
 
+    /// The nearest hit along `ray`: the triangle's index (in build order)
+    /// and the distance; `None` on a miss.
+    pub(crate) fn closest_triangle(&self, ray: Ray) -> Option<(u32, f32)> {
+        let mut hit = RayHit::none();
+        let (found, order) = match &self.accel {
+            None => return None,
+            Some(Accel::Wide(bvh)) => (
+                bvh.ray_traverse(ray, &mut hit, |r, id| {
+                    self.hit(r, bvh.primitive_indices[id])
+                }),
+                &bvh.primitive_indices,
+            ),
+            Some(Accel::Binary(bvh)) => (
+                bvh.ray_traverse(ray, &mut hit, |r, id| {
+                    self.hit(r, bvh.primitive_indices[id])
+                }),
+                &bvh.primitive_indices,
+            ),
+        };
+        let prim = *order.get(hit.primitive_id as usize)?;
+        found.then_some((prim, hit.t))
+    }
+
     /// Whether `ray` hits nothing.
     fn misses(&self, ray: Ray) -> bool {
         match &self.accel {
@@ -295,7 +318,7 @@ impl TriangleBvh {
 }
 
 /// Barycentric weights of `p` (on the plane of `a b c`).
-fn barycentric(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> [f32; 3] {
+pub(crate) fn barycentric(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> [f32; 3] {
     let (e0, e1, ep) = (b - a, c - a, p - a);
     let (d00, d01, d11) = (e0.dot(e0), e0.dot(e1), e1.dot(e1));
     let (d20, d21) = (ep.dot(e0), ep.dot(e1));

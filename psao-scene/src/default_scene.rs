@@ -57,6 +57,14 @@ pub fn default_scene() -> Scene {
     s
 }
 
+/// The benchmark's skinned scene: CesiumMan alone, walking in place,
+/// staged on a floor with a camera orbiting it ([`stage`](crate::stage)).
+pub fn cesium_man_scene() -> Scene {
+    let man = load_gltf_slice(CESIUM_MAN, "CesiumMan.glb", None)
+        .expect("the embedded CesiumMan model loads");
+    crate::stage::stage(man).expect("the embedded CesiumMan model stages")
+}
+
 /// The static part: floor, walls, columns, steps, table, bench, railing.
 fn static_courtyard() -> Scene {
     let mut s = Scene::default();

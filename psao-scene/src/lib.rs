@@ -25,15 +25,21 @@ mod ao;
 mod camera;
 mod default_scene;
 mod error;
+mod gbuffer;
 mod gltf_import;
 mod layout;
+mod metrics;
 mod node;
 mod pipeline;
+mod pixel_ao;
 mod points;
 mod pose;
 mod random;
+mod sao;
 mod scene;
 mod skin;
+mod stage;
+mod view;
 
 pub use alpha::{AlphaMask, AlphaTexture};
 pub use animation::{Animation, Channel, Interpolation, Keys};
@@ -42,17 +48,23 @@ pub use ao::{
     morton_order, ray_offset,
 };
 pub use camera::{Camera, CameraKey, CameraPath, Frustum};
-pub use default_scene::{MOVING_BOX, TRELLIS, WALKER, default_scene};
+pub use default_scene::{MOVING_BOX, TRELLIS, WALKER, cesium_man_scene, default_scene};
 pub use error::SceneError;
+pub use gbuffer::{GBuffer, NO_INSTANCE, PosedScene};
 pub use gltf_import::{
     MAX_ACCESSOR_BYTES, MAX_BUFFER_BYTES, MAX_INSTANCES, MAX_SKINNED_VERTICES, load_gltf,
     load_gltf_slice,
 };
 pub use layout::{LayoutParams, layout};
+pub use metrics::{MetricError, error_map, psnr, rmse, ssim};
 pub use node::{Node, Trs, compose};
 pub use pipeline::{FrameReport, Pipeline, PipelineConfig, ViewerCull};
+pub use pixel_ao::{ClientImage, psao_image, ray_traced_ao};
 pub use points::{Anchor, MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
 pub use pose::Pose;
 pub use random::{hash, uniform};
+pub use sao::{SaoParams, sao};
 pub use scene::{Instance, Mesh, Scene, transformed_bounds};
 pub use skin::{Skin, SkinWeights};
+pub use stage::{FLOOR_MARGIN, ORBIT_SECONDS, stage};
+pub use view::{MAX_IMAGE_SIDE, View};

@@ -221,7 +221,7 @@ fn overlaps(a: (Vec3, Vec3), b: (Vec3, Vec3)) -> bool {
     a.0.cmple(b.1).all() && b.0.cmple(a.1).all()
 }
 
-fn normal_matrix(t: &Affine3A) -> Mat3A {
+pub(crate) fn normal_matrix(t: &Affine3A) -> Mat3A {
     t.matrix3.inverse().transpose()
 }
 

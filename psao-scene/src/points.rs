@@ -30,8 +30,12 @@ pub struct PointSet {
     pub normals: Vec<Vec3>,
     /// Where each point sits on the mesh.
     pub anchors: Vec<Anchor>,
-    /// The Poisson radius `r_max` of the elimination: the client's
-    /// interpolation radius r (paper eq. 2).
+    /// The Poisson disk radius of the kept points, `2 r_max` of the
+    /// elimination: about the distance between neighbouring points, and
+    /// the client's interpolation radius r (paper eq. 2). (`r_max`, the
+    /// radius of non-overlapping disks, is half the spacing: with it as r,
+    /// a quarter of the surface lay farther than r from every point and
+    /// reconstructed as open; see BENCHMARKS.md, issue 4.)
     pub radius: f32,
 }
 
@@ -131,7 +135,7 @@ pub fn generate_points(mesh: &Mesh, density: f32, seed: u64) -> Result<PointSet,
         let keep = pos.len() / 2;
         let solid_area = area * pos.len() as f32 / spawned as f32;
         let (kept, radius) = eliminate(&pos, &nrm, keep, solid_area);
-        out.radius = out.radius.max(radius);
+        out.radius = out.radius.max(2.0 * radius);
         for i in kept {
             out.positions.push(pos[i]);
             out.normals.push(nrm[i] * sign);

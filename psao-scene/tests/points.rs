@@ -34,8 +34,9 @@ fn counts_positions_and_normals() {
         && q.y >= 0.0
         && q.y <= 2.0));
     assert!(p.normals.iter().all(|n| (*n - Vec3::Z).length() < 1e-6));
-    let r = (8.0f32 / (2.0 * 3f32.sqrt() * 400.0)).sqrt();
-    assert!((p.radius - r).abs() < 1e-6);
+    // The interpolation radius is the Poisson disk radius 2 r_max.
+    let r_max = (8.0f32 / (2.0 * 3f32.sqrt() * 400.0)).sqrt();
+    assert!((p.radius - 2.0 * r_max).abs() < 1e-6);
 
     let mut two = plane();
     two.double_sided = true;
@@ -70,8 +71,8 @@ fn elimination_spreads_points_apart() {
         mean(&nu)
     );
     // Fewer than 5% of the kept points have a neighbour closer than
-    // 0.75 r_max.
-    let close = nk.iter().filter(|&&d| d < 0.75 * kept.radius).count();
+    // 0.75 r_max (the radius is 2 r_max).
+    let close = nk.iter().filter(|&&d| d < 0.375 * kept.radius).count();
     assert!(
         close * 20 < nk.len(),
         "{close} of {} closer than 0.75 r",
@@ -154,9 +155,12 @@ fn layout_holds_every_point_of_a_box() {
     let s = table.stats();
     assert_eq!(s.out_of_grid, 0);
     assert_eq!(s.bucket_overflow + s.pool_exhausted, 0, "{s:?}");
-    // Box edges and corners crowd cells: a few drops, counted.
+    // Box edges and corners crowd cells: a few drops (under 3%), counted.
+    // Cells are at least twice the interpolation radius (the Poisson disk
+    // radius, about the point spacing), so a face crossing a cell puts
+    // about 4.6 points in it, and edges and corners fill its 7 slots.
     assert!(
-        s.dropped as usize * 50 < pts.len(),
+        s.dropped as usize * 33 < pts.len(),
         "{s:?} of {}",
         pts.len()
     );

@@ -7,6 +7,11 @@
 //! - `psao record`: a client that writes what it receives to a capture
 //!   file (spec/capture.md);
 //! - `psao inspect`: decodes a capture file frame by frame.
+//! - `psao bench`: accuracy against run time (PSAO, per-pixel RTAO, SAO
+//!   against a ray-traced reference), with a CSV, a markdown table, charts
+//!   and a side-by-side image.
+
+mod bench;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -99,6 +104,10 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Accuracy against run time: PSAO at several densities and server
+    /// rates, per-pixel RTAO and SAO against a per-pixel ray-traced
+    /// reference; writes bench.csv, bench.md, charts and images.
+    Bench(bench::BenchArgs),
     /// Decode a capture file frame by frame and print what each frame is
     /// and does to a mirror.
     Inspect {
@@ -198,6 +207,7 @@ fn main() -> ExitCode {
                 record(server.connect, &trust, &out, server.seconds).await
             }
             Command::Inspect { file, quiet } => inspect(&file, quiet),
+            Command::Bench(args) => bench::run(args),
         }
     });
     match result {

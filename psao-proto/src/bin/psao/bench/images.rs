@@ -1,0 +1,208 @@
+//! Images of `psao bench`: the composited frame FLIP compares, the AO and
+//! G-buffer files of the first frame, and the side-by-side picture.
+
+use std::path::Path;
+use std::sync::Once;
+
+use glam::Vec3;
+use image::{ImageBuffer, Luma, Rgb, Rgb32FImage};
+use plotters::prelude::*;
+use plotters::style::{FontStyle, register_font};
+use psao_scene::{GBuffer, NO_INSTANCE, error_map};
+
+use super::measure::{Frame, SceneResult};
+
+/// DejaVu Sans (see assets/README.md): text in charts and pictures needs no
+/// system font.
+static FONT: &[u8] = include_bytes!("../../../../assets/DejaVuSans.ttf");
+
+/// Registers the embedded font as plotters' "sans-serif" (once).
+pub fn register_fonts() -> Result<(), String> {
+    static ONCE: Once = Once::new();
+    let mut result = Ok(());
+    ONCE.call_once(|| {
+        result = register_font("sans-serif", FontStyle::Normal, FONT)
+            .map_err(|_| "the embedded font is not a valid TrueType font".to_string());
+    });
+    result
+}
+
+/// Error maps are scaled by this before display (an error of 0.25 is
+/// white).
+const ERROR_GAIN: f32 = 4.0;
+
+/// The light of the composited image.
+fn light() -> Vec3 {
+    Vec3::new(0.4, 1.0, 0.3).normalize()
+}
+
+/// The composited image FLIP compares, 8-bit sRGB: a grey material lit by
+/// a sky term scaled by AO and a sun term, `0.8 (0.3 + 0.7 max(0, n.l)) AO`;
+/// pixels with no geometry show a constant sky.
+pub fn composite(g: &GBuffer, ao: &[f32]) -> Vec<u8> {
+    let l = light();
+    let mut out = Vec::with_capacity(g.pixels() * 3);
+    for ((&id, n), &a) in g.instance.iter().zip(&g.normal).zip(ao) {
+        let rgb = if id == NO_INSTANCE {
+            [0.55, 0.65, 0.8]
+        } else {
+            let v = 0.8 * (0.3 + 0.7 * n.dot(l).max(0.0)) * a.clamp(0.0, 1.0);
+            [v, v, v]
+        };
+        out.extend(rgb.map(to_srgb8));
+    }
+    out
+}
+
+/// Linear [0, 1] to an 8-bit sRGB code.
+fn to_srgb8(v: f32) -> u8 {
+    let v = v.clamp(0.0, 1.0);
+    let s = if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    };
+    (s * 255.0 + 0.5) as u8
+}
+
+/// Mean FLIP between the frame's composited reference and the same
+/// composite with `test` as AO (at FLIP's default 67 pixels per degree).
+pub fn flip_mean(frame: &Frame, test: &[f32]) -> f64 {
+    let (w, h) = (frame.gbuffer.width, frame.gbuffer.height);
+    let reference = nv_flip::FlipImageRgb8::with_data(w, h, &frame.composite);
+    let test = nv_flip::FlipImageRgb8::with_data(w, h, &composite(&frame.gbuffer, test));
+    let map = nv_flip::flip(reference, test, nv_flip::DEFAULT_PIXELS_PER_DEGREE);
+    nv_flip::FlipPool::from_image(&map).mean() as f64
+}
+
+/// Writes the first frame's files: the reference and each shown method's
+/// AO as 16-bit PNG, the reference AO as float EXR, the G-buffer as EXR
+/// (position, normal, and depth / instance id / coverage), and the
+/// side-by-side picture.
+pub fn write_scene_images(out: &Path, r: &SceneResult) -> Result<(), String> {
+    let f = &r.frames[0];
+    let (w, h) = (f.gbuffer.width, f.gbuffer.height);
+    let name = &r.name;
+    for (label, img) in &r.showcase.images {
+        let file = out.join(format!("{name}-ao-{}.png", slug(label)));
+        ao_png16(img, w, h)
+            .save(&file)
+            .map_err(|e| format!("{}: {e}", file.display()))?;
+    }
+    let exr = |file: String, px: &dyn Fn(usize) -> [f32; 3]| -> Result<(), String> {
+        let mut img = Rgb32FImage::new(w, h);
+        for (k, p) in img.pixels_mut().enumerate() {
+            *p = Rgb(px(k));
+        }
+        let path = out.join(file);
+        img.save(&path)
+            .map_err(|e| format!("{}: {e}", path.display()))
+    };
+    let g = &f.gbuffer;
+    exr(format!("{name}-ao-reference.exr"), &|k| [f.reference[k]; 3])?;
+    exr(format!("{name}-gbuffer-position.exr"), &|k| {
+        g.position[k].to_array()
+    })?;
+    exr(format!("{name}-gbuffer-normal.exr"), &|k| {
+        g.normal[k].to_array()
+    })?;
+    exr(format!("{name}-gbuffer-depth-instance.exr"), &|k| {
+        let hit = g.instance[k] != NO_INSTANCE;
+        [
+            if hit { g.depth[k] } else { -1.0 },
+            if hit { g.instance[k] as f32 } else { -1.0 },
+            hit as u8 as f32,
+        ]
+    })?;
+    side_by_side(&out.join(format!("{name}-frame.png")), r)
+}
+
+/// A file-name-safe form of a label.
+pub fn slug(label: &str) -> String {
+    let s: String = label
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() {
+                c.to_ascii_lowercase()
+            } else {
+                '-'
+            }
+        })
+        .collect();
+    s.split('-')
+        .filter(|p| !p.is_empty())
+        .collect::<Vec<_>>()
+        .join("-")
+}
+
+/// AO as a 16-bit greyscale image (0 = fully occluded, 65535 = open).
+fn ao_png16(ao: &[f32], w: u32, h: u32) -> ImageBuffer<Luma<u16>, Vec<u16>> {
+    ImageBuffer::from_fn(w, h, |x, y| {
+        let v = ao[(y * w + x) as usize].clamp(0.0, 1.0);
+        Luma([(v * 65535.0 + 0.5) as u16])
+    })
+}
+
+/// The side-by-side picture: the shown methods' AO in the top row, their
+/// absolute error against the reference (x4) in the bottom row, labelled.
+fn side_by_side(path: &Path, r: &SceneResult) -> Result<(), String> {
+    register_fonts()?;
+    let f = &r.frames[0];
+    let (w, h) = (f.gbuffer.width as usize, f.gbuffer.height as usize);
+    let shown = &r.showcase.images;
+    let label_h = 22usize;
+    let (cols, rows) = (shown.len(), 2usize);
+    let (cw, ch) = (cols * w, rows * (h + label_h));
+    let mut buf = vec![255u8; cw * ch * 3];
+    let put = |buf: &mut Vec<u8>, x0: usize, y0: usize, px: &dyn Fn(usize) -> [u8; 3]| {
+        for y in 0..h {
+            for x in 0..w {
+                let o = ((y0 + y) * cw + x0 + x) * 3;
+                buf[o..o + 3].copy_from_slice(&px(y * w + x));
+            }
+        }
+    };
+    for (c, (_, img)) in shown.iter().enumerate() {
+        put(&mut buf, c * w, label_h, &|k| [to_srgb8(img[k]); 3]);
+        if c > 0 {
+            let err = error_map(&f.reference, img);
+            put(&mut buf, c * w, 2 * label_h + h, &|k| {
+                heat(err[k] * ERROR_GAIN)
+            });
+        } else {
+            put(&mut buf, 0, 2 * label_h + h, &|k| {
+                f.composite[3 * k..3 * k + 3].try_into().unwrap_or([0; 3])
+            });
+        }
+    }
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (cw as u32, ch as u32)).into_drawing_area();
+        let style = ("sans-serif", 15).into_font().color(&BLACK);
+        for (c, (label, _)) in shown.iter().enumerate() {
+            let x = (c * w + 4) as i32;
+            root.draw_text(label, &style, (x, 4))
+                .map_err(|e| e.to_string())?;
+            let below = if c == 0 {
+                "reference, composited".to_string()
+            } else {
+                format!("error x{ERROR_GAIN}")
+            };
+            root.draw_text(&below, &style, (x, (label_h + h + 4) as i32))
+                .map_err(|e| e.to_string())?;
+        }
+        root.present().map_err(|e| e.to_string())?;
+    }
+    image::RgbImage::from_raw(cw as u32, ch as u32, buf)
+        .ok_or("picture buffer has the wrong size")?
+        .save(path)
+        .map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// A black-red-yellow-white ramp for error maps (input clamped to [0, 1]).
+fn heat(v: f32) -> [u8; 3] {
+    let v = v.clamp(0.0, 1.0);
+    let r = (v * 3.0).min(1.0);
+    let g = (v * 3.0 - 1.0).clamp(0.0, 1.0);
+    let b = (v * 3.0 - 2.0).clamp(0.0, 1.0);
+    [r, g, b].map(|c| (c * 255.0 + 0.5) as u8)
+}

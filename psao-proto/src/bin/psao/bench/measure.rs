@@ -1,0 +1,512 @@
+//! The measurements of `psao bench` for one scene.
+//!
+//! Frames: `frames` client frames spread evenly over the scene's camera
+//! path, each at a time on the client's 60 Hz grid. For each frame the
+//! scene is posed, a G-buffer is cast, and the reference is ray-traced per
+//! pixel with `reference_rays` rays (closest hit, radius 0.6, the server's
+//! estimator). Every method then makes an AO image on the same G-buffer:
+//! - PSAO-N at rate R: a server pipeline at density N ticks at R Hz; at a
+//!   client frame at time t the client holds the frames of every tick up
+//!   to `floor(t R) / R` and reconstructs with the last transforms it
+//!   received (so lower rates are staler, as in the paper's latency video);
+//! - RTAO-k: k closest-hit rays per pixel (another seed than the
+//!   reference's);
+//! - SAO: the screen-space baseline on the G-buffer's depth.
+//!
+//! Client time is the AO pass alone (the G-buffer is shared by all), on
+//! every core of this machine (rayon), for every method alike. Server time
+//! and bit rate come from a window of consecutive ticks at the server
+//! rate after the measured frames.
+
+use std::time::Instant;
+
+use indicatif::ProgressBar;
+use psao_codec::{Decoder, Limits};
+use psao_scene::{
+    AoParams, Camera, Estimator, GBuffer, Pipeline, PipelineConfig, PosedScene, SaoParams, Scene,
+    View, psao_image, ray_traced_ao, rmse, sao, ssim,
+};
+
+use super::images;
+
+/// Client frames per second: frame times lie on this grid.
+pub const CLIENT_HZ: f64 = 60.0;
+
+/// What to measure.
+#[derive(Clone, Debug)]
+pub struct Settings {
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Frames of the camera path.
+    pub frames: u32,
+    /// Rays per pixel of the reference.
+    pub reference_rays: u32,
+    /// AO rays per PSAO point.
+    pub point_rays: u32,
+    /// PSAO densities (spawned points per unit area).
+    pub densities: Vec<f32>,
+    /// Server rates, Hz.
+    pub rates: Vec<u16>,
+    /// Every density at every rate (else every density at the first rate,
+    /// and every rate at [`focus`](Self::focus)).
+    pub cross: bool,
+    /// The density the rate sweep uses (when not `cross`) and the one the
+    /// side-by-side image shows.
+    pub focus: f32,
+    /// Rays per pixel of the RTAO configurations.
+    pub rtao_rays: Vec<u32>,
+    /// Seconds of consecutive ticks for server time and bit rate.
+    pub window: f32,
+}
+
+impl Settings {
+    /// Defaults that finish in a few minutes on 2 cores.
+    pub fn quick() -> Settings {
+        Settings {
+            width: 320,
+            height: 180,
+            frames: 6,
+            reference_rays: 256,
+            point_rays: 64,
+            densities: vec![128.0, 256.0, 512.0, 1024.0, 2048.0],
+            rates: vec![60, 30, 15, 5],
+            cross: false,
+            focus: 1024.0,
+            rtao_rays: vec![1, 4, 16],
+            window: 1.0,
+        }
+    }
+
+    /// The paper-sized run.
+    pub fn full() -> Settings {
+        Settings {
+            width: 1280,
+            height: 720,
+            frames: 24,
+            reference_rays: 512,
+            point_rays: 192,
+            cross: true,
+            window: 2.0,
+            ..Settings::quick()
+        }
+    }
+
+    /// Checks the settings make sense.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.frames == 0 {
+            return Err("--frames must be at least 1".into());
+        }
+        if self.reference_rays == 0 || self.point_rays == 0 {
+            return Err("--reference-rays and --point-rays must be at least 1".into());
+        }
+        if self.densities.is_empty() || self.rates.is_empty() {
+            return Err("--densities and --rates need at least one value".into());
+        }
+        if let Some(d) = self
+            .densities
+            .iter()
+            .find(|d| !(d.is_finite() && **d > 0.0))
+        {
+            return Err(format!("density {d} is not a positive number"));
+        }
+        if self.rates.contains(&0) {
+            return Err("a server rate of 0 Hz never ticks".into());
+        }
+        Ok(())
+    }
+
+    /// The density shown in the side-by-side image and used by the rate
+    /// sweep: the configured focus if listed, else the listed density
+    /// nearest to it.
+    pub fn focus_density(&self) -> f32 {
+        self.densities
+            .iter()
+            .copied()
+            .min_by(|a, b| (a - self.focus).abs().total_cmp(&(b - self.focus).abs()))
+            .unwrap_or(self.focus)
+    }
+
+    /// The PSAO configurations, (density, rate), in table order.
+    pub fn psao_configs(&self) -> Vec<(f32, u16)> {
+        let mut out = Vec::new();
+        if self.cross {
+            for &r in &self.rates {
+                for &d in &self.densities {
+                    out.push((d, r));
+                }
+            }
+        } else {
+            let first = self.rates[0];
+            out.extend(self.densities.iter().map(|&d| (d, first)));
+            let f = self.focus_density();
+            out.extend(self.rates[1..].iter().map(|&r| (f, r)));
+        }
+        out
+    }
+
+    /// Progress units per scene: the reference, each PSAO configuration,
+    /// each RTAO configuration and SAO.
+    pub fn units_per_scene(&self) -> u64 {
+        1 + self.psao_configs().len() as u64 + self.rtao_rays.len() as u64 + 1
+    }
+}
+
+/// Which method a row measures.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Method {
+    /// PSAO at a density (spawned points per unit area) and server rate.
+    Psao {
+        /// Density.
+        density: f32,
+        /// Server rate, Hz.
+        rate: u16,
+    },
+    /// Per-pixel ray-traced AO with this many rays per pixel.
+    Rtao {
+        /// Rays per pixel.
+        rays: u32,
+    },
+    /// Scalable Ambient Obscurance.
+    Sao,
+}
+
+impl Method {
+    /// Short name as in the paper's tables.
+    pub fn label(&self) -> String {
+        match self {
+            Method::Psao { density, rate } => format!("PSAO-{density} @{rate} Hz"),
+            Method::Rtao { rays } => format!("RTAO-{rays}spp"),
+            Method::Sao => "SAO".into(),
+        }
+    }
+}
+
+/// One configuration's figures on one scene (means over the frames).
+#[derive(Clone, Debug)]
+pub struct Row {
+    /// The method.
+    pub method: Method,
+    /// Server milliseconds per tick (PSAO only).
+    pub server_ms: Option<f64>,
+    /// Client milliseconds per frame for the AO pass.
+    pub client_ms: f64,
+    /// Megabits per second at the server rate (PSAO only).
+    pub mbit_s: Option<f64>,
+    /// Root mean square error over all frames' pixels.
+    pub rmse: f64,
+    /// PSNR of the pooled mean square error, peak 1.
+    pub psnr: f64,
+    /// Mean SSIM over frames.
+    pub ssim: f64,
+    /// Mean FLIP of the composited image over frames.
+    pub flip: f64,
+    /// Points the server holds (PSAO only).
+    pub points: Option<usize>,
+    /// Server setup seconds: points, layout, first trace and keyframe
+    /// (PSAO only).
+    pub setup_s: Option<f64>,
+    /// Keyframe bytes (PSAO only).
+    pub keyframe_bytes: Option<usize>,
+    /// Covered pixels the client had no data for, over all frames.
+    pub unknown_px: usize,
+}
+
+/// One frame's inputs, shared by every method.
+pub struct Frame {
+    /// Scene time.
+    pub time: f32,
+    /// The view.
+    pub view: View,
+    /// The G-buffer.
+    pub gbuffer: GBuffer,
+    /// The reference AO image.
+    pub reference: Vec<f32>,
+    /// The composited reference, 8-bit sRGB, for FLIP.
+    pub composite: Vec<u8>,
+    /// The geometry at this time (for RTAO).
+    pub posed: PosedScene,
+}
+
+/// The images of the first frame, for the side-by-side picture.
+pub struct Showcase {
+    /// (label, AO image) per method shown.
+    pub images: Vec<(String, Vec<f32>)>,
+}
+
+/// Everything measured on one scene.
+pub struct SceneResult {
+    /// Scene name.
+    pub name: String,
+    /// Rows in table order.
+    pub rows: Vec<Row>,
+    /// Frames (the first is the showcase frame).
+    pub frames: Vec<Frame>,
+    /// First-frame images of the shown methods.
+    pub showcase: Showcase,
+    /// Mean fraction of pixels covered by geometry.
+    pub coverage: f64,
+    /// Triangles in the scene.
+    pub triangles: usize,
+    /// Seconds to trace the reference, all frames.
+    pub reference_s: f64,
+}
+
+/// Running means of the error metrics over frames.
+#[derive(Default)]
+struct Errors {
+    mse: f64,
+    ssim: f64,
+    flip: f64,
+    frames: u32,
+}
+
+impl Errors {
+    fn add(&mut self, frame: &Frame, test: &[f32]) -> Result<(), String> {
+        let e = rmse(&frame.reference, test).map_err(|e| e.to_string())?;
+        self.mse += e * e;
+        self.ssim += ssim(
+            &frame.reference,
+            test,
+            frame.gbuffer.width as usize,
+            frame.gbuffer.height as usize,
+        )
+        .map_err(|e| e.to_string())?;
+        self.flip += images::flip_mean(frame, test);
+        self.frames += 1;
+        Ok(())
+    }
+
+    fn row(&self, method: Method, client_ms: f64) -> Row {
+        let n = self.frames.max(1) as f64;
+        let mse = self.mse / n;
+        Row {
+            method,
+            server_ms: None,
+            client_ms,
+            mbit_s: None,
+            rmse: mse.sqrt(),
+            psnr: if mse > 0.0 {
+                10.0 * (1.0 / mse).log10()
+            } else {
+                f64::INFINITY
+            },
+            ssim: self.ssim / n,
+            flip: self.flip / n,
+            points: None,
+            setup_s: None,
+            keyframe_bytes: None,
+            unknown_px: 0,
+        }
+    }
+}
+
+/// Client frames in one tick of the slowest default server rate (5 Hz).
+const PHASES: u64 = 12;
+
+/// Times of the measured frames: spread evenly over the camera path (a
+/// frame near each of `frames` equal parts' middles), on the 60 Hz grid.
+/// Frame `k` is moved on by `7k mod 12` client frames, so the frames fall
+/// at every phase of a 5, 15 or 30 Hz server tick rather than all on a
+/// tick (which would hide the staleness of slow servers).
+pub fn frame_times(duration: f32, frames: u32) -> Vec<f32> {
+    (0..frames)
+        .map(|k| {
+            let t = (k as f64 + 0.5) / frames as f64 * duration.max(0.0) as f64;
+            let phase = (7 * k as u64 % PHASES) as f64;
+            (((t * CLIENT_HZ).round() + phase) / CLIENT_HZ) as f32
+        })
+        .collect()
+}
+
+/// The reference's AO parameters (closest hit, the server's radius and
+/// bias).
+fn reference_params(rays: u32, seed: u64) -> AoParams {
+    AoParams {
+        rays,
+        estimator: Estimator::ClosestHit,
+        seed,
+        ..AoParams::default()
+    }
+}
+
+/// Measures every configuration on one scene.
+pub fn measure_scene(
+    name: &str,
+    scene: Scene,
+    s: &Settings,
+    bar: &ProgressBar,
+) -> Result<SceneResult, String> {
+    let err = |e: psao_scene::SceneError| format!("{name}: {e}");
+    let path = scene
+        .camera
+        .clone()
+        .ok_or_else(|| format!("{name}: the scene has no camera path"))?;
+    bar.set_message(format!("{name}: reference"));
+    let started = Instant::now();
+    let mut frames = Vec::new();
+    let mut covered = 0usize;
+    for t in frame_times(path.duration(), s.frames) {
+        let camera: Camera = path.at(t);
+        let view = View::new(camera, s.width, s.height).map_err(err)?;
+        let posed = PosedScene::new(&scene, t).map_err(err)?;
+        let gbuffer = posed.gbuffer(&view);
+        covered += gbuffer.covered();
+        let reference = ray_traced_ao(
+            &posed.tracer(),
+            &gbuffer,
+            &reference_params(s.reference_rays, 0x5EED_0001),
+        )
+        .map_err(err)?;
+        let composite = images::composite(&gbuffer, &reference);
+        frames.push(Frame {
+            time: t,
+            view,
+            gbuffer,
+            reference,
+            composite,
+            posed,
+        });
+    }
+    let reference_s = started.elapsed().as_secs_f64();
+    bar.inc(1);
+    let mut rows = Vec::new();
+    let mut showcase = Showcase { images: Vec::new() };
+    showcase
+        .images
+        .push(("reference".into(), frames[0].reference.clone()));
+
+    let focus = s.focus_density();
+    let first_rate = s.rates[0];
+    for (density, rate) in s.psao_configs() {
+        let method = Method::Psao { density, rate };
+        bar.set_message(format!("{name}: {}", method.label()));
+        let (row, first) = measure_psao(&scene, &frames, s, density, rate)
+            .map_err(|e| format!("{name}: {}: {e}", method.label()))?;
+        if density == focus && rate == first_rate {
+            showcase.images.push((method.label(), first));
+        }
+        rows.push(row);
+        bar.inc(1);
+    }
+    for &rays in &s.rtao_rays {
+        let method = Method::Rtao { rays };
+        bar.set_message(format!("{name}: {}", method.label()));
+        let (mut errors, mut ms) = (Errors::default(), 0.0);
+        for (k, f) in frames.iter().enumerate() {
+            let tracer = f.posed.tracer();
+            let t = Instant::now();
+            let img = ray_traced_ao(&tracer, &f.gbuffer, &reference_params(rays, 0xA0_0002))
+                .map_err(err)?;
+            ms += t.elapsed().as_secs_f64() * 1e3;
+            errors.add(f, &img)?;
+            if k == 0 && rays == s.rtao_rays[0] {
+                showcase.images.push((method.label(), img));
+            }
+        }
+        rows.push(errors.row(method, ms / frames.len() as f64));
+        bar.inc(1);
+    }
+    bar.set_message(format!("{name}: SAO"));
+    let (mut errors, mut ms) = (Errors::default(), 0.0);
+    let params = SaoParams::default();
+    for (k, f) in frames.iter().enumerate() {
+        let t = Instant::now();
+        let img = sao(&f.gbuffer.depth, &f.view, &params).map_err(err)?;
+        ms += t.elapsed().as_secs_f64() * 1e3;
+        errors.add(f, &img)?;
+        if k == 0 {
+            showcase.images.push(("SAO".into(), img));
+        }
+    }
+    rows.push(errors.row(Method::Sao, ms / frames.len() as f64));
+    bar.inc(1);
+    let pixels = frames.len() * (s.width as usize * s.height as usize);
+    Ok(SceneResult {
+        name: name.to_string(),
+        rows,
+        coverage: covered as f64 / pixels.max(1) as f64,
+        triangles: frames[0].posed.triangles(),
+        frames,
+        showcase,
+        reference_s,
+    })
+}
+
+/// Measures PSAO at one density and server rate; also returns its image
+/// of the first frame.
+fn measure_psao(
+    scene: &Scene,
+    frames: &[Frame],
+    s: &Settings,
+    density: f32,
+    rate: u16,
+) -> Result<(Row, Vec<f32>), String> {
+    let config = PipelineConfig {
+        density,
+        ao: AoParams {
+            rays: s.point_rays,
+            ..PipelineConfig::default().ao
+        },
+        ..PipelineConfig::default()
+    };
+    let started = Instant::now();
+    let mut pipeline = Pipeline::new(scene.clone(), config).map_err(|e| e.to_string())?;
+    let mut client = Decoder::new(Limits::default());
+    let keyframe = pipeline.keyframe().map_err(|e| e.to_string())?;
+    client
+        .receive(&keyframe.bytes)
+        .map_err(|e| format!("keyframe: {e}"))?;
+    let setup_s = started.elapsed().as_secs_f64();
+    let points: usize = (0..pipeline.instance_count())
+        .filter_map(|i| pipeline.points(i).map(|p| p.len()))
+        .sum();
+    let period = 1.0 / rate as f64;
+    let (mut errors, mut ms, mut unknown) = (Errors::default(), 0.0, 0usize);
+    let mut first = Vec::new();
+    for (k, f) in frames.iter().enumerate() {
+        // The newest tick at or before the client's frame.
+        let tick = ((f.time as f64 + 1e-6) / period).floor() * period;
+        let dt = tick - pipeline.time() as f64;
+        if dt > 1e-6 {
+            let (frame, _) = pipeline.step(dt as f32).map_err(|e| e.to_string())?;
+            if let Some(frame) = frame {
+                client
+                    .receive(&frame.bytes)
+                    .map_err(|e| format!("frame: {e}"))?;
+            }
+        }
+        let t = Instant::now();
+        let img = psao_image(client.mirror(), &f.gbuffer);
+        ms += t.elapsed().as_secs_f64() * 1e3;
+        unknown += img.unknown;
+        errors.add(f, &img.ao)?;
+        if k == 0 {
+            first = img.ao;
+        }
+    }
+    // Server time and bit rate: consecutive ticks at the server rate.
+    let ticks = ((s.window as f64 * rate as f64).round() as u32).max(1);
+    let (mut bytes, mut server_s) = (0usize, 0.0f64);
+    for _ in 0..ticks {
+        let t = Instant::now();
+        let (frame, _) = pipeline.step(period as f32).map_err(|e| e.to_string())?;
+        server_s += t.elapsed().as_secs_f64();
+        if let Some(frame) = frame {
+            bytes += frame.bytes.len();
+            client
+                .receive(&frame.bytes)
+                .map_err(|e| format!("frame: {e}"))?;
+        }
+    }
+    let seconds = ticks as f64 * period;
+    let mut row = errors.row(Method::Psao { density, rate }, ms / frames.len() as f64);
+    row.server_ms = Some(server_s * 1e3 / ticks as f64);
+    row.mbit_s = Some(bytes as f64 * 8.0 / seconds / 1e6);
+    row.points = Some(points);
+    row.setup_s = Some(setup_s);
+    row.keyframe_bytes = Some(keyframe.bytes.len());
+    row.unknown_px = unknown;
+    Ok((row, first))
+}

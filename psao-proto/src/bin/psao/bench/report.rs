@@ -1,0 +1,223 @@
+//! The CSV file and markdown table of `psao bench`, with plain statements
+//! of where PSAO wins and loses.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use super::measure::{Method, Row, SceneResult, Settings};
+
+/// The PSNR margin over SAO the accuracy issue targets for PSAO-1024.
+pub const TARGET_DB_OVER_SAO: f64 = 3.0;
+
+/// Writes `bench.csv` and `bench.md`; returns the files written.
+pub fn write(out: &Path, s: &Settings, results: &[SceneResult]) -> std::io::Result<Vec<String>> {
+    let csv = out.join("bench.csv");
+    std::fs::write(&csv, csv_text(results))?;
+    let md = out.join("bench.md");
+    std::fs::write(&md, markdown(s, results))?;
+    Ok(vec![csv.display().to_string(), md.display().to_string()])
+}
+
+fn opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or(String::new(), |v| format!("{v:.digits$}"))
+}
+
+/// The CSV: one line per scene and configuration.
+pub fn csv_text(results: &[SceneResult]) -> String {
+    let mut t = String::from(
+        "scene,method,label,density,rate_hz,rays_per_pixel,points,server_ms,client_ms,mbit_s,rmse,psnr_db,ssim,flip,setup_s,keyframe_bytes,unknown_px\n",
+    );
+    for r in results {
+        for row in &r.rows {
+            let (kind, density, rate, rays) = match row.method {
+                Method::Psao { density, rate } => {
+                    ("psao", density.to_string(), rate.to_string(), String::new())
+                }
+                Method::Rtao { rays } => ("rtao", String::new(), String::new(), rays.to_string()),
+                Method::Sao => ("sao", String::new(), String::new(), String::new()),
+            };
+            let _ = writeln!(
+                t,
+                "{},{kind},{},{density},{rate},{rays},{},{},{:.4},{},{:.6},{:.3},{:.5},{:.5},{},{},{}",
+                r.name,
+                row.method.label(),
+                row.points.map_or(String::new(), |p| p.to_string()),
+                opt(row.server_ms, 4),
+                row.client_ms,
+                opt(row.mbit_s, 4),
+                row.rmse,
+                row.psnr,
+                row.ssim,
+                row.flip,
+                opt(row.setup_s, 3),
+                row.keyframe_bytes.map_or(String::new(), |b| b.to_string()),
+                row.unknown_px,
+            );
+        }
+    }
+    t
+}
+
+/// The markdown report: per scene a table and the verdicts.
+pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
+    let mut t = String::new();
+    let _ = writeln!(
+        t,
+        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius 0.6), PSAO {} rays per point; client times are the AO pass alone on {} threads.\n",
+        s.width,
+        s.height,
+        s.frames,
+        s.reference_rays,
+        s.point_rays,
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    );
+    for r in results {
+        let _ = writeln!(
+            t,
+            "### {}\n\n{} triangles, {:.0}% of pixels covered, reference traced in {:.1} s.\n",
+            r.name,
+            r.triangles,
+            r.coverage * 100.0,
+            r.reference_s
+        );
+        t.push_str("| configuration | points | server ms/tick | client ms/frame | Mbit/s | RMSE | PSNR dB | SSIM | FLIP |\n");
+        t.push_str("|---|---|---|---|---|---|---|---|---|\n");
+        for row in &r.rows {
+            let _ = writeln!(
+                t,
+                "| {} | {} | {} | {:.2} | {} | {:.4} | {:.2} | {:.4} | {:.4} |",
+                row.method.label(),
+                row.points.map_or("-".into(), |p| p.to_string()),
+                row.server_ms.map_or("-".into(), |v| format!("{v:.1}")),
+                row.client_ms,
+                row.mbit_s.map_or("-".into(), |v| format!("{v:.2}")),
+                row.rmse,
+                row.psnr,
+                row.ssim,
+                row.flip,
+            );
+        }
+        t.push('\n');
+        for line in verdicts(s, r) {
+            let _ = writeln!(t, "- {line}");
+        }
+        t.push('\n');
+    }
+    t
+}
+
+/// Plain statements about one scene's rows.
+pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
+    let mut out = Vec::new();
+    let rate = s.rates[0];
+    let sweep: Vec<&Row> = r
+        .rows
+        .iter()
+        .filter(|row| matches!(row.method, Method::Psao { rate: q, .. } if q == rate))
+        .collect();
+    if sweep.len() >= 2 {
+        let falls = sweep.windows(2).all(|w| w[1].rmse <= w[0].rmse);
+        let list: Vec<String> = sweep
+            .iter()
+            .map(|row| match row.method {
+                Method::Psao { density, .. } => format!("N={density}: {:.2} dB", row.psnr),
+                _ => String::new(),
+            })
+            .collect();
+        out.push(format!(
+            "PSAO error as N grows at {rate} Hz: {} ({}).",
+            if falls {
+                "falls at every step"
+            } else {
+                "does **not** fall at every step"
+            },
+            list.join(", ")
+        ));
+    }
+    let focus = s.focus_density();
+    let psao = r.rows.iter().find(|row| {
+        row.method
+            == Method::Psao {
+                density: focus,
+                rate,
+            }
+    });
+    let sao = r.rows.iter().find(|row| row.method == Method::Sao);
+    if let (Some(p), Some(q)) = (psao, sao) {
+        let margin = p.psnr - q.psnr;
+        out.push(format!(
+            "PSAO-{focus} @{rate} Hz against SAO: {:+.2} dB PSNR ({:.2} against {:.2} dB), SSIM {:.4} against {:.4}; target +{TARGET_DB_OVER_SAO} dB: **{}**. Client time {:.2} against {:.2} ms ({:.2}x).",
+            margin,
+            p.psnr,
+            q.psnr,
+            p.ssim,
+            q.ssim,
+            if margin >= TARGET_DB_OVER_SAO { "met" } else { "not met" },
+            p.client_ms,
+            q.client_ms,
+            p.client_ms / q.client_ms.max(1e-9),
+        ));
+    }
+    if let Some(p) = psao {
+        let nearest = r
+            .rows
+            .iter()
+            .filter(|row| matches!(row.method, Method::Rtao { .. }))
+            .min_by(|a, b| {
+                (a.client_ms / p.client_ms)
+                    .ln()
+                    .abs()
+                    .total_cmp(&(b.client_ms / p.client_ms).ln().abs())
+            });
+        if let Some(k) = nearest {
+            out.push(format!(
+                "At about equal client time, PSAO-{focus} ({:.2} ms) {} {} ({:.2} ms) by {:.2} dB PSNR ({:.2} against {:.2} dB).",
+                p.client_ms,
+                if p.psnr >= k.psnr { "beats" } else { "loses to" },
+                k.method.label(),
+                k.client_ms,
+                (p.psnr - k.psnr).abs(),
+                p.psnr,
+                k.psnr
+            ));
+        }
+        let better: Vec<String> = r
+            .rows
+            .iter()
+            .filter(|row| matches!(row.method, Method::Rtao { .. }) && row.psnr > p.psnr)
+            .map(|row| {
+                format!(
+                    "{} ({:.2} dB at {:.2} ms)",
+                    row.method.label(),
+                    row.psnr,
+                    row.client_ms
+                )
+            })
+            .collect();
+        if !better.is_empty() {
+            out.push(format!(
+                "Per-pixel RTAO with more client time beats PSAO-{focus}: {}.",
+                better.join(", ")
+            ));
+        }
+    }
+    let stale: Vec<String> = r
+        .rows
+        .iter()
+        .filter_map(|row| match row.method {
+            Method::Psao { density, rate: q } if density == focus && q != rate => Some(format!(
+                "{q} Hz: {:.2} dB, {:.2} Mbit/s",
+                row.psnr,
+                row.mbit_s.unwrap_or(0.0)
+            )),
+            _ => None,
+        })
+        .collect();
+    if !stale.is_empty() {
+        out.push(format!(
+            "Lower server rates for PSAO-{focus} (the client keeps the last received frame): {}.",
+            stale.join("; ")
+        ));
+    }
+    out
+}

@@ -1,0 +1,245 @@
+//! The scene posed at one moment ([`PosedScene`]) and its G-buffer from
+//! primary rays ([`GBuffer`]): per pixel the world position, the shading
+//! normal, the instance hit and the depth. Every per-pixel AO pass (the
+//! ray-traced reference, the PSAO client image, SAO, RTAO at a few rays per
+//! pixel) reads the same G-buffer, so their images differ only by the AO
+//! method.
+
+use std::sync::Arc;
+
+use glam::{Affine3A, Vec3, Vec3A};
+use obvhs::ray::Ray;
+use rayon::prelude::*;
+
+use crate::ao::{AoTracer, Geometry, Layer, TriangleBvh, barycentric};
+use crate::error::SceneError;
+use crate::pipeline::normal_matrix;
+use crate::scene::Scene;
+use crate::view::View;
+
+/// The instance id of a pixel where no geometry was hit.
+pub const NO_INSTANCE: u32 = u32::MAX;
+
+/// Every triangle of a scene posed at one time, in world space, in one BVH,
+/// with the instance and triangle each came from and its world vertex
+/// normals.
+#[derive(Clone, Debug)]
+pub struct PosedScene {
+    bvh: Arc<TriangleBvh>,
+    /// Per world triangle: (instance, triangle in the instance's mesh).
+    owners: Vec<(u32, u32)>,
+    /// Per world triangle: its world corners.
+    corners: Vec<[Vec3; 3]>,
+    /// Per world triangle: the unit world normals at its corners.
+    normals: Vec<[Vec3; 3]>,
+    /// Per instance: its local-to-world transform at this time.
+    transforms: Vec<Affine3A>,
+    time: f32,
+}
+
+impl PosedScene {
+    /// Poses `scene` at time `t` (animations, skins) and builds a BVH over
+    /// all its triangles. The scene is validated first; a pose whose
+    /// transforms or skinned vertices are not finite is an error naming the
+    /// instance.
+    pub fn new(scene: &Scene, t: f32) -> Result<PosedScene, SceneError> {
+        scene.validate()?;
+        if !t.is_finite() {
+            return Err(SceneError::Parameter {
+                name: "time",
+                value: t as f64,
+                rule: "finite",
+            });
+        }
+        let pose = scene.pose(t);
+        let masks: Vec<_> = scene
+            .meshes
+            .iter()
+            .map(|m| m.alpha.clone().map(Arc::new))
+            .collect();
+        let mut g = Geometry::default();
+        let (mut owners, mut normals) = (Vec::new(), Vec::new());
+        for (i, inst) in scene.instances.iter().enumerate() {
+            let to_world = pose.instances[i];
+            let det = to_world.matrix3.determinant();
+            if !to_world.is_finite() || !det.is_finite() || det.abs() <= f32::MIN_POSITIVE {
+                return Err(SceneError::BadTransform { instance: i });
+            }
+            let nm = normal_matrix(&to_world);
+            let mesh = &scene.meshes[inst.mesh];
+            let (pos, nrm) = scene.skinned(i, &pose);
+            let world: Vec<Vec3> = pos.iter().map(|&p| to_world.transform_point3(p)).collect();
+            if let Some(v) = world.iter().position(|p| !p.is_finite()) {
+                return Err(SceneError::NonFiniteVertex {
+                    mesh: inst.mesh,
+                    vertex: v,
+                });
+            }
+            for tri in 0..mesh.triangle_count() {
+                let idx = [
+                    mesh.indices[3 * tri],
+                    mesh.indices[3 * tri + 1],
+                    mesh.indices[3 * tri + 2],
+                ];
+                g.triangles.push(idx.map(|k| world[k as usize]));
+                g.masks.push(masks[inst.mesh].clone().map(|m| (m, idx)));
+                normals.push(idx.map(|k| (nm * nrm[k as usize]).normalize_or_zero()));
+                owners.push((i as u32, tri as u32));
+            }
+        }
+        let corners = g.triangles.clone();
+        Ok(PosedScene {
+            bvh: Arc::new(TriangleBvh::new(g)),
+            owners,
+            corners,
+            normals,
+            transforms: pose.instances,
+            time: t,
+        })
+    }
+
+    /// The time the scene was posed at.
+    pub fn time(&self) -> f32 {
+        self.time
+    }
+
+    /// Number of triangles.
+    pub fn triangles(&self) -> usize {
+        self.owners.len()
+    }
+
+    /// Instance `i`'s local-to-world transform at this time.
+    pub fn transform(&self, i: usize) -> Option<Affine3A> {
+        self.transforms.get(i).copied()
+    }
+
+    /// An AO tracer over this geometry (the same BVH, shared).
+    pub fn tracer(&self) -> AoTracer {
+        AoTracer::from_layers(vec![Layer::world(self.bvh.clone())])
+    }
+
+    /// Casts one primary ray through the centre of every pixel of `view`
+    /// (rows in parallel) and records what it hits.
+    pub fn gbuffer(&self, view: &View) -> GBuffer {
+        let to_world = self.view_to_world(view);
+        let eye = view.camera.eye;
+        let w = view.width as usize;
+        let mut g = GBuffer::empty(view);
+        let rows: Vec<Vec<Option<Sample>>> = (0..view.height)
+            .into_par_iter()
+            .map(|py| {
+                (0..view.width)
+                    .map(|px| self.primary(view, &to_world, eye, px, py))
+                    .collect()
+            })
+            .collect();
+        for (py, row) in rows.into_iter().enumerate() {
+            for (px, s) in row.into_iter().enumerate() {
+                let k = py * w + px;
+                if let Some(s) = s {
+                    g.position[k] = s.position;
+                    g.normal[k] = s.normal;
+                    g.instance[k] = s.instance;
+                    g.depth[k] = s.depth;
+                }
+            }
+        }
+        g
+    }
+
+    /// View-to-world transform of `view`.
+    fn view_to_world(&self, view: &View) -> Affine3A {
+        view.world_to_view().inverse()
+    }
+
+    /// The hit of the primary ray of pixel `(px, py)`.
+    fn primary(
+        &self,
+        view: &View,
+        to_world: &Affine3A,
+        eye: Vec3,
+        px: u32,
+        py: u32,
+    ) -> Option<Sample> {
+        let d_view = view.view_dir(px, py);
+        let dir = to_world.transform_vector3(d_view);
+        let len = dir.length();
+        let unit = dir / len;
+        let ray = Ray::new(Vec3A::from(eye), Vec3A::from(unit), 0.0, f32::INFINITY);
+        let (prim, t) = self.bvh.closest_triangle(ray)?;
+        let [a, b, c] = self.corners[prim as usize];
+        let hit = eye + unit * t;
+        let w = barycentric(hit, a, b, c);
+        // The interpolated point lies on the triangle's plane, which keeps
+        // AO rays from starting below the surface far from the origin.
+        let position = a * w[0] + b * w[1] + c * w[2];
+        let [na, nb, nc] = self.normals[prim as usize];
+        let mut normal = (na * w[0] + nb * w[1] + nc * w[2]).normalize_or_zero();
+        if normal == Vec3::ZERO {
+            normal = (b - a).cross(c - a).normalize_or_zero();
+        }
+        // Shade the side the camera sees.
+        if normal.dot(unit) > 0.0 {
+            normal = -normal;
+        }
+        Some(Sample {
+            position,
+            normal,
+            instance: self.owners[prim as usize].0,
+            // Distance along the view axis (the view direction has z = -1).
+            depth: t / len,
+        })
+    }
+}
+
+/// What a primary ray hit.
+struct Sample {
+    position: Vec3,
+    normal: Vec3,
+    instance: u32,
+    depth: f32,
+}
+
+/// Per-pixel surface attributes of one view (row-major, top row first).
+#[derive(Clone, Debug, PartialEq)]
+pub struct GBuffer {
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// World position of the surface seen (zero where nothing was hit).
+    pub position: Vec<Vec3>,
+    /// Unit world shading normal facing the camera (zero where nothing
+    /// was hit).
+    pub normal: Vec<Vec3>,
+    /// The instance seen, or [`NO_INSTANCE`].
+    pub instance: Vec<u32>,
+    /// Distance along the view axis (`f32::INFINITY` where nothing was
+    /// hit), as SAO's depth buffer.
+    pub depth: Vec<f32>,
+}
+
+impl GBuffer {
+    /// A G-buffer of `view`'s size where nothing was hit.
+    pub fn empty(view: &View) -> GBuffer {
+        let n = view.pixels();
+        GBuffer {
+            width: view.width,
+            height: view.height,
+            position: vec![Vec3::ZERO; n],
+            normal: vec![Vec3::ZERO; n],
+            instance: vec![NO_INSTANCE; n],
+            depth: vec![f32::INFINITY; n],
+        }
+    }
+
+    /// Number of pixels.
+    pub fn pixels(&self) -> usize {
+        self.instance.len()
+    }
+
+    /// Number of pixels that see geometry.
+    pub fn covered(&self) -> usize {
+        self.instance.iter().filter(|&&i| i != NO_INSTANCE).count()
+    }
+}
