@@ -159,6 +159,7 @@ pub enum Event {
 
 /// One journal entry: what a write overwrote. Kept small (the instance is
 /// boxed) because one is pushed per touched cell and bucket.
+#[derive(Clone)]
 enum Undo {
     Instance(u32, Option<Box<InstanceMirror>>),
     Transform(u32, Option<Box<Transform>>),
@@ -184,8 +185,10 @@ enum Undo {
     },
 }
 
-/// The client's copy of all instances at one sequence number.
-#[derive(Default)]
+/// The client's copy of all instances at one sequence number. A clone is
+/// a snapshot (a renderer can take one and draw from it while the live
+/// mirror keeps receiving).
+#[derive(Clone, Default)]
 pub struct Mirror {
     sequence: Option<u32>,
     instances: BTreeMap<u32, InstanceMirror>,
@@ -198,7 +201,7 @@ pub struct Mirror {
 }
 
 /// What the frame being applied has done so far.
-#[derive(Default)]
+#[derive(Clone, Default)]
 struct FrameState {
     /// A keyframe: the whole previous state is kept aside, nothing is
     /// journaled.

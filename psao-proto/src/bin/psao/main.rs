@@ -26,7 +26,11 @@ use psao_proto::{
     ClientConfig, ClientHandle, Ended, Identity, ServerConfig, ServerHandle, ServerStats, Trust,
     connect, serve,
 };
-use psao_scene::{AoParams, PipelineConfig, Scene, default_scene, load_gltf};
+use std::sync::Arc;
+
+use psao_scene::{
+    AoParams, PipelineConfig, PosedScene, Scene, View, default_scene, load_gltf, psao_image,
+};
 
 #[derive(Parser)]
 #[command(
@@ -59,6 +63,13 @@ enum Command {
         /// AO rays per point.
         #[arg(long, default_value_t = 64)]
         rays: u32,
+        /// AO images of the camera path the first client renders from its
+        /// mirror, spread over the run (0: none).
+        #[arg(long, default_value_t = 4)]
+        images: u32,
+        /// Folder for the images.
+        #[arg(long, default_value = "demo-out")]
+        out: PathBuf,
     },
     /// Serve a scene to clients.
     Serve {
@@ -168,7 +179,12 @@ fn main() -> ExitCode {
                 clients,
                 density,
                 rays,
-            } => demo(seconds, rate, clients as usize, density, rays).await,
+                images,
+                out,
+            } => {
+                let shots = Shots::new(images, out)?;
+                demo(seconds, rate, clients as usize, density, rays, shots).await
+            }
             Command::Serve {
                 scene,
                 bind,
@@ -413,6 +429,7 @@ async fn demo(
     clients: usize,
     density: f32,
     rays: u32,
+    mut shots: Shots,
 ) -> Result<(), String> {
     if !(seconds > 0.0 && seconds <= 3600.0) {
         return Err("--seconds must be in (0, 3600]".into());
@@ -484,6 +501,12 @@ async fn demo(
             bar.set_message(line);
         }
         prev = (s, Instant::now());
+        if shots.due(frames, total) {
+            let t = frames as f32 / rate as f32;
+            let mirror = handles[0].with_session(|s| s.mirror().clone());
+            let line = shots.take(mirror, t).await?;
+            bar.println(line);
+        }
         if frames >= total {
             break;
         }
@@ -496,6 +519,81 @@ async fn demo(
     let wall = started.elapsed().as_secs_f64();
     let cpu = cpu_seconds().zip(cpu0).map(|(a, b)| a - b);
     summarize(server, handles, start, wall, cpu).await
+}
+
+/// The AO images `psao demo` writes: what the first client shows at
+/// moments of the camera path, reconstructed from its mirror on a
+/// G-buffer of the scene at that moment (the client renders the scene
+/// itself and takes AO from the mirror, as a split renderer does).
+struct Shots {
+    count: u32,
+    taken: u32,
+    out: PathBuf,
+    scene: Arc<Scene>,
+}
+
+/// Size of the demo's images.
+const SHOT_SIZE: (u32, u32) = (480, 270);
+
+impl Shots {
+    /// `count` images into `out` (created now, so a bad path fails early).
+    fn new(count: u32, out: PathBuf) -> Result<Shots, String> {
+        if count > 0 {
+            std::fs::create_dir_all(&out)
+                .map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+        }
+        Ok(Shots {
+            count,
+            taken: 0,
+            out,
+            scene: Arc::new(default_scene()),
+        })
+    }
+
+    /// Whether the next image is due after `frames` of `total`: images
+    /// fall at the ends of `count` equal parts of the run.
+    fn due(&self, frames: u64, total: u64) -> bool {
+        self.taken < self.count && frames * self.count as u64 >= total * (self.taken as u64 + 1)
+    }
+
+    /// Renders and writes the image at scene time `t` from `mirror`;
+    /// returns a line saying where it went.
+    async fn take(&mut self, mirror: psao_codec::Mirror, t: f32) -> Result<String, String> {
+        self.taken += 1;
+        let (scene, out, k) = (self.scene.clone(), self.out.clone(), self.taken);
+        tokio::task::spawn_blocking(move || -> Result<String, String> {
+            let path = scene
+                .camera
+                .as_ref()
+                .ok_or("the scene has no camera path")?;
+            let view =
+                View::new(path.at(t), SHOT_SIZE.0, SHOT_SIZE.1).map_err(|e| e.to_string())?;
+            let posed = PosedScene::new(&scene, t).map_err(|e| e.to_string())?;
+            let g = posed.gbuffer(&view);
+            let image = psao_image(&mirror, &g);
+            let ao = out.join(format!("demo-{k:02}-ao.png"));
+            bench::images::ao_png16(&image.ao, view.width, view.height)
+                .save(&ao)
+                .map_err(|e| format!("{}: {e}", ao.display()))?;
+            let lit = out.join(format!("demo-{k:02}-lit.png"));
+            image::RgbImage::from_raw(
+                view.width,
+                view.height,
+                bench::images::composite(&g, &image.ao),
+            )
+            .ok_or("image size")?
+            .save(&lit)
+            .map_err(|e| format!("{}: {e}", lit.display()))?;
+            Ok(format!(
+                "image {k}: t = {t:.2} s, AO from the client's mirror (sequence {}) -> {} and {}",
+                mirror.sequence().map_or("none".into(), |s| s.to_string()),
+                ao.display(),
+                lit.display()
+            ))
+        })
+        .await
+        .map_err(|e| format!("image task: {e}"))?
+    }
 }
 
 /// CPU seconds this process has used (user + system), where /proc tells.

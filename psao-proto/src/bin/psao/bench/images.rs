@@ -136,7 +136,7 @@ pub fn slug(label: &str) -> String {
 }
 
 /// AO as a 16-bit greyscale image (0 = fully occluded, 65535 = open).
-fn ao_png16(ao: &[f32], w: u32, h: u32) -> ImageBuffer<Luma<u16>, Vec<u16>> {
+pub fn ao_png16(ao: &[f32], w: u32, h: u32) -> ImageBuffer<Luma<u16>, Vec<u16>> {
     ImageBuffer::from_fn(w, h, |x, y| {
         let v = ao[(y * w + x) as usize].clamp(0.0, 1.0);
         Luma([(v * 65535.0 + 0.5) as u16])

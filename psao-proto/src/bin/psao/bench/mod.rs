@@ -6,7 +6,7 @@
 //! table, charts and a side-by-side image of one frame.
 
 mod charts;
-mod images;
+pub mod images;
 mod measure;
 mod report;
 

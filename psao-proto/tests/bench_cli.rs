@@ -1,0 +1,130 @@
+//! `psao bench` end to end at a tiny size: it writes the CSV, the markdown
+//! table, the charts and the images, with one row per configuration, and
+//! refuses bad settings with a message.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn out_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("psao-bench-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+#[test]
+fn bench_writes_its_table_charts_and_images() {
+    let out = out_dir("tiny");
+    let run = Command::new(env!("CARGO_BIN_EXE_psao"))
+        .args([
+            "bench",
+            "--width",
+            "40",
+            "--height",
+            "24",
+            "--frames",
+            "2",
+            "--reference-rays",
+            "16",
+            "--point-rays",
+            "8",
+            "--densities",
+            "8,32",
+            "--rates",
+            "60,5",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "psao bench failed: {stderr}");
+    let csv = std::fs::read_to_string(out.join("bench.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    let header: Vec<&str> = lines[0].split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    // Per scene: PSAO at 2 densities at 60 Hz, the focus density at 5 Hz,
+    // RTAO at 1, 4 and 16 rays, SAO.
+    let per_scene = 2 + 1 + 3 + 1;
+    assert_eq!(lines.len(), 1 + 2 * per_scene, "{csv}");
+    for scene in ["default", "cesium-man"] {
+        let rows: Vec<Vec<&str>> = lines[1..]
+            .iter()
+            .map(|l| l.split(',').collect::<Vec<_>>())
+            .filter(|r| r[0] == scene)
+            .collect();
+        assert_eq!(rows.len(), per_scene, "{scene}");
+        for r in &rows {
+            let psnr: f64 = r[col("psnr_db")].parse().unwrap();
+            let rmse: f64 = r[col("rmse")].parse().unwrap();
+            let ssim: f64 = r[col("ssim")].parse().unwrap();
+            let flip: f64 = r[col("flip")].parse().unwrap();
+            let client: f64 = r[col("client_ms")].parse().unwrap();
+            assert!(psnr > 0.0 && rmse > 0.0 && rmse < 1.0, "{r:?}");
+            assert!((0.0..=1.0).contains(&ssim) && (0.0..=1.0).contains(&flip));
+            assert!(client > 0.0);
+            if r[col("method")] == "psao" {
+                let mbit: f64 = r[col("mbit_s")].parse().unwrap();
+                let points: usize = r[col("points")].parse().unwrap();
+                assert!(mbit >= 0.0 && points > 0, "{r:?}");
+            } else {
+                assert_eq!(r[col("mbit_s")], "", "only PSAO streams");
+            }
+        }
+        // Denser points, more of them on the server.
+        let points = |d: &str| -> usize {
+            rows.iter()
+                .find(|r| r[col("density")] == d && r[col("rate_hz")] == "60")
+                .unwrap()[col("points")]
+            .parse()
+            .unwrap()
+        };
+        assert!(points("32") > points("8"));
+        for file in ["frame", "time-error", "bitrate-error", "ao-reference"] {
+            let path = out.join(format!("{scene}-{file}.png"));
+            let img = image::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            assert!(img.width() >= 40 && img.height() >= 24);
+        }
+        for file in [
+            "ao-reference",
+            "gbuffer-position",
+            "gbuffer-normal",
+            "gbuffer-depth-instance",
+        ] {
+            let path = out.join(format!("{scene}-{file}.exr"));
+            let img = image::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            assert_eq!((img.width(), img.height()), (40, 24));
+        }
+    }
+    // The reference AO file holds the values, 16 bits deep.
+    let ao = image::open(out.join("default-ao-reference.png")).unwrap();
+    assert!(matches!(ao.color(), image::ColorType::L16));
+    let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
+    assert!(md.contains("| PSAO-32 @60 Hz |"), "{md}");
+    assert!(md.contains("| SAO |") && md.contains("| RTAO-16spp |"));
+    assert!(md.contains("against SAO:") && md.contains("target +3 dB"));
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn bench_refuses_bad_settings() {
+    for (args, says) in [
+        (vec!["--frames", "0"], "--frames"),
+        (vec!["--rates", "60,0"], "0 Hz"),
+        (vec!["--densities=-5,16"], "density -5"),
+        (vec!["--only-gltf"], "--gltf"),
+        (vec!["--gltf", "/nonexistent/scene.glb"], "scene.glb"),
+    ] {
+        let out = out_dir("bad");
+        let run = Command::new(env!("CARGO_BIN_EXE_psao"))
+            .arg("bench")
+            .args(&args)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert!(!run.status.success(), "{args:?} was accepted");
+        assert!(stderr.contains(says), "{args:?}: {stderr}");
+        let _ = std::fs::remove_dir_all(&out);
+    }
+}

@@ -1,0 +1,297 @@
+//! Per-pixel passes: the G-buffer from primary rays, the ray-traced
+//! reference, and the PSAO client image from a mirror.
+
+use glam::{Affine3A, Vec3};
+use psao_codec::{Decoder, Limits, Mirror};
+use psao_scene::*;
+
+/// An 8 m x 8 m floor at y = 0 (facing +Y) with a 1 m box on it.
+fn floor_and_box() -> Scene {
+    let mut s = Scene::default();
+    s.add(
+        Mesh::quad(Vec3::new(-4.0, 0.0, -4.0), Vec3::Z * 8.0, Vec3::X * 8.0).subdivided(3),
+        Affine3A::IDENTITY,
+    );
+    s.add(
+        Mesh::cuboid(Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5)),
+        Affine3A::IDENTITY,
+    );
+    s
+}
+
+fn looking_down(w: u32, h: u32) -> View {
+    View::new(
+        Camera {
+            eye: Vec3::new(0.0, 5.0, 0.01),
+            target: Vec3::ZERO,
+            fov_y: 60f32.to_radians(),
+        },
+        w,
+        h,
+    )
+    .unwrap()
+}
+
+#[test]
+fn the_gbuffer_sees_what_the_camera_sees() {
+    let scene = floor_and_box();
+    let posed = PosedScene::new(&scene, 0.0).unwrap();
+    let view = looking_down(33, 33);
+    let g = posed.gbuffer(&view);
+    assert_eq!(g.pixels(), 33 * 33);
+    // The centre pixel looks straight down at the box's top at y = 1.
+    let c = 16 * 33 + 16;
+    assert_eq!(g.instance[c], 1, "the box");
+    assert!((g.position[c].y - 1.0).abs() < 1e-4, "{:?}", g.position[c]);
+    assert!(
+        (g.depth[c] - 4.0).abs() < 1e-2,
+        "depth along the view axis: {}",
+        g.depth[c]
+    );
+    assert!(g.normal[c].dot(Vec3::Y) > 0.999, "{:?}", g.normal[c]);
+    // A corner pixel sees the floor (60 degrees from 5 m covers ~5.8 m).
+    assert_eq!(g.instance[0], 0, "the floor");
+    assert!(g.position[0].y.abs() < 1e-4);
+    // The view point of a pixel at its depth is the world point.
+    let to_view = view.world_to_view();
+    for k in [0, c, 33 * 33 - 1] {
+        let (px, py) = ((k % 33) as u32, (k / 33) as u32);
+        let p = view.view_point(px, py, g.depth[k]);
+        let q = to_view.transform_point3(g.position[k]);
+        assert!((p - q).length() < 1e-3, "pixel {k}: {p:?} against {q:?}");
+    }
+}
+
+#[test]
+fn pixels_that_see_nothing_are_open_and_marked() {
+    let scene = floor_and_box();
+    let posed = PosedScene::new(&scene, 0.0).unwrap();
+    // Looking up at the sky.
+    let view = View::new(
+        Camera {
+            eye: Vec3::new(0.0, 2.0, 0.0),
+            target: Vec3::new(0.0, 10.0, 0.5),
+            fov_y: 0.5,
+        },
+        8,
+        8,
+    )
+    .unwrap();
+    let g = posed.gbuffer(&view);
+    assert_eq!(g.covered(), 0);
+    assert!(g.instance.iter().all(|&i| i == NO_INSTANCE));
+    assert!(g.depth.iter().all(|d| d.is_infinite()));
+    let ao = ray_traced_ao(&posed.tracer(), &g, &AoParams::default()).unwrap();
+    assert!(ao.iter().all(|&a| a == 1.0));
+    let img = psao_image(&Mirror::new(), &g);
+    assert!(img.ao.iter().all(|&a| a == 1.0));
+    assert_eq!(img.unknown, 0);
+}
+
+#[test]
+fn views_are_checked() {
+    let cam = Camera {
+        eye: Vec3::ZERO,
+        target: Vec3::X,
+        fov_y: 1.0,
+    };
+    assert!(View::new(cam, 0, 10).is_err());
+    assert!(View::new(cam, 10, MAX_IMAGE_SIDE + 1).is_err());
+    assert!(
+        View::new(
+            Camera {
+                target: cam.eye,
+                ..cam
+            },
+            4,
+            4
+        )
+        .is_err()
+    );
+    assert!(View::new(Camera { fov_y: 3.2, ..cam }, 4, 4).is_err());
+    assert!(
+        View::new(
+            Camera {
+                eye: Vec3::NAN,
+                ..cam
+            },
+            4,
+            4
+        )
+        .is_err()
+    );
+    assert!(PosedScene::new(&floor_and_box(), f32::NAN).is_err());
+}
+
+#[test]
+fn the_reference_darkens_the_crease_and_opens_the_floor() {
+    let scene = floor_and_box();
+    let posed = PosedScene::new(&scene, 0.0).unwrap();
+    let view = looking_down(41, 41);
+    let g = posed.gbuffer(&view);
+    let p = AoParams {
+        rays: 128,
+        ..AoParams::default()
+    };
+    let ao = ray_traced_ao(&posed.tracer(), &g, &p).unwrap();
+    // The box top is open; floor pixels beside the box are darker than
+    // floor pixels far from it.
+    let c = 20 * 41 + 20;
+    assert!(ao[c] > 0.99, "box top {}", ao[c]);
+    let floor: Vec<(f32, f32)> = (0..g.pixels())
+        .filter(|&k| g.instance[k] == 0)
+        .map(|k| {
+            let d = g.position[k];
+            let gap = (d.x.abs() - 0.5).max(d.z.abs() - 0.5);
+            (gap, ao[k])
+        })
+        .collect();
+    let mean = |lo: f32, hi: f32| {
+        let v: Vec<f32> = floor
+            .iter()
+            .filter(|(gap, _)| *gap >= lo && *gap < hi)
+            .map(|x| x.1)
+            .collect();
+        assert!(!v.is_empty(), "no floor pixels {lo}..{hi} from the box");
+        v.iter().sum::<f32>() / v.len() as f32
+    };
+    let (near, far) = (mean(0.0, 0.35), mean(0.8, 10.0));
+    assert!(near < far - 0.03, "near the box {near}, far {far}");
+    assert!(far > 0.97, "open floor {far}");
+    // Same inputs, same image.
+    assert_eq!(ao, ray_traced_ao(&posed.tracer(), &g, &p).unwrap());
+}
+
+/// RMSE of the PSAO client image against a per-pixel reference of the
+/// default scene at time 0, for a density.
+fn psao_rmse(density: f32) -> f64 {
+    let scene = default_scene();
+    let config = PipelineConfig {
+        density,
+        ao: AoParams {
+            rays: 32,
+            ..AoParams::default()
+        },
+        ..PipelineConfig::default()
+    };
+    let mut p = Pipeline::new(scene.clone(), config).unwrap();
+    let mut client = Decoder::new(Limits::default());
+    client.receive(&p.keyframe().unwrap().bytes).unwrap();
+    let camera = scene.camera.as_ref().unwrap().at(0.0);
+    let view = View::new(camera, 64, 36).unwrap();
+    let posed = PosedScene::new(&scene, 0.0).unwrap();
+    let g = posed.gbuffer(&view);
+    let reference = ray_traced_ao(
+        &posed.tracer(),
+        &g,
+        &AoParams {
+            rays: 256,
+            ..AoParams::default()
+        },
+    )
+    .unwrap();
+    let img = psao_image(client.mirror(), &g);
+    assert_eq!(img.unknown, 0, "every instance has its transform");
+    rmse(&reference, &img.ao).unwrap()
+}
+
+#[test]
+fn psao_error_falls_as_points_get_denser() {
+    let (sparse, dense) = (psao_rmse(16.0), psao_rmse(128.0));
+    assert!(
+        dense < sparse * 0.9,
+        "RMSE at 16 points/m^2 {sparse}, at 128 {dense}"
+    );
+    assert!(dense < 0.05, "RMSE at 128 points/m^2: {dense}");
+}
+
+/// Each covered pixel of `img` is eq. 2-4 at its position taken into
+/// its instance's space with the transform the mirror holds.
+fn assert_reconstructed(mirror: &Mirror, g: &GBuffer, img: &ClientImage) {
+    for k in 0..g.pixels() {
+        let id = g.instance[k];
+        if id == NO_INSTANCE {
+            continue;
+        }
+        let inst = mirror.instance(id).unwrap();
+        let (x, n) = psao_codec::world_to_local(
+            &inst.transform().unwrap().affine(),
+            g.position[k],
+            g.normal[k],
+        )
+        .unwrap();
+        assert_eq!(
+            img.ao[k],
+            psao_codec::reconstruct_ao(inst, x, n),
+            "pixel {k}"
+        );
+    }
+}
+
+#[test]
+fn the_client_image_uses_the_last_received_transform() {
+    // The box slides 1 m along x in the first second.
+    let mut scene = Scene::default();
+    scene.add(
+        Mesh::quad(Vec3::new(-4.0, 0.0, -4.0), Vec3::Z * 8.0, Vec3::X * 8.0).subdivided(3),
+        Affine3A::IDENTITY,
+    );
+    let node = scene.add_node("box", None, Trs::default());
+    scene.add_on_node(
+        Mesh::cuboid(Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5)),
+        node,
+    );
+    scene.animations.push(Animation::translation(
+        "slide",
+        node,
+        &[(0.0, Vec3::ZERO), (1.0, Vec3::X), (2.0, Vec3::ZERO)],
+    ));
+    let mut p = Pipeline::new(
+        scene.clone(),
+        PipelineConfig {
+            density: 64.0,
+            ao: AoParams {
+                rays: 16,
+                ..AoParams::default()
+            },
+            ..PipelineConfig::default()
+        },
+    )
+    .unwrap();
+    let mut client = Decoder::new(Limits::default());
+    client.receive(&p.keyframe().unwrap().bytes).unwrap();
+    let view = looking_down(24, 24);
+    let g0 = PosedScene::new(&scene, 0.0).unwrap().gbuffer(&view);
+    let before = psao_image(client.mirror(), &g0);
+    assert_eq!(before.unknown, 0);
+    assert_reconstructed(client.mirror(), &g0, &before);
+    // An instance the mirror does not hold counts as unknown.
+    let mut strange = g0.clone();
+    strange.instance[0] = 7;
+    assert_eq!(psao_image(client.mirror(), &strange).unknown, 1);
+
+    let (frame, _) = p.step(1.0).unwrap();
+    let g1 = PosedScene::new(&scene, 1.0).unwrap().gbuffer(&view);
+    // Not yet received: the client still holds the old transform.
+    let stale = psao_image(client.mirror(), &g1);
+    assert_reconstructed(client.mirror(), &g1, &stale);
+    client.receive(&frame.unwrap().bytes).unwrap();
+    let moved = client
+        .mirror()
+        .instance(1)
+        .unwrap()
+        .transform()
+        .unwrap()
+        .affine();
+    assert!((moved.translation - glam::Vec3A::X).length() < 1e-5);
+    let after = psao_image(client.mirror(), &g1);
+    assert_reconstructed(client.mirror(), &g1, &after);
+    // The box top is open wherever the box is, once the client knows.
+    let top = |g: &GBuffer, img: &ClientImage| {
+        (0..g.pixels())
+            .filter(|&k| g.instance[k] == 1 && g.normal[k].y > 0.99)
+            .map(|k| img.ao[k])
+            .fold(f32::INFINITY, f32::min)
+    };
+    assert!(top(&g0, &before) > 0.95 && top(&g1, &after) > 0.95);
+}
