@@ -5,7 +5,9 @@
 //! scene is posed, a G-buffer is cast, and the reference is ray-traced per
 //! pixel with `reference_rays` rays (closest hit, radius 0.6, the server's
 //! estimator). Every method then makes an AO image on the same G-buffer:
-//! - PSAO-N at rate R: a server pipeline at density N ticks at R Hz; at a
+//! - PSAO-N at rate R: a server pipeline keeping N points per square
+//!   metre (the paper's N; the pipeline spawns 2N and keeps half) ticks at
+//!   R Hz; at a
 //!   client frame at time t the client holds the frames of every tick up
 //!   to `floor(t R) / R` and reconstructs with the last transforms it
 //!   received (so lower rates are staler, as in the paper's latency video);
@@ -45,7 +47,7 @@ pub struct Settings {
     pub reference_rays: u32,
     /// AO rays per PSAO point.
     pub point_rays: u32,
-    /// PSAO densities (spawned points per unit area).
+    /// PSAO densities N (points kept per unit area, the paper's N).
     pub densities: Vec<f32>,
     /// Server rates, Hz.
     pub rates: Vec<u16>,
@@ -156,7 +158,8 @@ impl Settings {
 /// Which method a row measures.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Method {
-    /// PSAO at a density (spawned points per unit area) and server rate.
+    /// PSAO at a density (points kept per unit area, the paper's N) and
+    /// server rate.
     Psao {
         /// Density.
         density: f32,
@@ -444,7 +447,8 @@ fn measure_psao(
     rate: u16,
 ) -> Result<(Row, Vec<f32>), String> {
     let config = PipelineConfig {
-        density,
+        // The pipeline's density counts spawned points; half are kept.
+        density: 2.0 * density,
         ao: AoParams {
             rays: s.point_rays,
             ..PipelineConfig::default().ao

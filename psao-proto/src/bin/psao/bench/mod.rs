@@ -47,7 +47,7 @@ pub struct BenchArgs {
     /// AO rays per PSAO point (default 64, --full 192).
     #[arg(long)]
     point_rays: Option<u32>,
-    /// PSAO densities N, points spawned per square metre (half are kept).
+    /// PSAO densities N, points kept per square metre (the paper's N).
     #[arg(long, value_delimiter = ',')]
     densities: Option<Vec<f32>>,
     /// Server rates in Hz.
