@@ -4,10 +4,11 @@
 //! must, and acknowledges frames.
 
 use std::collections::VecDeque;
+use std::time::{Duration, Instant};
 
 use bytes::{Bytes, BytesMut};
 use glam::Affine3A;
-use psao_codec::{Compression, DecodeError, Decoder, Event, Limits, Mirror};
+use psao_codec::{Compression, DecodeError, Decoder, Event, FrameHeader, Limits, Mirror};
 
 use crate::codes::{Close, CloseCode};
 use crate::control::{
@@ -53,6 +54,15 @@ pub enum ClientEvent {
     /// A frame failed to decode (the mirror is unchanged): a keyframe was
     /// requested.
     DecodeFailed(DecodeError),
+    /// A frame's header named a compression other than `WELCOME`'s or 0
+    /// (spec/session.md 3.2): a decode failure, the frame was not applied
+    /// and a keyframe was requested.
+    WrongCompression {
+        /// The frame's sequence.
+        sequence: u32,
+        /// The compression id its header named.
+        compression: u8,
+    },
     /// The server said something.
     Notice {
         /// About what.
@@ -94,6 +104,14 @@ pub struct ClientSession {
     /// Frames since that request (a lost request is repeated after about
     /// 2 s of frames).
     since_request: u32,
+    /// When the outstanding request was first seen by
+    /// [`ClientSession::on_timer`] (a lost request is also repeated after
+    /// [`REQUEST_RETRY`] of time, for a scene so still that no frames come).
+    request_seen: Option<Instant>,
+    /// Keyframes in a row that failed to decode.
+    failed_keyframes: u32,
+    /// Why the outstanding request was made (a repeat says the same).
+    request_reason: KeyframeReason,
     /// Frames applied since the last `ACK`.
     since_ack: u32,
     stats: ClientStats,
@@ -107,6 +125,14 @@ pub struct ClientSession {
 /// Most events a session queues; older ones are dropped when the caller
 /// does not poll.
 pub const MAX_EVENTS: usize = 1024;
+
+/// How long a keyframe request may go unanswered before it is sent again
+/// (spec/session.md 3.5: about 2 s).
+pub const REQUEST_RETRY: Duration = Duration::from_secs(2);
+
+/// Keyframes in a row that may fail to decode before the client closes
+/// with `capability_mismatch` (spec/session.md 3.5).
+pub const MAX_FAILED_KEYFRAMES: u32 = 2;
 
 /// Bit mask of the compressions this build decodes.
 pub fn decodable_compressions() -> u8 {
@@ -140,6 +166,9 @@ impl ClientSession {
             events: VecDeque::new(),
             requested: false,
             since_request: 0,
+            request_seen: None,
+            failed_keyframes: 0,
+            request_reason: KeyframeReason::Other,
             since_ack: u32::MAX,
             stats: ClientStats::default(),
             captured: Vec::new(),
@@ -221,23 +250,43 @@ impl ClientSession {
                 break;
             };
             self.stats.bytes += frame.len() as u64 + 4;
-            self.apply(&frame);
+            let applied = self.apply(&frame);
             if self.config.capture {
                 self.captured.push(frame);
             }
+            applied?;
         }
         Ok(())
     }
 
     /// Applies one frame (from a frame record or any other transport, a
-    /// capture file for instance).
-    pub fn apply(&mut self, frame: &[u8]) {
+    /// capture file for instance). A frame that fails to decode leaves the
+    /// mirror as it was and asks for a keyframe; the session must close
+    /// (the error says how) when [`MAX_FAILED_KEYFRAMES`] keyframes in a
+    /// row failed, since asking again would not help.
+    pub fn apply(&mut self, frame: &[u8]) -> Result<(), Close> {
+        let header = FrameHeader::parse(frame).ok();
+        let is_keyframe = header.is_some_and(|h| h.keyframe);
+        if let (Some(h), Some(w)) = (header, &self.welcome) {
+            let id = h.compression.id();
+            if id != 0 && id != w.compression {
+                self.stats.failed += 1;
+                self.request(KeyframeReason::DecodeError);
+                self.push_event(ClientEvent::WrongCompression {
+                    sequence: h.sequence,
+                    compression: id,
+                });
+                return self.keyframe_failed(is_keyframe);
+            }
+        }
         match self.decoder.receive(frame) {
             Ok(Event::Applied { sequence, keyframe }) => {
                 self.stats.applied += 1;
                 if keyframe {
                     self.stats.keyframes += 1;
                     self.requested = false;
+                    self.request_seen = None;
+                    self.failed_keyframes = 0;
                 }
                 // At most about 10 ACKs a second (spec/session.md, 3.4),
                 // and always one for a keyframe.
@@ -264,7 +313,47 @@ impl ClientSession {
                 self.stats.failed += 1;
                 self.request(KeyframeReason::DecodeError);
                 self.push_event(ClientEvent::DecodeFailed(e));
+                return self.keyframe_failed(is_keyframe);
             }
+        }
+        Ok(())
+    }
+
+    /// Counts a failed frame against the keyframes-in-a-row limit.
+    fn keyframe_failed(&mut self, keyframe: bool) -> Result<(), Close> {
+        if !keyframe {
+            return Ok(());
+        }
+        self.failed_keyframes += 1;
+        if self.failed_keyframes >= MAX_FAILED_KEYFRAMES {
+            return Err(Close::new(
+                CloseCode::CapabilityMismatch,
+                format!(
+                    "{} keyframes in a row failed to decode",
+                    self.failed_keyframes
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Lets time pass: an outstanding keyframe request that went
+    /// unanswered for [`REQUEST_RETRY`] is sent again, even when no frames
+    /// arrive to count (a still scene sends none). The I/O layer calls this
+    /// a few times a second.
+    pub fn on_timer(&mut self, now: Instant) {
+        if !self.requested {
+            self.request_seen = None;
+            return;
+        }
+        match self.request_seen {
+            None => self.request_seen = Some(now),
+            Some(seen) if now.saturating_duration_since(seen) >= REQUEST_RETRY => {
+                self.requested = false;
+                self.request(self.request_reason);
+                self.request_seen = Some(now);
+            }
+            Some(_) => {}
         }
     }
 
@@ -283,6 +372,7 @@ impl ClientSession {
         }
         self.requested = true;
         self.since_request = 0;
+        self.request_reason = reason;
         self.stats.requests += 1;
         let (sequence, reason) = match self.decoder.mirror().sequence() {
             Some(s) => (s, reason),

@@ -201,6 +201,10 @@ async fn run(
     let mut frames_done = false;
     let mut cbuf = vec![0u8; 4096];
     let mut fbuf = vec![0u8; 64 * 1024];
+    // Lets the session repeat an unanswered keyframe request even when no
+    // frames arrive.
+    let mut timer = tokio::time::interval(std::time::Duration::from_millis(250));
+    timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let outcome: Result<(), Close> = async {
         loop {
             // Send what the session queued (HELLO first, then ACKs and
@@ -249,6 +253,7 @@ async fn run(
                         Err(e) => return Err(Close::new(CloseCode::InternalError, e.to_string())),
                     }
                 }
+                _ = timer.tick() => lock(&shared.session).on_timer(std::time::Instant::now()),
                 u = uplink.recv() => {
                     let mut s = lock(&shared.session);
                     match u {

@@ -31,7 +31,9 @@ pub mod server;
 pub mod server_conn;
 pub mod tls;
 
-pub use client::{ClientConfig, ClientEvent, ClientSession, ClientStats};
+pub use client::{
+    ClientConfig, ClientEvent, ClientSession, ClientStats, MAX_FAILED_KEYFRAMES, REQUEST_RETRY,
+};
 pub use codes::{Close, CloseCode};
 pub use connect::{ClientHandle, ConnectError, Ended, connect};
 pub use outbox::{Outbox, Pushed};

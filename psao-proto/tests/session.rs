@@ -256,7 +256,15 @@ fn the_client_acks_asks_for_one_keyframe_on_a_gap_and_resyncs() {
         Some(ClientEvent::Applied { keyframe: true, .. })
     ));
     assert!(c.take_transmit().is_none(), "no ACK before WELCOME");
-    let welcome = negotiate(&hello, &offer()).unwrap();
+    // The server encodes with lz4 (id 1).
+    let welcome = negotiate(
+        &hello,
+        &Offer {
+            compression: 1,
+            ..offer()
+        },
+    )
+    .unwrap();
     c.on_control(&bytes(Control::Welcome(welcome))).unwrap();
     assert!(matches!(c.poll_event(), Some(ClientEvent::Welcomed(_))));
     // Three deltas; the client misses the second.
@@ -364,4 +372,141 @@ fn move_requests_and_cameras_leave_the_client_as_specified() {
     assert_eq!(&sent[..], &want[..]);
     let mut not_viewer = ClientSession::new(ClientConfig::default());
     assert!(!not_viewer.send_camera(pose));
+}
+
+/// A client that has its WELCOME (compression lz4, as `server()` encodes).
+fn welcomed() -> ClientSession {
+    let mut c = ClientSession::new(ClientConfig::default());
+    let hello = hello_of(&mut c);
+    let welcome = negotiate(
+        &hello,
+        &Offer {
+            compression: 1,
+            ..offer()
+        },
+    )
+    .unwrap();
+    c.on_control(&bytes(Control::Welcome(welcome))).unwrap();
+    assert!(matches!(c.poll_event(), Some(ClientEvent::Welcomed(_))));
+    c
+}
+
+/// Takes the table's pending changes (a keyframe snapshot needs none).
+fn settle(table: &mut GridTable) {
+    let mut enc = Encoder::new(EncoderConfig::default());
+    let mut d = enc.delta();
+    d.changes(table);
+    let _ = d.finish().unwrap();
+}
+
+fn record(b: &[u8]) -> Vec<u8> {
+    let mut r = (b.len() as u32).to_le_bytes().to_vec();
+    r.extend_from_slice(b);
+    r
+}
+
+#[test]
+fn a_frame_in_a_compression_welcome_did_not_choose_is_a_decode_failure() {
+    let (mut table, _) = server();
+    table.set_point(0, Vec3::splat(1.0), Vec3::Y, 0.5).unwrap();
+    settle(&mut table);
+    let mut c = welcomed();
+    // zstd, while WELCOME chose lz4.
+    let mut zstd = Encoder::new(EncoderConfig {
+        compression: Compression::Zstd,
+        ..EncoderConfig::default()
+    });
+    let mut kf = zstd.keyframe();
+    kf.snapshot(&table).unwrap();
+    let kf = kf.finish().unwrap().unwrap();
+    assert_eq!(kf.bytes[6], 2, "the header says zstd");
+    c.on_frames(&record(&kf.bytes)).unwrap();
+    assert_eq!(
+        c.poll_event(),
+        Some(ClientEvent::WrongCompression {
+            sequence: kf.sequence,
+            compression: 2
+        })
+    );
+    assert!(c.mirror().instance(0).is_none(), "not applied");
+    assert_eq!(c.stats().failed, 1);
+    let sent = c.take_transmit().unwrap();
+    assert_eq!(
+        &sent[..],
+        &bytes(Control::KeyframeRequest {
+            sequence: 0,
+            reason: KeyframeReason::NoState
+        })[..]
+    );
+    // A second keyframe in a row that cannot be decoded ends the session.
+    let e = c.on_frames(&record(&kf.bytes)).unwrap_err();
+    assert_eq!(e.code, CloseCode::CapabilityMismatch, "{e:?}");
+}
+
+#[test]
+fn two_corrupt_keyframes_in_a_row_close_but_one_does_not() {
+    let (mut table, mut enc) = server();
+    table.set_point(0, Vec3::splat(1.0), Vec3::Y, 0.5).unwrap();
+    settle(&mut table);
+    let mut c = welcomed();
+    let keyframe = |enc: &mut Encoder| {
+        let mut kf = enc.keyframe();
+        kf.snapshot(&table).unwrap();
+        kf.finish().unwrap().unwrap()
+    };
+    let corrupt = |b: &[u8]| {
+        let mut b = b.to_vec();
+        let last = b.len() - 1;
+        b[last] ^= 0xFF;
+        b
+    };
+    let kf = keyframe(&mut enc);
+    c.on_frames(&record(&corrupt(&kf.bytes))).unwrap();
+    assert!(matches!(c.poll_event(), Some(ClientEvent::DecodeFailed(_))));
+    // A good keyframe in between resets the count.
+    let kf = keyframe(&mut enc);
+    c.on_frames(&record(&kf.bytes)).unwrap();
+    let kf = keyframe(&mut enc);
+    c.on_frames(&record(&corrupt(&kf.bytes))).unwrap();
+    let kf = keyframe(&mut enc);
+    let e = c.on_frames(&record(&corrupt(&kf.bytes))).unwrap_err();
+    assert_eq!(e.code, CloseCode::CapabilityMismatch);
+    assert!(e.reason.contains("2 keyframes"), "{e:?}");
+}
+
+#[test]
+fn an_unanswered_request_is_repeated_after_two_seconds_without_frames() {
+    let (mut table, mut enc) = server();
+    let mut c = welcomed();
+    // A delta whose base the client never saw: one request.
+    table.set_point(0, Vec3::splat(1.0), Vec3::Y, 0.5).unwrap();
+    settle(&mut table);
+    let mut kf = enc.keyframe();
+    kf.snapshot(&table).unwrap();
+    let _lost = kf.finish().unwrap().unwrap();
+    table.set_point(1, Vec3::splat(2.0), Vec3::Y, 0.5).unwrap();
+    let mut d = enc.delta();
+    d.changes(&mut table);
+    let delta = d.finish().unwrap().unwrap();
+    c.on_frames(&record(&delta.bytes)).unwrap();
+    let first = c.take_transmit().unwrap();
+    let t0 = Instant::now();
+    // Then nothing comes (a still scene sends no frames).
+    c.on_timer(t0);
+    c.on_timer(t0 + Duration::from_millis(1900));
+    assert!(c.take_transmit().is_none(), "not yet");
+    c.on_timer(t0 + REQUEST_RETRY);
+    let again = c.take_transmit().expect("the request is repeated");
+    assert_eq!(again, first, "the same request, same reason");
+    assert_eq!(c.stats().requests, 2);
+    // Once a keyframe is applied, time alone sends nothing.
+    settle(&mut table);
+    let mut kf = enc.keyframe();
+    kf.snapshot(&table).unwrap();
+    c.on_frames(&record(&kf.finish().unwrap().unwrap().bytes))
+        .unwrap();
+    let _ack = c.take_transmit();
+    c.on_timer(t0 + 10 * REQUEST_RETRY);
+    c.on_timer(t0 + 20 * REQUEST_RETRY);
+    assert!(c.take_transmit().is_none());
 }
