@@ -122,6 +122,27 @@ pub enum SceneError {
         /// What was wrong.
         reason: String,
     },
+    /// f32 cannot place an instance finely enough for AO: the spacing of
+    /// f32 values at its largest coordinate is above a limit set by the AO
+    /// radius or its point spacing (see [`check_precision`](crate::check_precision)).
+    #[error(
+        "instance {instance}: coordinate {coordinate} is too far from the origin for f32: \
+         values there are {spacing} apart, more than the limit {limit} ({reason})"
+    )]
+    Precision {
+        /// Instance index.
+        instance: usize,
+        /// The largest absolute coordinate it reaches (world or local, as
+        /// `reason` says).
+        coordinate: f32,
+        /// The f32 spacing there (in local units for the rule that maps
+        /// world positions into local space).
+        spacing: f32,
+        /// The largest spacing allowed.
+        limit: f32,
+        /// Which rule, the lengths it compares, and what to change.
+        reason: String,
+    },
     /// The grid would need more cells than a 32-bit key allows, or a table
     /// or pool beyond the receivers' default limits.
     #[error("instance {instance}: grid too large for 32-bit keys even at the coarsest cell size")]

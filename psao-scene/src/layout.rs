@@ -5,6 +5,7 @@ use glam::{UVec3, Vec3};
 use psao_codec::{InstanceDef, Limits, POINT_FORMAT_PACKED32, key_fits};
 
 use crate::error::{SceneError, check_param};
+use crate::precision::f32_spacing;
 
 /// Choices for [`layout`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -37,7 +38,9 @@ impl Default for LayoutParams {
     }
 }
 
-/// Lays out the grid of one instance: `bounds` are its local bounds,
+/// Lays out the grid of one instance: `bounds` are its local bounds
+/// (without margin cells, padded by four f32 spacings so that points
+/// rounded just outside a face stay in the grid),
 /// `area` its surface area (both sides counted for a double-sided mesh),
 /// `points` how many points it holds, `radius` their Poisson radius.
 ///
@@ -91,6 +94,16 @@ pub fn layout(
             rule: "finite",
         });
     }
+    // A point on a face of the bounds can round an f32 spacing or two
+    // outside it (its barycentric weights sum to 1 only within rounding).
+    // Margin cells hold such points; without them, pad the bounds by four
+    // spacings at the largest coordinate so that they stay in the grid.
+    let pad = if p.margin_cells == 0 {
+        4.0 * f32_spacing(bounds.0.abs().max(bounds.1.abs()).max_element())
+    } else {
+        0.0
+    };
+    let bounds = (bounds.0 - pad, bounds.1 + pad);
     let extent = (bounds.1 - bounds.0).max(Vec3::ZERO);
     let density = points.max(1) as f32 / area.max(f32::MIN_POSITIVE);
     // No finer than 10^6 cells along the longest side (the key rule allows

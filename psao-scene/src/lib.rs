@@ -18,6 +18,23 @@
 //! - the embedded [`default_scene`] and the server frame [`Pipeline`]:
 //!   animate, skin, choose what motion can reach (and, per viewer, what is
 //!   in view), trace, apply the thresholds, encode.
+//!
+//! ## Numerical limits
+//!
+//! Positions are f32, whose spacing grows with the coordinate (0.0078 at
+//! 1e5, 1 at 1e7). [`Pipeline::new`] (and [`Pipeline::place_instance`])
+//! refuses, with [`SceneError::Precision`] naming the instance, the
+//! coordinate, the spacing and the limit, a scene where that spacing at an
+//! instance's largest coordinate (time 0; a skinned one over the poses its
+//! grid covers) is above [`MAX_ULP_PER_AO_RADIUS`] (1/64) of the AO radius
+//! in world space, or above [`MAX_ULP_PER_POINT_SPACING`] (1/2) of its
+//! point spacing in local space (world positions counted in local units
+//! through the inverse transform). With the paper's 0.6 m radius that
+//! accepts coordinates up to 131,071 and refuses 1e7; see
+//! [`check_precision`] for the measurements behind the bounds and
+//! `spec/numerics.md`. Scale alone changes nothing: AO rays start a little
+//! behind their origin so that the BVH's absolute 1e-4 box clamp loses no
+//! hit in a scene millimetres across.
 
 mod alpha;
 mod animation;
@@ -34,6 +51,7 @@ mod pipeline;
 mod pixel_ao;
 mod points;
 mod pose;
+mod precision;
 mod random;
 mod sao;
 mod scene;
@@ -62,6 +80,9 @@ pub use pipeline::{FrameReport, Pipeline, PipelineConfig, ViewerCull};
 pub use pixel_ao::{ClientImage, psao_image, ray_traced_ao};
 pub use points::{Anchor, MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
 pub use pose::Pose;
+pub use precision::{
+    MAX_ULP_PER_AO_RADIUS, MAX_ULP_PER_POINT_SPACING, check_precision, f32_spacing,
+};
 pub use random::{hash, uniform};
 pub use sao::{SaoParams, sao};
 pub use scene::{Instance, Mesh, Scene, transformed_bounds};

@@ -29,6 +29,7 @@ use crate::error::{SceneError, check_param};
 use crate::layout::{LayoutParams, layout};
 use crate::points::{PointSet, generate_points};
 use crate::pose::Pose;
+use crate::precision::check_precision;
 use crate::scene::{Scene, check_transform, transformed_bounds};
 
 /// Per-viewer culling: the server runs for one viewer following the
@@ -235,7 +236,9 @@ const MAX_BOUND_SAMPLES: usize = 1800;
 
 impl Pipeline {
     /// Generates points for every instance, lays out their grids and traces
-    /// every point once (the state the first keyframe carries).
+    /// every point once (the state the first keyframe carries). Refuses a
+    /// scene that f32 cannot place finely enough for its AO radius and
+    /// point spacing ([`check_precision`], in the pose at time 0).
     pub fn new(scene: Scene, config: PipelineConfig) -> Result<Pipeline, SceneError> {
         scene.validate()?;
         config.ao.validate()?;
@@ -264,6 +267,13 @@ impl Pipeline {
             let points = generate_points(mesh, config.density, seed)?;
             let rest = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ZERO));
             let grid_bounds = skin_bounds[i].unwrap_or(rest);
+            check_precision(
+                i,
+                &pose.instances[i],
+                grid_bounds,
+                points.radius,
+                config.ao.radius,
+            )?;
             let sides = if mesh.double_sided { 2.0 } else { 1.0 };
             let def = layout(
                 i,
@@ -395,7 +405,8 @@ impl Pipeline {
     /// Places dynamic instance `i` at `transform` from the next step on, in
     /// place of its animation (a scene event, such as a user moving an
     /// object). Static instances share one BVH built once and cannot be
-    /// moved; a singular or non-finite transform is refused.
+    /// moved; a singular or non-finite transform is refused, and so is one
+    /// that takes it where f32 is too coarse ([`check_precision`]).
     pub fn place_instance(&mut self, i: usize, transform: Affine3A) -> Result<(), SceneError> {
         let Some(s) = self.instances.get(i) else {
             return Err(SceneError::Element {
@@ -410,6 +421,13 @@ impl Pipeline {
             });
         }
         check_transform(i, &transform, Some(s.bounds))?;
+        check_precision(
+            i,
+            &transform,
+            s.bounds,
+            s.points.radius,
+            self.config.ao.radius,
+        )?;
         self.overrides[i] = Some(transform);
         Ok(())
     }
