@@ -71,15 +71,36 @@ pub fn base_cell(inst: &InstanceMirror, x: Vec3) -> IVec3 {
 }
 
 /// AO at instance-local position `x` with unit local normal `n` (eq. 4):
-/// the weighted mean of the points in the 2x2x2 cells around `x`, or 1 when
-/// every weight is zero (also for a non-finite `x`).
+/// the weighted mean of the points in the 2x2x2 cells around `x`. When
+/// every weight is zero, the same cells are weighed again with twice the
+/// radius (spec/wire-format.md 7.3); when those are zero too, or `x` or `n`
+/// is not finite, the result is 1 (open).
 pub fn reconstruct_ao(inst: &InstanceMirror, x: Vec3, n: Vec3) -> f32 {
     let d = *inst.def();
     if !x.is_finite() || !n.is_finite() {
         return 1.0;
     }
-    let normals = normal_table();
     let params = WeightParams::of(&d);
+    let (sum_w, sum) = weighted_sum(inst, x, n, &params);
+    if sum_w > 0.0 {
+        return sum / sum_w;
+    }
+    // No point within r (a gap in the points' spread, or points dropped
+    // from a full cell): look once more with twice the radius, over the
+    // same cells.
+    let wide = WeightParams {
+        radius: 2.0 * params.radius,
+        ..params
+    };
+    let (sum_w, sum) = weighted_sum(inst, x, n, &wide);
+    if sum_w > 0.0 { sum / sum_w } else { 1.0 }
+}
+
+/// The weight sum and the weighted AO sum of eq. 4 over the 2x2x2 cells
+/// around `x`.
+fn weighted_sum(inst: &InstanceMirror, x: Vec3, n: Vec3, params: &WeightParams) -> (f32, f32) {
+    let d = *inst.def();
+    let normals = normal_table();
     let base = base_cell(inst, x);
     let dims = d.dims.as_ivec3();
     let (mut sum_w, mut sum) = (0.0f32, 0.0f32);
@@ -98,14 +119,14 @@ pub fn reconstruct_ao(inst: &InstanceMirror, x: Vec3, n: Vec3) -> f32 {
                 for w in inst.cell_points(cell) {
                     let p = min + w.frac() * d.cell_size;
                     let n_p = normals[w.fields().normal as usize];
-                    let a = weight(p, n_p, x, n, &params);
+                    let a = weight(p, n_p, x, n, params);
                     sum_w += a;
                     sum += a * w.ao();
                 }
             }
         }
     }
-    if sum_w > 0.0 { sum / sum_w } else { 1.0 }
+    (sum_w, sum)
 }
 
 /// Maps a world position and unit normal into instance-local space with the

@@ -84,8 +84,11 @@ fn normal_and_direction_tests_reject_points() {
     assert_eq!(one_point_ao(x - Vec3::Y * 0.1, Vec3::Y, x), 1.0);
     // The same point beside x, in its tangent plane, counts.
     assert_eq!(one_point_ao(x + Vec3::X * 0.1, Vec3::Y, x), 0.0);
-    // Beyond the radius: no weight.
-    assert_eq!(one_point_ao(x + Vec3::X * 0.21, Vec3::Y, x), 1.0);
+    // Beyond the radius (0.2) but within twice it, and nothing nearer:
+    // the second pass (spec 7.3) finds it.
+    assert_eq!(one_point_ao(x + Vec3::X * 0.21, Vec3::Y, x), 0.0);
+    // Beyond twice the radius: no weight, open.
+    assert_eq!(one_point_ao(x + Vec3::X * 0.41, Vec3::Y, x), 1.0);
     // Within quantization noise (|cell_size|/64 = 0.0068) the direction
     // test is skipped: a point just above x along its normal still counts.
     let mut t = GridTable::new(1, def, 4).unwrap();

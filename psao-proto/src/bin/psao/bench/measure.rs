@@ -25,8 +25,8 @@ use std::time::Instant;
 use indicatif::ProgressBar;
 use psao_codec::{Decoder, Limits};
 use psao_scene::{
-    AoParams, Camera, Estimator, GBuffer, Pipeline, PipelineConfig, PosedScene, SaoParams, Scene,
-    View, psao_image, ray_traced_ao, rmse, sao, ssim,
+    AoParams, Camera, Estimator, GBuffer, NO_INSTANCE, Pipeline, PipelineConfig, PosedScene,
+    SaoParams, Scene, View, psao_image, ray_traced_ao, rmse, sao, ssim,
 };
 
 use super::images;
@@ -214,6 +214,18 @@ pub struct Row {
     pub keyframe_bytes: Option<usize>,
     /// Covered pixels the client had no data for, over all frames.
     pub unknown_px: usize,
+    /// Where the squared error lies.
+    pub breakdown: Breakdown,
+}
+
+/// Where a method's squared error lies, over all frames.
+#[derive(Clone, Debug, Default)]
+pub struct Breakdown {
+    /// Per instance seen, its share of the squared error, largest first.
+    pub by_instance: Vec<(u32, f64)>,
+    /// Share of the squared error in pixels the method left open (AO at
+    /// least 0.999) where the reference is dark (below 0.9).
+    pub open_where_dark: f64,
 }
 
 /// One frame's inputs, shared by every method.
@@ -254,6 +266,9 @@ pub struct SceneResult {
     pub triangles: usize,
     /// Seconds to trace the reference, all frames.
     pub reference_s: f64,
+    /// Per instance, what kind it is ("static", "moving" or "skinned",
+    /// and "alpha-masked").
+    pub kinds: Vec<String>,
 }
 
 /// Running means of the error metrics over frames.
@@ -263,6 +278,11 @@ struct Errors {
     ssim: f64,
     flip: f64,
     frames: u32,
+    /// Squared error per instance id.
+    sse_by_instance: std::collections::BTreeMap<u32, f64>,
+    /// Squared error in pixels left open where the reference is dark.
+    sse_open_where_dark: f64,
+    sse: f64,
 }
 
 impl Errors {
@@ -278,7 +298,33 @@ impl Errors {
         .map_err(|e| e.to_string())?;
         self.flip += images::flip_mean(frame, test);
         self.frames += 1;
+        let g = &frame.gbuffer;
+        for ((&id, &r), &t) in g.instance.iter().zip(&frame.reference).zip(test) {
+            if id == NO_INSTANCE {
+                continue;
+            }
+            let e = ((t - r) as f64).powi(2);
+            self.sse += e;
+            *self.sse_by_instance.entry(id).or_default() += e;
+            if t >= 0.999 && r < 0.9 {
+                self.sse_open_where_dark += e;
+            }
+        }
         Ok(())
+    }
+
+    fn breakdown(&self) -> Breakdown {
+        let total = self.sse.max(f64::MIN_POSITIVE);
+        let mut by_instance: Vec<(u32, f64)> = self
+            .sse_by_instance
+            .iter()
+            .map(|(&id, &e)| (id, e / total))
+            .collect();
+        by_instance.sort_by(|a, b| b.1.total_cmp(&a.1));
+        Breakdown {
+            by_instance,
+            open_where_dark: self.sse_open_where_dark / total,
+        }
     }
 
     fn row(&self, method: Method, client_ms: f64) -> Row {
@@ -301,6 +347,7 @@ impl Errors {
             setup_s: None,
             keyframe_bytes: None,
             unknown_px: 0,
+            breakdown: self.breakdown(),
         }
     }
 }
@@ -426,7 +473,25 @@ pub fn measure_scene(
     rows.push(errors.row(Method::Sao, ms / frames.len() as f64));
     bar.inc(1);
     let pixels = frames.len() * (s.width as usize * s.height as usize);
+    let dynamic = scene.dynamic_instances();
+    let kinds = scene
+        .instances
+        .iter()
+        .enumerate()
+        .map(|(i, inst)| {
+            let motion = if inst.skin.is_some() {
+                "skinned"
+            } else if dynamic[i] {
+                "moving"
+            } else {
+                "static"
+            };
+            let alpha = scene.meshes[inst.mesh].alpha.is_some();
+            format!("{motion}{}", if alpha { ", alpha-masked" } else { "" })
+        })
+        .collect();
     Ok(SceneResult {
+        kinds,
         name: name.to_string(),
         rows,
         coverage: covered as f64 / pixels.max(1) as f64,

@@ -201,6 +201,31 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
             ));
         }
     }
+    let shares = |row: &Row| {
+        let top: Vec<String> = row
+            .breakdown
+            .by_instance
+            .iter()
+            .take(3)
+            .map(|(id, share)| {
+                let kind = r.kinds.get(*id as usize).map_or("?", |k| k.as_str());
+                format!("instance {id} ({kind}) {:.0}%", share * 100.0)
+            })
+            .collect();
+        format!(
+            "{}: {}; {:.0}% in pixels left open where the reference is dark",
+            row.method.label(),
+            top.join(", "),
+            row.breakdown.open_where_dark * 100.0
+        )
+    };
+    if let (Some(p), Some(q)) = (psao, sao) {
+        out.push(format!(
+            "Where the squared error lies: {}. {}.",
+            shares(p),
+            shares(q)
+        ));
+    }
     let stale: Vec<String> = r
         .rows
         .iter()
