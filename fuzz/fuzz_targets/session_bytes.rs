@@ -39,6 +39,7 @@ fuzz_target!(|data: &[u8]| {
                 mirror_bytes: 1 << 16,
                 frame_rate: 60,
                 scene: "fuzz".into(),
+                culling: true,
             };
             let t0 = Instant::now();
             let mut s = ServerConn::new(offer, t0);

@@ -18,12 +18,14 @@ use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 use glam::Affine3A;
-use psao_scene::{FrameReport, Pipeline, PipelineConfig, Scene, SceneError};
+use psao_scene::{
+    Camera, FrameReport, Pipeline, PipelineConfig, Scene, SceneError, ViewerCull, Views,
+};
 use tokio::sync::Notify;
 use tracing::{debug, info, warn};
 
 use crate::codes::{Close, CloseCode};
-use crate::control::NoticeCode;
+use crate::control::{CameraPose, NoticeCode};
 use crate::outbox::Outbox;
 use crate::records::record_prefix;
 use crate::server_conn::{Offer, ServerConn, ServerEvent, notice};
@@ -128,6 +130,10 @@ struct Slot {
     notices: Vec<Bytes>,
     /// Seconds from a frame's broadcast to the client's `ACK` of it.
     frame_age: f64,
+    /// Whether its `HELLO` said it sends camera poses.
+    viewer: bool,
+    /// Its last `CAMERA`.
+    view: Option<CameraPose>,
 }
 
 #[derive(Default)]
@@ -299,6 +305,7 @@ pub async fn serve(
         mirror_bytes,
         frame_rate: config.frame_rate,
         scene: config.scene_name.clone(),
+        culling: config.pipeline.cull.is_some(),
     };
     let endpoint =
         quinn::Endpoint::server(server_config(identity, config.idle_timeout)?, config.bind)
@@ -353,6 +360,26 @@ pub async fn serve(
     })
 }
 
+/// What a culling server culls to (spec/session.md 3.2): the union of its
+/// clients' views. While a client that does not say what it sees (not a
+/// viewer, or no `CAMERA` yet) is connected, nothing is culled; with no
+/// client, no one looks and every point waits.
+fn views(state: &HubState, cull: &ViewerCull) -> Views {
+    let mut frusta = Vec::with_capacity(state.clients.len());
+    for slot in state.clients.values() {
+        let Some(pose) = slot.view.filter(|_| slot.viewer) else {
+            return Views::All;
+        };
+        let camera = Camera {
+            eye: pose.eye,
+            target: pose.target,
+            fov_y: pose.fov_y,
+        };
+        frusta.push(camera.frustum(pose.aspect, cull.near(), cull.far));
+    }
+    Views::Frusta(frusta)
+}
+
 /// The pipeline thread: step, broadcast, keyframes; returns the pipeline
 /// when told to stop.
 fn step_loop(mut pipeline: Pipeline, hub: &Hub) -> Pipeline {
@@ -371,6 +398,9 @@ fn step_loop(mut pipeline: Pipeline, hub: &Hub) -> Pipeline {
                     c.notice(n);
                 }
             }
+        }
+        if let Some(cull) = hub.config.pipeline.cull {
+            pipeline.set_views(views(&hub.lock(), &cull));
         }
         let t0 = Instant::now();
         let stepped = pipeline.step(dt);
@@ -529,7 +559,7 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
         }
         for ev in events.drain(..) {
             match ev {
-                ServerEvent::Welcomed { bytes, .. } => {
+                ServerEvent::Welcomed { bytes, viewer } => {
                     let Some(mut control) = send.take() else {
                         continue;
                     };
@@ -559,6 +589,8 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                                 wake: wake.clone(),
                                 notices: Vec::new(),
                                 frame_age: 0.0,
+                                viewer,
+                                view: None,
                             },
                         );
                         client
@@ -617,7 +649,13 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                         ));
                     }
                 }
-                ServerEvent::Camera(_) => {}
+                ServerEvent::Camera(pose) => {
+                    if let Some(c) = id
+                        && let Some(slot) = hub.lock().clients.get_mut(&c)
+                    {
+                        slot.view = Some(pose);
+                    }
+                }
             }
         }
     };

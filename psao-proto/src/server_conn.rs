@@ -34,6 +34,9 @@ pub struct Offer {
     pub frame_rate: u16,
     /// The scene's name.
     pub scene: String,
+    /// Whether the server culls to its viewers' views (`WELCOME`'s
+    /// `flags.culling`).
+    pub culling: bool,
 }
 
 /// Checks a client's `HELLO` against the offer; the `WELCOME` to send, or
@@ -70,7 +73,7 @@ pub fn negotiate(hello: &Hello, offer: &Offer) -> Result<Welcome, Close> {
         max_frame_bytes: offer.max_frame_bytes,
         max_payload_bytes: offer.max_payload_bytes,
         frame_rate: offer.frame_rate,
-        culling: false,
+        culling: offer.culling,
         scene: offer.scene.clone(),
     })
 }

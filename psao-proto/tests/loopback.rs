@@ -315,3 +315,77 @@ async fn a_full_server_says_so() {
     }
     first.close().await;
 }
+
+/// Points traced and culled over `wait` of serving.
+async fn traced_and_culled(server: &ServerHandle, wait: Duration) -> (u64, u64, u64) {
+    let a = server.stats();
+    tokio::time::sleep(wait).await;
+    let b = server.stats();
+    (
+        b.report.traced - a.report.traced,
+        b.report.culled - a.report.culled,
+        b.frames - a.frames,
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_culling_server_traces_what_its_viewers_see() {
+    let id = Identity::self_signed().unwrap();
+    let mut cfg = config(1 << 20);
+    cfg.pipeline.cull = Some(psao_scene::ViewerCull {
+        aspect: 1.0,
+        far: 50.0,
+        margin: 0.0,
+    });
+    let server = serve(small_scene(), cfg, &id).await.unwrap();
+    let viewer = connect(
+        server.local_addr(),
+        &Trust::Fingerprint(server.fingerprint()),
+        ClientConfig {
+            viewer: true,
+            ..ClientConfig::default()
+        },
+        Duration::from_secs(10),
+    )
+    .await
+    .unwrap();
+    let welcome = viewer.with_session(|s| s.welcome().cloned()).unwrap();
+    assert!(welcome.culling, "WELCOME says the server culls");
+    let pose = |eye: Vec3, target: Vec3| control::CameraPose {
+        time_ms: 0,
+        eye,
+        target,
+        fov_y: 1.0,
+        aspect: 1.0,
+    };
+    // Looking away from the scene (it lies behind the camera): the box's
+    // neighbourhood waits, nothing is traced.
+    viewer.send_camera(pose(Vec3::new(0.0, 1.0, 10.0), Vec3::new(0.0, 1.0, 20.0)));
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let (traced, culled, frames) = traced_and_culled(&server, Duration::from_millis(500)).await;
+    assert!(frames > 5, "{frames} frames");
+    assert_eq!(traced, 0, "nothing in view is traced ({culled} culled)");
+    assert!(culled > 0, "points near the moving box wait");
+    // Looking at it: the box's neighbourhood is traced again.
+    viewer.send_camera(pose(Vec3::new(0.0, 3.0, 6.0), Vec3::ZERO));
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let (traced, _, _) = traced_and_culled(&server, Duration::from_millis(500)).await;
+    assert!(
+        traced > 0,
+        "in view, the moving box's surroundings are traced"
+    );
+    // Back to looking away, then a client that does not say what it sees
+    // joins: the server stops culling for it.
+    viewer.send_camera(pose(Vec3::new(0.0, 1.0, 10.0), Vec3::new(0.0, 1.0, 20.0)));
+    let blind = client(&server, None).await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let (traced, culled, _) = traced_and_culled(&server, Duration::from_millis(500)).await;
+    assert!(traced > 0, "a non-viewer sees everything ({culled} culled)");
+    assert_eq!(culled, 0);
+    drop(blind);
+    let p = server.shutdown(Duration::from_secs(1)).await.unwrap().0;
+    assert!(
+        in_sync(&viewer, &p),
+        "the viewer's mirror still equals the tables"
+    );
+}

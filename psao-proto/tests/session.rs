@@ -17,6 +17,7 @@ fn offer() -> Offer {
         mirror_bytes: 1 << 16,
         frame_rate: 60,
         scene: "test".into(),
+        culling: false,
     }
 }
 

@@ -25,6 +25,7 @@ use psao_codec::{EncodedFrame, Encoder, EncoderConfig, GridTable, Thresholds};
 
 use crate::alpha::AlphaMask;
 use crate::ao::{AoParams, AoTracer, Geometry, Layer, TriangleBvh, ray_offset};
+use crate::camera::Frustum;
 use crate::error::{SceneError, check_param};
 use crate::layout::{LayoutParams, layout};
 use crate::points::{PointSet, generate_points};
@@ -32,8 +33,9 @@ use crate::pose::Pose;
 use crate::precision::check_precision;
 use crate::scene::{Scene, check_transform, transformed_bounds};
 
-/// Per-viewer culling: the server runs for one viewer following the
-/// scene's camera path and traces only points near its view.
+/// Per-viewer culling: the server traces only points near what is seen,
+/// by default the view of the scene's camera path, or the union of the
+/// views given with [`Pipeline::set_views`] (a server's clients).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ViewerCull {
     /// Width over height of the viewer's image.
@@ -45,6 +47,14 @@ pub struct ViewerCull {
     pub margin: f32,
 }
 
+impl ViewerCull {
+    /// The near plane distance culling uses: 5 cm, or half the far plane
+    /// when that is nearer.
+    pub fn near(&self) -> f32 {
+        0.05f32.min(self.far * 0.5)
+    }
+}
+
 impl Default for ViewerCull {
     fn default() -> Self {
         ViewerCull {
@@ -53,6 +63,21 @@ impl Default for ViewerCull {
             margin: 0.5,
         }
     }
+}
+
+/// What culling culls to (with [`PipelineConfig::cull`] set).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub enum Views {
+    /// The scene's camera path at the pipeline's time (nothing is culled
+    /// when the scene has none).
+    #[default]
+    CameraPath,
+    /// The union of these frusta (a server's viewers). An empty list: no
+    /// one looks, every point waits.
+    Frusta(Vec<Frustum>),
+    /// Everything: nothing is culled (a client that does not say what it
+    /// sees is connected).
+    All,
 }
 
 /// Pipeline settings.
@@ -206,6 +231,8 @@ pub struct Pipeline {
     whole_layer: Option<Arc<TriangleBvh>>,
     time: f64,
     frame: u64,
+    /// What culling culls to.
+    views: Views,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -246,11 +273,6 @@ impl Pipeline {
             check_param("cull.aspect", c.aspect as f64, 1e-3, 1e3, "in [1e-3, 1e3]")?;
             check_param("cull.far", c.far as f64, 1e-3, 1e9, "in [1e-3, 1e9]")?;
             check_param("cull.margin", c.margin as f64, 0.0, 1e9, "in [0, 1e9]")?;
-            if scene.camera.is_none() {
-                return Err(SceneError::Camera {
-                    reason: "per-viewer culling needs a camera path".into(),
-                });
-            }
         }
         let dynamic = scene.dynamic_instances();
         let pose = scene.pose(0.0);
@@ -339,6 +361,7 @@ impl Pipeline {
             whole_layer: None,
             time: 0.0,
             frame: 0,
+            views: Views::CameraPath,
         };
         let all: Vec<Vec<u32>> = pipeline
             .instances
@@ -356,6 +379,14 @@ impl Pipeline {
     /// Seconds of scene time so far.
     pub fn time(&self) -> f32 {
         self.time as f32
+    }
+
+    /// Sets what culling (when configured) culls to from the next step
+    /// on: the scene's camera path (the default), the union of viewers'
+    /// frusta, or nothing. Points culled meanwhile wait and are traced when
+    /// they come into a view.
+    pub fn set_views(&mut self, views: Views) {
+        self.views = views;
     }
 
     /// The settings it runs with.
@@ -746,13 +777,21 @@ impl Pipeline {
     /// others become pending, and pending points now in view join `which`.
     /// Returns how many points wait.
     fn cull(&mut self, cull: &ViewerCull, which: &mut [Vec<u32>]) -> u64 {
-        let Some(path) = &self.scene.camera else {
-            return 0;
+        let frusta: Vec<Frustum> = match &self.views {
+            Views::All => Vec::new(),
+            Views::Frusta(f) => f.clone(),
+            Views::CameraPath => match &self.scene.camera {
+                Some(path) => {
+                    vec![
+                        path.at(self.time as f32)
+                            .frustum(cull.aspect, cull.near(), cull.far),
+                    ]
+                }
+                None => Vec::new(),
+            },
         };
-        let near = 0.05f32.min(cull.far * 0.5);
-        let frustum = path
-            .at(self.time as f32)
-            .frustum(cull.aspect, near, cull.far);
+        let everything = matches!(self.views, Views::All)
+            || (self.views == Views::CameraPath && self.scene.camera.is_none());
         let reach = cull.margin + self.config.ao.radius;
         let mut waiting = 0u64;
         for (s, w) in self.instances.iter_mut().zip(which.iter_mut()) {
@@ -765,7 +804,7 @@ impl Pipeline {
                     continue;
                 }
                 let p = s.transform.transform_point3(s.positions[k]);
-                if frustum.touches_sphere(p, reach) {
+                if everything || frusta.iter().any(|f| f.touches_sphere(p, reach)) {
                     *pending = false;
                     w.push(k as u32);
                 } else {

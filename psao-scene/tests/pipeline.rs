@@ -324,7 +324,8 @@ fn culling_waits_for_points_to_come_into_view() {
         far: 100.0,
         margin: 0.0,
     };
-    let no_camera = Pipeline::new(
+    // Without a camera path nothing is culled until views are given.
+    let mut viewers = Pipeline::new(
         Scene {
             camera: None,
             ..scene.clone()
@@ -333,8 +334,33 @@ fn culling_waits_for_points_to_come_into_view() {
             cull: Some(cull),
             ..quick()
         },
-    );
-    assert!(matches!(no_camera, Err(SceneError::Camera { .. })));
+    )
+    .unwrap();
+    let (_, r) = viewers.step(0.1).unwrap();
+    assert!(r.traced > 0 && r.culled == 0, "{r:?}");
+    // No one looking: everything waits.
+    viewers.set_views(Views::Frusta(Vec::new()));
+    let (_, r) = viewers.step(0.1).unwrap();
+    assert!(r.traced == 0 && r.culled > 0, "{r:?}");
+    // The union of two views, one of them on the box: it is traced.
+    let frustum = |target: Vec3| {
+        Camera {
+            eye,
+            target,
+            fov_y: 0.5,
+        }
+        .frustum(1.0, cull.near(), cull.far)
+    };
+    viewers.set_views(Views::Frusta(vec![
+        frustum(Vec3::new(20.0, 1.0, 10.0)),
+        frustum(Vec3::ZERO),
+    ]));
+    let (_, r) = viewers.step(0.1).unwrap();
+    assert!(r.traced > 0 && r.culled == 0, "{r:?}");
+    // Views::All culls nothing either.
+    viewers.set_views(Views::All);
+    let (_, r) = viewers.step(0.1).unwrap();
+    assert!(r.traced > 0 && r.culled == 0, "{r:?}");
     let mut p = Pipeline::new(
         scene,
         PipelineConfig {

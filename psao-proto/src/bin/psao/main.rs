@@ -29,7 +29,8 @@ use psao_proto::{
 use std::sync::Arc;
 
 use psao_scene::{
-    AoParams, PipelineConfig, PosedScene, Scene, View, default_scene, load_gltf, psao_image,
+    AoParams, PipelineConfig, PosedScene, Scene, View, ViewerCull, default_scene, load_gltf,
+    psao_image,
 };
 
 #[derive(Parser)]
@@ -70,6 +71,10 @@ enum Command {
         /// Folder for the images.
         #[arg(long, default_value = "demo-out")]
         out: PathBuf,
+        /// The server culls to its clients' views; the clients are viewers
+        /// that send the camera path's pose as they go.
+        #[arg(long)]
+        cull: bool,
     },
     /// Serve a scene to clients.
     Serve {
@@ -100,6 +105,10 @@ enum Command {
         /// Stop after this many seconds (default: until Ctrl-C).
         #[arg(long)]
         seconds: Option<f32>,
+        /// Cull to the clients' views: trace only points near what the
+        /// viewers' CAMERA messages say they see (spec/session.md 3.2).
+        #[arg(long)]
+        cull: bool,
     },
     /// Connect to a server and keep a mirror in sync, printing figures.
     View {
@@ -181,9 +190,11 @@ fn main() -> ExitCode {
                 rays,
                 images,
                 out,
+                cull,
             } => {
                 let shots = Shots::new(images, out)?;
-                demo(seconds, rate, clients as usize, density, rays, shots).await
+                let clients = clients as usize;
+                demo(seconds, rate, clients, density, rays, shots, cull).await
             }
             Command::Serve {
                 scene,
@@ -195,6 +206,7 @@ fn main() -> ExitCode {
                 queue_bytes,
                 density,
                 seconds,
+                cull,
             } => {
                 let identity = match (cert, key) {
                     (Some(c), Some(k)) => {
@@ -208,7 +220,10 @@ fn main() -> ExitCode {
                     frame_rate: rate,
                     max_clients,
                     max_queue_bytes: queue_bytes,
-                    pipeline: pipeline_config(density, 64),
+                    pipeline: PipelineConfig {
+                        cull: cull.then(ViewerCull::default),
+                        ..pipeline_config(density, 64)
+                    },
                     scene_name: name,
                     ..ServerConfig::default()
                 };
@@ -430,6 +445,7 @@ async fn demo(
     density: f32,
     rays: u32,
     mut shots: Shots,
+    cull: bool,
 ) -> Result<(), String> {
     if !(seconds > 0.0 && seconds <= 3600.0) {
         return Err("--seconds must be in (0, 3600]".into());
@@ -437,7 +453,10 @@ async fn demo(
     let identity = Identity::self_signed().map_err(|e| e.to_string())?;
     let config = ServerConfig {
         frame_rate: rate,
-        pipeline: pipeline_config(density, rays),
+        pipeline: PipelineConfig {
+            cull: cull.then(ViewerCull::default),
+            ..pipeline_config(density, rays)
+        },
         ..ServerConfig::default()
     };
     println!("psao demo: preparing the default scene (points, grids, first trace)...");
@@ -459,6 +478,7 @@ async fn demo(
             &trust,
             ClientConfig {
                 limits: Limits::default(),
+                viewer: cull,
                 ..ClientConfig::default()
             },
             Duration::from_secs(10),
@@ -501,6 +521,22 @@ async fn demo(
             bar.set_message(line);
         }
         prev = (s, Instant::now());
+        if cull {
+            // Viewers follow the camera path and say so.
+            let t = frames as f32 / rate as f32;
+            if let Some(path) = &shots.scene.camera {
+                let c = path.at(t);
+                for h in &handles {
+                    h.send_camera(psao_proto::control::CameraPose {
+                        time_ms: (t * 1000.0) as u32,
+                        eye: c.eye,
+                        target: c.target,
+                        fov_y: c.fov_y,
+                        aspect: 16.0 / 9.0,
+                    });
+                }
+            }
+        }
         if shots.due(frames, total) {
             let t = frames as f32 / rate as f32;
             let mirror = handles[0].with_session(|s| s.mirror().clone());
@@ -670,10 +706,11 @@ async fn summarize(
             / handles.len().max(1) as f64
     );
     println!(
-        "  server work         {:.2} ms/frame stepping ({:.0} points traced, {:.0} sent per frame)",
+        "  server work         {:.2} ms/frame stepping ({:.0} points traced, {:.0} sent, {:.0} waiting out of view per frame)",
         secs * 1e3 / frames,
         (end.report.traced - start.report.traced) as f64 / frames,
-        (end.report.updated - start.report.updated) as f64 / frames
+        (end.report.updated - start.report.updated) as f64 / frames,
+        (end.report.culled - start.report.culled) as f64 / frames
     );
     println!(
         "  bytes               {} encoded once, {} written to {} client(s)",
