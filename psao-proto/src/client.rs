@@ -373,6 +373,8 @@ impl ClientSession {
         self.requested = true;
         self.since_request = 0;
         self.request_reason = reason;
+        // The time-based repeat counts from this request.
+        self.request_seen = None;
         self.stats.requests += 1;
         let (sequence, reason) = match self.decoder.mirror().sequence() {
             Some(s) => (s, reason),

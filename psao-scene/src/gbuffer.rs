@@ -242,4 +242,29 @@ impl GBuffer {
     pub fn covered(&self) -> usize {
         self.instance.iter().filter(|&&i| i != NO_INSTANCE).count()
     }
+
+    /// Checks that every attribute holds `width x height` values (the
+    /// fields are public, so a caller may have changed them).
+    pub fn check(&self) -> Result<(), SceneError> {
+        let n = self.width as u64 * self.height as u64;
+        let lens = [
+            ("position", self.position.len()),
+            ("normal", self.normal.len()),
+            ("instance", self.instance.len()),
+            ("depth", self.depth.len()),
+        ];
+        match lens.iter().find(|(_, len)| *len as u64 != n) {
+            Some((name, len)) => Err(SceneError::Parameter {
+                name: "G-buffer length",
+                value: *len as f64,
+                rule: match *name {
+                    "position" => "positions must number width x height",
+                    "normal" => "normals must number width x height",
+                    "instance" => "instance ids must number width x height",
+                    _ => "depths must number width x height",
+                },
+            }),
+            None => Ok(()),
+        }
+    }
 }

@@ -1,7 +1,10 @@
 //! Per-pixel AO images on a [`GBuffer`]: ray-traced AO at every pixel (the
 //! reference at many rays per pixel, RTAO at a few) and the PSAO client's
 //! image reconstructed from a [`Mirror`]. Pixels that see nothing are 1
-//! (open) in every image, so they add no error to any comparison.
+//! (open) in every image: they add zero error, but they count in averages
+//! over the image (RMSE, SSIM and FLIP depend on how much of the image is
+//! covered; differences of PSNR between methods on the same G-buffer do
+//! not).
 
 use psao_codec::{Mirror, reconstruct_ao, world_to_local};
 use rayon::prelude::*;
@@ -19,6 +22,7 @@ pub fn ray_traced_ao(
     g: &GBuffer,
     params: &AoParams,
 ) -> Result<Vec<f32>, SceneError> {
+    g.check()?;
     let covered: Vec<u32> = (0..g.pixels() as u32)
         .filter(|&k| g.instance[k as usize] != NO_INSTANCE)
         .collect();
@@ -45,9 +49,12 @@ pub struct ClientImage {
 /// The PSAO client's AO image: each covered pixel's world position and
 /// normal are taken into its instance's local space with the last
 /// transform the mirror received, and AO is reconstructed from the 2x2x2
-/// cells around it (paper eq. 2-4). Rows run in parallel; the result does
-/// not depend on the thread count.
-pub fn psao_image(mirror: &Mirror, g: &GBuffer) -> ClientImage {
+/// cells around it (paper eq. 2-4, with the second pass at twice the
+/// radius of spec/wire-format.md 7.3). Rows run in parallel; the result
+/// does not depend on the thread count. A G-buffer whose attributes do not
+/// hold `width x height` values is an error.
+pub fn psao_image(mirror: &Mirror, g: &GBuffer) -> Result<ClientImage, SceneError> {
+    g.check()?;
     let w = g.width as usize;
     let rows: Vec<(Vec<f32>, usize)> = (0..g.height as usize)
         .into_par_iter()
@@ -81,5 +88,5 @@ pub fn psao_image(mirror: &Mirror, g: &GBuffer) -> ClientImage {
         image.ao.extend(row);
         image.unknown += unknown;
     }
-    image
+    Ok(image)
 }

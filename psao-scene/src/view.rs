@@ -43,8 +43,10 @@ impl View {
         if !camera.eye.is_finite() || !camera.target.is_finite() {
             return Err(bad("eye or target is not finite"));
         }
-        if camera.eye == camera.target {
-            return Err(bad("the camera looks at its own eye"));
+        if (camera.target - camera.eye).try_normalize().is_none() {
+            return Err(bad(
+                "the camera looks at its own eye (or too near it for a direction)",
+            ));
         }
         if !(camera.fov_y > 0.0 && camera.fov_y < std::f32::consts::PI) {
             return Err(bad("field of view is not in (0, pi)"));
@@ -69,7 +71,9 @@ impl View {
     /// World-to-view transform (see the module docs for view space).
     pub fn world_to_view(&self) -> Affine3A {
         let c = &self.camera;
-        let up = if (c.target - c.eye).cross(Vec3::Y).length_squared() > 1e-12 {
+        // Y up unless the camera looks (almost) straight up or down.
+        let dir = (c.target - c.eye).normalize_or_zero();
+        let up = if dir.y.abs() < 1.0 - 1e-6 {
             Vec3::Y
         } else {
             Vec3::Z

@@ -83,7 +83,7 @@ fn pixels_that_see_nothing_are_open_and_marked() {
     assert!(g.depth.iter().all(|d| d.is_infinite()));
     let ao = ray_traced_ao(&posed.tracer(), &g, &AoParams::default()).unwrap();
     assert!(ao.iter().all(|&a| a == 1.0));
-    let img = psao_image(&Mirror::new(), &g);
+    let img = psao_image(&Mirror::new(), &g).unwrap();
     assert!(img.ao.iter().all(|&a| a == 1.0));
     assert_eq!(img.unknown, 0);
 }
@@ -121,6 +121,26 @@ fn views_are_checked() {
         .is_err()
     );
     assert!(PosedScene::new(&floor_and_box(), f32::NAN).is_err());
+    // Looking straight down keeps a sensible up vector (no NaN).
+    let down = View::new(
+        Camera {
+            eye: Vec3::new(0.0, 5.0, 0.0),
+            target: Vec3::ZERO,
+            fov_y: 1.0,
+        },
+        4,
+        4,
+    )
+    .unwrap();
+    assert!(down.world_to_view().is_finite());
+    // A G-buffer whose attributes disagree with its size is an error.
+    let scene = floor_and_box();
+    let posed = PosedScene::new(&scene, 0.0).unwrap();
+    let mut g = posed.gbuffer(&down);
+    g.depth.pop();
+    assert!(g.check().is_err());
+    assert!(ray_traced_ao(&posed.tracer(), &g, &AoParams::default()).is_err());
+    assert!(psao_image(&Mirror::new(), &g).is_err());
 }
 
 #[test]
@@ -190,7 +210,7 @@ fn psao_rmse(density: f32) -> f64 {
         },
     )
     .unwrap();
-    let img = psao_image(client.mirror(), &g);
+    let img = psao_image(client.mirror(), &g).unwrap();
     assert_eq!(img.unknown, 0, "every instance has its transform");
     rmse(&reference, &img.ao).unwrap()
 }
@@ -262,18 +282,18 @@ fn the_client_image_uses_the_last_received_transform() {
     client.receive(&p.keyframe().unwrap().bytes).unwrap();
     let view = looking_down(24, 24);
     let g0 = PosedScene::new(&scene, 0.0).unwrap().gbuffer(&view);
-    let before = psao_image(client.mirror(), &g0);
+    let before = psao_image(client.mirror(), &g0).unwrap();
     assert_eq!(before.unknown, 0);
     assert_reconstructed(client.mirror(), &g0, &before);
     // An instance the mirror does not hold counts as unknown.
     let mut strange = g0.clone();
     strange.instance[0] = 7;
-    assert_eq!(psao_image(client.mirror(), &strange).unknown, 1);
+    assert_eq!(psao_image(client.mirror(), &strange).unwrap().unknown, 1);
 
     let (frame, _) = p.step(1.0).unwrap();
     let g1 = PosedScene::new(&scene, 1.0).unwrap().gbuffer(&view);
     // Not yet received: the client still holds the old transform.
-    let stale = psao_image(client.mirror(), &g1);
+    let stale = psao_image(client.mirror(), &g1).unwrap();
     assert_reconstructed(client.mirror(), &g1, &stale);
     client.receive(&frame.unwrap().bytes).unwrap();
     let moved = client
@@ -284,7 +304,7 @@ fn the_client_image_uses_the_last_received_transform() {
         .unwrap()
         .affine();
     assert!((moved.translation - glam::Vec3A::X).length() < 1e-5);
-    let after = psao_image(client.mirror(), &g1);
+    let after = psao_image(client.mirror(), &g1).unwrap();
     assert_reconstructed(client.mirror(), &g1, &after);
     // The box top is open wherever the box is, once the client knows.
     let top = |g: &GBuffer, img: &ClientImage| {

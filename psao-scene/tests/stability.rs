@@ -132,7 +132,7 @@ fn frame(scene: &Scene, config: PipelineConfig, view: &View) -> Result<Frame, Sc
     )?;
     Ok(Frame {
         reference,
-        psao: psao_image(c.mirror(), &g),
+        psao: psao_image(c.mirror(), &g).unwrap(),
         covered: g.covered(),
     })
 }
@@ -792,7 +792,7 @@ fn skinning_past_the_grid_drops_and_counts_points_and_streams_on() {
         assert!(m.words() == table.words() && m.buckets() == table.buckets());
         let posed = PosedScene::new(&s, p.time()).unwrap();
         let g = posed.gbuffer(&view);
-        let img = psao_image(client.mirror(), &g);
+        let img = psao_image(client.mirror(), &g).unwrap();
         assert!(unit(&img.ao) && img.unknown == 0, "t = {}", p.time());
         let (pos, nrm) = p.current_points(i).unwrap();
         let rec: Vec<f32> = pos
@@ -987,7 +987,7 @@ fn queries_no_point_weighs_reconstruct_open() {
         g.instance[k] = 0;
         g.depth[k] = 1.0;
     }
-    let img = psao_image(c.mirror(), &g);
+    let img = psao_image(c.mirror(), &g).unwrap();
     assert!(img.ao.iter().all(|&a| a == 1.0), "{:?}", &img.ao[..8]);
     // NaN and infinite positions do not map to local space; the largest
     // f32s map (identity transform) and reconstruct open.

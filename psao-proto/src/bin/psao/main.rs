@@ -520,10 +520,11 @@ async fn demo(
         } else {
             bar.set_message(line);
         }
+        // Scene time: the server steps from its start, before clients join.
+        let t = s.frames as f32 / rate as f32;
         prev = (s, Instant::now());
         if cull {
             // Viewers follow the camera path and say so.
-            let t = frames as f32 / rate as f32;
             if let Some(path) = &shots.scene.camera {
                 let c = path.at(t);
                 for h in &handles {
@@ -537,8 +538,7 @@ async fn demo(
                 }
             }
         }
-        if shots.due(frames, total) {
-            let t = frames as f32 / rate as f32;
+        while shots.due(frames, total) {
             let mirror = handles[0].with_session(|s| s.mirror().clone());
             let line = shots.take(mirror, t).await?;
             bar.println(line);
@@ -606,7 +606,7 @@ impl Shots {
                 View::new(path.at(t), SHOT_SIZE.0, SHOT_SIZE.1).map_err(|e| e.to_string())?;
             let posed = PosedScene::new(&scene, t).map_err(|e| e.to_string())?;
             let g = posed.gbuffer(&view);
-            let image = psao_image(&mirror, &g);
+            let image = psao_image(&mirror, &g).map_err(|e| e.to_string())?;
             let ao = out.join(format!("demo-{k:02}-ao.png"));
             bench::images::ao_png16(&image.ao, view.width, view.height)
                 .save(&ao)

@@ -37,7 +37,8 @@ fn light() -> Vec3 {
 }
 
 /// The composited image FLIP compares, 8-bit sRGB: a grey material lit by
-/// a sky term scaled by AO and a sun term, `0.8 (0.3 + 0.7 max(0, n.l)) AO`;
+/// a sky term and a sun term, both scaled by AO (so AO differences show
+/// everywhere, not only in shadow), `0.8 (0.3 + 0.7 max(0, n.l)) AO`;
 /// pixels with no geometry show a constant sky.
 pub fn composite(g: &GBuffer, ao: &[f32]) -> Vec<u8> {
     let l = light();

@@ -7,18 +7,23 @@
 //! estimator). Every method then makes an AO image on the same G-buffer:
 //! - PSAO-N at rate R: a server pipeline keeping N points per square
 //!   metre (the paper's N; the pipeline spawns 2N and keeps half) ticks at
-//!   R Hz; at a
-//!   client frame at time t the client holds the frames of every tick up
-//!   to `floor(t R) / R` and reconstructs with the last transforms it
-//!   received (so lower rates are staler, as in the paper's latency video);
+//!   R Hz; at a client frame at time t the client holds the frames of every
+//!   tick up to `floor((t - 1/R - network) R) / R` and reconstructs with the
+//!   last transforms it received (so lower rates are staler, as in the
+//!   paper's latency video);
 //! - RTAO-k: k closest-hit rays per pixel (another seed than the
 //!   reference's);
 //! - SAO: the screen-space baseline on the G-buffer's depth.
 //!
-//! Client time is the AO pass alone (the G-buffer is shared by all), on
-//! every core of this machine (rayon), for every method alike. Server time
-//! and bit rate come from a window of consecutive ticks at the server
-//! rate after the measured frames.
+//! Client time is the AO work per 60 Hz client frame (the G-buffer is
+//! shared by all), on every core of this machine (rayon), for every method
+//! alike: for PSAO the reconstruction plus decoding the frames that arrive
+//! per client frame; for RTAO the rays (the per-frame BVH build a moving
+//! scene needs is reported beside it); for SAO the whole pass. A server
+//! tick's frame reaches the client one server period after its scene time
+//! (the server computes it meanwhile) plus `network_ms`. Server time and
+//! bit rate come from a window of consecutive ticks at the server rate
+//! after the measured frames.
 
 use std::time::Instant;
 
@@ -33,6 +38,10 @@ use super::images;
 
 /// Client frames per second: frame times lie on this grid.
 pub const CLIENT_HZ: f64 = 60.0;
+
+/// Most pixels in one image (3840 x 2160); all frames together may hold
+/// 8 times this (the bench keeps every frame's G-buffer and reference).
+pub const MAX_PIXELS: u64 = 3840 * 2160;
 
 /// What to measure.
 #[derive(Clone, Debug)]
@@ -61,6 +70,9 @@ pub struct Settings {
     pub rtao_rays: Vec<u32>,
     /// Seconds of consecutive ticks for server time and bit rate.
     pub window: f32,
+    /// Network delay, ms: a tick's frame reaches the client one server
+    /// period plus this after its scene time.
+    pub network_ms: f32,
 }
 
 impl Settings {
@@ -78,6 +90,7 @@ impl Settings {
             focus: 1024.0,
             rtao_rays: vec![1, 4, 16],
             window: 1.0,
+            network_ms: 0.0,
         }
     }
 
@@ -116,6 +129,23 @@ impl Settings {
         if self.rates.contains(&0) {
             return Err("a server rate of 0 Hz never ticks".into());
         }
+        if !(self.network_ms.is_finite() && (0.0..=10_000.0).contains(&self.network_ms)) {
+            return Err("--network-ms must lie in [0, 10000]".into());
+        }
+        let pixels = self.width as u64 * self.height as u64;
+        if pixels == 0 || pixels > MAX_PIXELS {
+            return Err(format!(
+                "{}x{} is {pixels} pixels; the bench takes 1 to {MAX_PIXELS}",
+                self.width, self.height
+            ));
+        }
+        if pixels * self.frames as u64 > MAX_PIXELS * 8 {
+            return Err(format!(
+                "{} frames of {pixels} pixels is more than the bench holds ({} pixels in all)",
+                self.frames,
+                MAX_PIXELS * 8
+            ));
+        }
         Ok(())
     }
 
@@ -130,18 +160,22 @@ impl Settings {
             .unwrap_or(self.focus)
     }
 
-    /// The PSAO configurations, (density, rate), in table order.
+    /// The PSAO configurations, (density, rate), in table order (densities
+    /// ascending).
     pub fn psao_configs(&self) -> Vec<(f32, u16)> {
+        let mut densities = self.densities.clone();
+        densities.sort_by(f32::total_cmp);
+        densities.dedup();
         let mut out = Vec::new();
         if self.cross {
             for &r in &self.rates {
-                for &d in &self.densities {
+                for &d in &densities {
                     out.push((d, r));
                 }
             }
         } else {
             let first = self.rates[0];
-            out.extend(self.densities.iter().map(|&d| (d, first)));
+            out.extend(densities.iter().map(|&d| (d, first)));
             let f = self.focus_density();
             out.extend(self.rates[1..].iter().map(|&r| (f, r)));
         }
@@ -214,6 +248,10 @@ pub struct Row {
     pub keyframe_bytes: Option<usize>,
     /// Covered pixels the client had no data for, over all frames.
     pub unknown_px: usize,
+    /// PSAO: the part of `client_ms` spent decoding frames. RTAO: the
+    /// per-frame BVH build a client would need for a moving scene (not in
+    /// `client_ms`).
+    pub extra_ms: Option<f64>,
     /// Where the squared error lies.
     pub breakdown: Breakdown,
 }
@@ -242,6 +280,9 @@ pub struct Frame {
     pub composite: Vec<u8>,
     /// The geometry at this time (for RTAO).
     pub posed: PosedScene,
+    /// Milliseconds to pose the scene and build its BVH (what a per-pixel
+    /// RTAO client of a moving scene pays each frame).
+    pub bvh_ms: f64,
 }
 
 /// The images of the first frame, for the side-by-side picture.
@@ -347,6 +388,7 @@ impl Errors {
             setup_s: None,
             keyframe_bytes: None,
             unknown_px: 0,
+            extra_ms: None,
             breakdown: self.breakdown(),
         }
     }
@@ -361,13 +403,17 @@ const PHASES: u64 = 12;
 /// at every phase of a 5, 15 or 30 Hz server tick rather than all on a
 /// tick (which would hide the staleness of slow servers).
 pub fn frame_times(duration: f32, frames: u32) -> Vec<f32> {
-    (0..frames)
+    let mut times = (0..frames)
         .map(|k| {
             let t = (k as f64 + 0.5) / frames as f64 * duration.max(0.0) as f64;
             let phase = (7 * k as u64 % PHASES) as f64;
             (((t * CLIENT_HZ).round() + phase) / CLIENT_HZ) as f32
         })
-        .collect()
+        .collect::<Vec<f32>>();
+    // Frames closer than the phase shift could otherwise swap order.
+    times.sort_by(f32::total_cmp);
+    times.dedup();
+    times
 }
 
 /// The reference's AO parameters (closest hit, the server's radius and
@@ -400,7 +446,9 @@ pub fn measure_scene(
     for t in frame_times(path.duration(), s.frames) {
         let camera: Camera = path.at(t);
         let view = View::new(camera, s.width, s.height).map_err(err)?;
+        let t0 = Instant::now();
         let posed = PosedScene::new(&scene, t).map_err(err)?;
+        let bvh_ms = t0.elapsed().as_secs_f64() * 1e3;
         let gbuffer = posed.gbuffer(&view);
         covered += gbuffer.covered();
         let reference = ray_traced_ao(
@@ -417,6 +465,7 @@ pub fn measure_scene(
             reference,
             composite,
             posed,
+            bvh_ms,
         });
     }
     let reference_s = started.elapsed().as_secs_f64();
@@ -455,7 +504,9 @@ pub fn measure_scene(
                 showcase.images.push((method.label(), img));
             }
         }
-        rows.push(errors.row(method, ms / frames.len() as f64));
+        let mut row = errors.row(method, ms / frames.len() as f64);
+        row.extra_ms = Some(frames.iter().map(|f| f.bvh_ms).sum::<f64>() / frames.len() as f64);
+        rows.push(row);
         bar.inc(1);
     }
     bar.set_message(format!("{name}: SAO"));
@@ -535,9 +586,18 @@ fn measure_psao(
     let (mut errors, mut ms, mut unknown) = (Errors::default(), 0.0, 0usize);
     let mut first = Vec::new();
     for (k, f) in frames.iter().enumerate() {
-        // The newest tick at or before the client's frame.
-        let tick = ((f.time as f64 + 1e-6) / period).floor() * period;
+        // The newest frame the client holds: a tick's frame is ready one
+        // server period after its scene time (the server computes it
+        // during that period), plus the network's delay.
+        let ready = f.time as f64 - period - s.network_ms as f64 / 1e3;
+        let tick = ((ready + 1e-6) / period).floor().max(0.0) * period;
         let dt = tick - pipeline.time() as f64;
+        if dt < -1e-6 {
+            return Err(format!(
+                "frame times must not go back (tick {tick:.4} s after {:.4} s)",
+                pipeline.time()
+            ));
+        }
         if dt > 1e-6 {
             let (frame, _) = pipeline.step(dt as f32).map_err(|e| e.to_string())?;
             if let Some(frame) = frame {
@@ -547,7 +607,7 @@ fn measure_psao(
             }
         }
         let t = Instant::now();
-        let img = psao_image(client.mirror(), &f.gbuffer);
+        let img = psao_image(client.mirror(), &f.gbuffer).map_err(|e| e.to_string())?;
         ms += t.elapsed().as_secs_f64() * 1e3;
         unknown += img.unknown;
         errors.add(f, &img.ao)?;
@@ -557,20 +617,29 @@ fn measure_psao(
     }
     // Server time and bit rate: consecutive ticks at the server rate.
     let ticks = ((s.window as f64 * rate as f64).round() as u32).max(1);
-    let (mut bytes, mut server_s) = (0usize, 0.0f64);
+    let (mut bytes, mut server_s, mut decode_s) = (0usize, 0.0f64, 0.0f64);
     for _ in 0..ticks {
         let t = Instant::now();
         let (frame, _) = pipeline.step(period as f32).map_err(|e| e.to_string())?;
         server_s += t.elapsed().as_secs_f64();
         if let Some(frame) = frame {
             bytes += frame.bytes.len();
+            let t = Instant::now();
             client
                 .receive(&frame.bytes)
                 .map_err(|e| format!("frame: {e}"))?;
+            decode_s += t.elapsed().as_secs_f64();
         }
     }
     let seconds = ticks as f64 * period;
-    let mut row = errors.row(Method::Psao { density, rate }, ms / frames.len() as f64);
+    // Client time per 60 Hz frame: the reconstruction, plus decoding the
+    // frames that arrive per client frame (rate / 60 of them).
+    let decode_ms = decode_s * 1e3 / ticks as f64 * rate as f64 / CLIENT_HZ;
+    let mut row = errors.row(
+        Method::Psao { density, rate },
+        ms / frames.len() as f64 + decode_ms,
+    );
+    row.extra_ms = Some(decode_ms);
     row.server_ms = Some(server_s * 1e3 / ticks as f64);
     row.mbit_s = Some(bytes as f64 * 8.0 / seconds / 1e6);
     row.points = Some(points);

@@ -53,6 +53,10 @@ pub struct BenchArgs {
     /// Server rates in Hz.
     #[arg(long, value_delimiter = ',')]
     rates: Option<Vec<u16>>,
+    /// Network delay in ms: a server tick's frame reaches the client one
+    /// server period plus this after its scene time.
+    #[arg(long)]
+    network_ms: Option<f32>,
     /// Output folder.
     #[arg(long, default_value = "bench-out")]
     out: PathBuf,
@@ -85,6 +89,9 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     }
     if let Some(r) = args.rates {
         settings.rates = r;
+    }
+    if let Some(n) = args.network_ms {
+        settings.network_ms = n;
     }
     settings.validate()?;
     let mut scenes: Vec<(String, Scene)> = Vec::new();

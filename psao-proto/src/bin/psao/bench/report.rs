@@ -18,6 +18,14 @@ pub fn write(out: &Path, s: &Settings, results: &[SceneResult]) -> std::io::Resu
     Ok(vec![csv.display().to_string(), md.display().to_string()])
 }
 
+/// Whether the server's tick fits its period on this machine (PSAO).
+fn keeps_rate(row: &Row) -> Option<bool> {
+    match (row.method, row.server_ms) {
+        (Method::Psao { rate, .. }, Some(ms)) => Some(ms <= 1000.0 / rate as f64),
+        _ => None,
+    }
+}
+
 fn opt(v: Option<f64>, digits: usize) -> String {
     v.map_or(String::new(), |v| format!("{v:.digits$}"))
 }
@@ -25,7 +33,7 @@ fn opt(v: Option<f64>, digits: usize) -> String {
 /// The CSV: one line per scene and configuration.
 pub fn csv_text(results: &[SceneResult]) -> String {
     let mut t = String::from(
-        "scene,method,label,density,rate_hz,rays_per_pixel,points,server_ms,client_ms,mbit_s,rmse,psnr_db,ssim,flip,setup_s,keyframe_bytes,unknown_px\n",
+        "scene,method,label,density,rate_hz,rays_per_pixel,points,server_ms,keeps_rate,client_ms,extra_ms,mbit_s,rmse,psnr_db,ssim,flip,setup_s,keyframe_bytes,unknown_px\n",
     );
     for r in results {
         for row in &r.rows {
@@ -38,12 +46,14 @@ pub fn csv_text(results: &[SceneResult]) -> String {
             };
             let _ = writeln!(
                 t,
-                "{},{kind},{},{density},{rate},{rays},{},{},{:.4},{},{:.6},{:.3},{:.5},{:.5},{},{},{}",
+                "{},{kind},{},{density},{rate},{rays},{},{},{},{:.4},{},{},{:.6},{:.3},{:.5},{:.5},{},{},{}",
                 r.name,
                 row.method.label(),
                 row.points.map_or(String::new(), |p| p.to_string()),
                 opt(row.server_ms, 4),
+                keeps_rate(row).map_or(String::new(), |k| k.to_string()),
                 row.client_ms,
+                opt(row.extra_ms, 4),
                 opt(row.mbit_s, 4),
                 row.rmse,
                 row.psnr,
@@ -80,16 +90,24 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
             r.coverage * 100.0,
             r.reference_s
         );
-        t.push_str("| configuration | points | server ms/tick | client ms/frame | Mbit/s | RMSE | PSNR dB | SSIM | FLIP |\n");
-        t.push_str("|---|---|---|---|---|---|---|---|---|\n");
+        t.push_str("| configuration | points | server ms/tick | client ms/frame | of which decode (PSAO) / BVH build not included (RTAO) | Mbit/s | RMSE | PSNR dB | SSIM | FLIP |\n");
+        t.push_str("|---|---|---|---|---|---|---|---|---|---|\n");
         for row in &r.rows {
             let _ = writeln!(
                 t,
-                "| {} | {} | {} | {:.2} | {} | {:.4} | {:.2} | {:.4} | {:.4} |",
+                "| {} | {} | {} | {:.2} | {} | {} | {:.4} | {:.2} | {:.4} | {:.4} |",
                 row.method.label(),
                 row.points.map_or("-".into(), |p| p.to_string()),
-                row.server_ms.map_or("-".into(), |v| format!("{v:.1}")),
+                row.server_ms.map_or("-".into(), |v| {
+                    let slow = if keeps_rate(row) == Some(false) {
+                        " (slower than the rate)"
+                    } else {
+                        ""
+                    };
+                    format!("{v:.1}{slow}")
+                }),
                 row.client_ms,
+                row.extra_ms.map_or("-".into(), |v| format!("{v:.2}")),
                 row.mbit_s.map_or("-".into(), |v| format!("{v:.2}")),
                 row.rmse,
                 row.psnr,
@@ -171,11 +189,12 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
             });
         if let Some(k) = nearest {
             out.push(format!(
-                "At about equal client time, PSAO-{focus} ({:.2} ms) {} {} ({:.2} ms) by {:.2} dB PSNR ({:.2} against {:.2} dB).",
+                "Nearest in client time, PSAO-{focus} ({:.2} ms) {} {} ({:.2} ms, {:.2}x PSAO's time) by {:.2} dB PSNR ({:.2} against {:.2} dB).",
                 p.client_ms,
                 if p.psnr >= k.psnr { "beats" } else { "loses to" },
                 k.method.label(),
                 k.client_ms,
+                k.client_ms / p.client_ms.max(1e-9),
                 (p.psnr - k.psnr).abs(),
                 p.psnr,
                 k.psnr
@@ -184,7 +203,11 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
         let better: Vec<String> = r
             .rows
             .iter()
-            .filter(|row| matches!(row.method, Method::Rtao { .. }) && row.psnr > p.psnr)
+            .filter(|row| {
+                matches!(row.method, Method::Rtao { .. })
+                    && row.psnr > p.psnr
+                    && row.client_ms > p.client_ms
+            })
             .map(|row| {
                 format!(
                     "{} ({:.2} dB at {:.2} ms)",
@@ -194,6 +217,29 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
                 )
             })
             .collect();
+        let cheaper: Vec<String> = r
+            .rows
+            .iter()
+            .filter(|row| {
+                matches!(row.method, Method::Rtao { .. })
+                    && row.psnr > p.psnr
+                    && row.client_ms <= p.client_ms
+            })
+            .map(|row| {
+                format!(
+                    "{} ({:.2} dB at {:.2} ms)",
+                    row.method.label(),
+                    row.psnr,
+                    row.client_ms
+                )
+            })
+            .collect();
+        if !cheaper.is_empty() {
+            out.push(format!(
+                "Per-pixel RTAO beats PSAO-{focus} in less client time: {}.",
+                cheaper.join(", ")
+            ));
+        }
         if !better.is_empty() {
             out.push(format!(
                 "Per-pixel RTAO with more client time beats PSAO-{focus}: {}.",
