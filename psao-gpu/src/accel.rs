@@ -1,0 +1,278 @@
+//! Acceleration structures of a scene: one BLAS per mesh in its local
+//! space (built once), one per skinned instance (rebuilt from its skinned
+//! vertices when the pose changes), and a TLAS of the instances placed by
+//! their transforms, rebuilt for every pose.
+
+use psao_scene::Scene;
+use wgpu::util::DeviceExt;
+
+use crate::context::GpuContext;
+use crate::error::GpuError;
+
+/// One BLAS with its input buffers.
+#[derive(Debug)]
+struct MeshBlas {
+    blas: wgpu::Blas,
+    vertices: wgpu::Buffer,
+    indices: wgpu::Buffer,
+    size: wgpu::BlasTriangleGeometrySizeDescriptor,
+}
+
+impl MeshBlas {
+    /// A BLAS over `positions` and `indices` (uploaded now, built by the
+    /// next [`GpuScene::build`]).
+    fn new(ctx: &GpuContext, positions: &[glam::Vec3], indices: &[u32], dynamic: bool) -> MeshBlas {
+        let flat: Vec<[f32; 3]> = positions.iter().map(|p| p.to_array()).collect();
+        let usage = wgpu::BufferUsages::BLAS_INPUT | wgpu::BufferUsages::COPY_DST;
+        let vertices = ctx
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("psao-gpu vertices"),
+                contents: bytemuck::cast_slice(&flat),
+                usage,
+            });
+        let indices_buf = ctx
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("psao-gpu indices"),
+                contents: bytemuck::cast_slice(indices),
+                usage: wgpu::BufferUsages::BLAS_INPUT,
+            });
+        let size = wgpu::BlasTriangleGeometrySizeDescriptor {
+            vertex_format: wgpu::VertexFormat::Float32x3,
+            vertex_count: positions.len() as u32,
+            index_format: Some(wgpu::IndexFormat::Uint32),
+            index_count: Some(indices.len() as u32),
+            flags: wgpu::AccelerationStructureGeometryFlags::OPAQUE,
+        };
+        let blas = ctx.device.create_blas(
+            &wgpu::CreateBlasDescriptor {
+                label: Some("psao-gpu blas"),
+                flags: wgpu::AccelerationStructureFlags::PREFER_FAST_TRACE,
+                update_mode: if dynamic {
+                    wgpu::AccelerationStructureUpdateMode::PreferUpdate
+                } else {
+                    wgpu::AccelerationStructureUpdateMode::Build
+                },
+            },
+            wgpu::BlasGeometrySizeDescriptors::Triangles {
+                descriptors: vec![size.clone()],
+            },
+        );
+        MeshBlas {
+            blas,
+            vertices,
+            indices: indices_buf,
+            size,
+        }
+    }
+
+    fn entry(&self) -> wgpu::BlasBuildEntry<'_> {
+        wgpu::BlasBuildEntry {
+            blas: &self.blas,
+            geometry: wgpu::BlasGeometries::TriangleGeometries(vec![wgpu::BlasTriangleGeometry {
+                size: &self.size,
+                vertex_buffer: &self.vertices,
+                first_vertex: 0,
+                vertex_stride: 12,
+                index_buffer: Some(&self.indices),
+                first_index: Some(0),
+                transform_buffer: None,
+                transform_buffer_offset: None,
+            }]),
+        }
+    }
+}
+
+/// A scene's acceleration structures on the GPU, posed at one time.
+#[derive(Debug)]
+pub struct GpuScene {
+    /// Per mesh (not skinned), its BLAS; `None` for a mesh without
+    /// triangles or used only skinned.
+    meshes: Vec<Option<MeshBlas>>,
+    /// Per instance with a skin, its own BLAS.
+    skinned: Vec<Option<MeshBlas>>,
+    /// The instances placed, or `None` when there is no triangle at all.
+    tlas: Option<wgpu::Tlas>,
+    triangles: usize,
+    time: f32,
+}
+
+impl GpuScene {
+    /// Uploads `scene` and builds its acceleration structures posed at
+    /// time 0. Alpha-masked meshes are refused for now
+    /// ([`GpuError::Unsupported`]); so is a scene beyond the device's
+    /// limits ([`GpuError::Limits`]).
+    pub fn new(ctx: &GpuContext, scene: &Scene) -> Result<GpuScene, GpuError> {
+        scene.validate()?;
+        if let Some(m) = scene.meshes.iter().position(|m| m.alpha.is_some()) {
+            return Err(GpuError::Unsupported(format!(
+                "mesh {m} is alpha-masked (rays would not pass through its holes)"
+            )));
+        }
+        let limits = ctx.device.limits();
+        for m in &scene.meshes {
+            let tris = m.triangle_count() as u64;
+            if tris > limits.max_blas_primitive_count as u64 {
+                return Err(GpuError::Limits {
+                    what: "triangles in one mesh",
+                    needed: tris,
+                    limit: limits.max_blas_primitive_count as u64,
+                });
+            }
+        }
+        if scene.instances.len() as u64 > limits.max_tlas_instance_count as u64 {
+            return Err(GpuError::Limits {
+                what: "instances",
+                needed: scene.instances.len() as u64,
+                limit: limits.max_tlas_instance_count as u64,
+            });
+        }
+        let skinned_instance = |i: usize| {
+            let inst = &scene.instances[i];
+            inst.skin.is_some() && scene.meshes[inst.mesh].skin.is_some()
+        };
+        let pose = scene.pose(0.0);
+        let (meshes, skinned) = ctx.checked("BLAS creation", || {
+            let meshes: Vec<Option<MeshBlas>> = scene
+                .meshes
+                .iter()
+                .enumerate()
+                .map(|(k, m)| {
+                    let used_rigid = scene
+                        .instances
+                        .iter()
+                        .enumerate()
+                        .any(|(i, inst)| inst.mesh == k && !skinned_instance(i));
+                    (used_rigid && m.triangle_count() > 0)
+                        .then(|| MeshBlas::new(ctx, &m.positions, &m.indices, false))
+                })
+                .collect();
+            let skinned: Vec<Option<MeshBlas>> = (0..scene.instances.len())
+                .map(|i| {
+                    let m = &scene.meshes[scene.instances[i].mesh];
+                    (skinned_instance(i) && m.triangle_count() > 0).then(|| {
+                        let (p, _) = scene.skinned(i, &pose);
+                        MeshBlas::new(ctx, &p, &m.indices, true)
+                    })
+                })
+                .collect();
+            (meshes, skinned)
+        })?;
+        let placed = (0..scene.instances.len())
+            .filter(|&i| {
+                skinned[i].is_some()
+                    || meshes[scene.instances[i].mesh].is_some() && !skinned_instance(i)
+            })
+            .count();
+        let tlas = (placed > 0).then(|| {
+            ctx.device.create_tlas(&wgpu::CreateTlasDescriptor {
+                label: Some("psao-gpu tlas"),
+                max_instances: placed as u32,
+                flags: wgpu::AccelerationStructureFlags::PREFER_FAST_TRACE,
+                update_mode: wgpu::AccelerationStructureUpdateMode::Build,
+            })
+        });
+        let mut s = GpuScene {
+            meshes,
+            skinned,
+            tlas,
+            triangles: scene.meshes.iter().map(|m| m.triangle_count()).sum(),
+            time: 0.0,
+        };
+        s.build(ctx, scene, &pose, true)?;
+        Ok(s)
+    }
+
+    /// Poses the scene at time `t`: re-skins and rebuilds (or updates) the
+    /// BLAS of every skinned instance and rebuilds the TLAS from the
+    /// instances' transforms.
+    pub fn pose(&mut self, ctx: &GpuContext, scene: &Scene, t: f32) -> Result<(), GpuError> {
+        if !t.is_finite() {
+            return Err(GpuError::Input(format!("time {t} is not finite")));
+        }
+        if scene.instances.len() != self.skinned.len() || scene.meshes.len() != self.meshes.len() {
+            return Err(GpuError::Input(
+                "the scene is not the one these acceleration structures were made for".into(),
+            ));
+        }
+        let pose = scene.pose(t);
+        for (i, slot) in self.skinned.iter().enumerate() {
+            if let Some(b) = slot {
+                let (p, _) = scene.skinned(i, &pose);
+                let flat: Vec<[f32; 3]> = p.iter().map(|v| v.to_array()).collect();
+                ctx.queue
+                    .write_buffer(&b.vertices, 0, bytemuck::cast_slice(&flat));
+            }
+        }
+        self.time = t;
+        self.build(ctx, scene, &pose, false)
+    }
+
+    /// Fills the TLAS from `pose` and builds it, with the mesh BLASes on
+    /// the first build and the skinned ones every time.
+    fn build(
+        &mut self,
+        ctx: &GpuContext,
+        scene: &Scene,
+        pose: &psao_scene::Pose,
+        first: bool,
+    ) -> Result<(), GpuError> {
+        let Some(tlas) = &mut self.tlas else {
+            return Ok(());
+        };
+        let mut k = 0;
+        for (i, inst) in scene.instances.iter().enumerate() {
+            let blas = match (&self.skinned[i], &self.meshes[inst.mesh]) {
+                (Some(b), _) => b,
+                (None, Some(b))
+                    if scene.meshes[inst.mesh].skin.is_none() || inst.skin.is_none() =>
+                {
+                    b
+                }
+                _ => continue,
+            };
+            let m = pose.instances[i];
+            let c = m.matrix3;
+            let t = m.translation;
+            // Row-major 3x4.
+            let rows = [
+                c.x_axis.x, c.y_axis.x, c.z_axis.x, t.x, c.x_axis.y, c.y_axis.y, c.z_axis.y, t.y,
+                c.x_axis.z, c.y_axis.z, c.z_axis.z, t.z,
+            ];
+            tlas[k] = Some(wgpu::TlasInstance::new(&blas.blas, rows, i as u32, 0xFF));
+            k += 1;
+        }
+        let mut entries: Vec<wgpu::BlasBuildEntry<'_>> = Vec::new();
+        if first {
+            entries.extend(self.meshes.iter().flatten().map(MeshBlas::entry));
+        }
+        entries.extend(self.skinned.iter().flatten().map(MeshBlas::entry));
+        let tlas = &*tlas;
+        ctx.checked("acceleration structure build", || {
+            let mut enc = ctx
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("psao-gpu build"),
+                });
+            enc.build_acceleration_structures(entries.iter(), std::iter::once(tlas));
+            ctx.queue.submit(Some(enc.finish()));
+        })?;
+        ctx.wait()
+    }
+
+    /// The TLAS, if the scene has any triangle.
+    pub(crate) fn tlas(&self) -> Option<&wgpu::Tlas> {
+        self.tlas.as_ref()
+    }
+
+    /// Triangles in the scene's meshes.
+    pub fn triangles(&self) -> usize {
+        self.triangles
+    }
+
+    /// The time the scene is posed at.
+    pub fn time(&self) -> f32 {
+        self.time
+    }
+}

@@ -1,0 +1,27 @@
+//! # psao-gpu
+//!
+//! PSAO on the GPU with wgpu ray queries (Vulkan): acceleration structures
+//! built from a [`psao_scene::Scene`] ([`GpuScene`]: one BLAS per mesh, one
+//! per skinned instance rebuilt as it deforms, a TLAS of the instances
+//! placed by their transforms) and point AO ([`GpuAo`]) that samples,
+//! estimates and offsets rays exactly as the CPU backend
+//! ([`psao_scene::AoTracer`]) does, both estimators.
+//!
+//! Without a Vulkan driver with ray queries, [`GpuContext::new`] returns a
+//! [`GpuError`] that says what to install (on a machine without a GPU:
+//! Mesa's lavapipe); nothing panics, and the other crates do not need this
+//! one.
+//!
+//! Not here yet (issue 5): alpha-masked meshes, the GPU dirty-set
+//! compaction, WGSL reconstruction for clients, `--backend gpu` in the
+//! pipeline and `psao bench`.
+
+mod accel;
+mod ao;
+mod context;
+mod error;
+
+pub use accel::GpuScene;
+pub use ao::GpuAo;
+pub use context::GpuContext;
+pub use error::GpuError;

@@ -1,0 +1,131 @@
+// AO of points with ray queries: the same sampling, estimators, radius and
+// ray offset as psao-scene's CPU tracer (psao-scene/src/ao.rs and
+// random.rs), so that with the same seed both trace the same rays.
+enable wgpu_ray_query;
+
+struct Params {
+    // AO radius R.
+    radius: f32,
+    // Configured ray offset along the normal (before the part that grows
+    // with the coordinates).
+    bias: f32,
+    // Rays per point.
+    rays: u32,
+    // 0: closest hit, scored min(t, R) / R; 1: Laine-Karras.
+    estimator: u32,
+    // The 64-bit seed, low and high words.
+    seed_lo: u32,
+    seed_hi: u32,
+    // Points in this dispatch.
+    count: u32,
+    // Points per row of workgroups (the dispatch is 2D past 65535 groups).
+    row: u32,
+}
+
+@group(0) @binding(0) var acc: acceleration_structure;
+@group(0) @binding(1) var<uniform> params: Params;
+// xyz: world position; w unused.
+@group(0) @binding(2) var<storage, read> points: array<vec4<f32>>;
+// xyz: normal; w unused.
+@group(0) @binding(3) var<storage, read> normals: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> ids: array<u32>;
+@group(0) @binding(5) var<storage, read_write> ao: array<f32>;
+
+const GOLDEN: u32 = 0x9E3779B9u;
+const TAU: f32 = 6.28318530717958647692;
+
+// psao_scene::hash (a PCG-style integer hash).
+fn hash(x0: u32) -> u32 {
+    let x = x0 * 747796405u + 2891336453u;
+    let w = ((x >> ((x >> 28u) + 4u)) ^ x) * 277803737u;
+    return (w >> 22u) ^ w;
+}
+
+// psao_scene::uniform: a number in [0, 1) for (seed, stream, index).
+fn uniform01(stream: u32, index: u32) -> f32 {
+    let s = hash(params.seed_lo ^ hash(params.seed_hi));
+    let h = hash(s ^ hash(stream ^ hash(index)));
+    return f32(h >> 8u) / 16777216.0;
+}
+
+// psao_scene::ray_offset.
+fn ray_offset(p: vec3<f32>) -> f32 {
+    let m = max(max(abs(p.x), abs(p.y)), abs(p.z));
+    return params.bias + m * (1.0 / 2097152.0);
+}
+
+// Hit distance along (origin, dir) up to tmax, or tmax on a miss.
+fn closest(origin: vec3<f32>, dir: vec3<f32>, tmax: f32) -> f32 {
+    var rq: ray_query;
+    rayQueryInitialize(&rq, acc, RayDesc(RAY_FLAG_FORCE_OPAQUE, 0xFFu, 0.0, tmax, origin, dir));
+    while (rayQueryProceed(&rq)) {}
+    let hit = rayQueryGetCommittedIntersection(&rq);
+    if (hit.kind == RAY_QUERY_INTERSECTION_NONE) {
+        return tmax;
+    }
+    return min(hit.t, tmax);
+}
+
+// Whether nothing lies along (origin, dir) up to tmax.
+fn misses(origin: vec3<f32>, dir: vec3<f32>, tmax: f32) -> bool {
+    var rq: ray_query;
+    rayQueryInitialize(&rq, acc, RayDesc(RAY_FLAG_FORCE_OPAQUE | RAY_FLAG_TERMINATE_ON_FIRST_HIT, 0xFFu, 0.0, tmax, origin, dir));
+    while (rayQueryProceed(&rq)) {}
+    let hit = rayQueryGetCommittedIntersection(&rq);
+    return hit.kind == RAY_QUERY_INTERSECTION_NONE;
+}
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x + gid.y * params.row;
+    if (i >= params.count) {
+        return;
+    }
+    let point = points[i].xyz;
+    let id = ids[i];
+    let finite = all(abs(point) <= vec3<f32>(3.4e38));
+    if (params.rays == 0u || !finite) {
+        ao[i] = 1.0;
+        return;
+    }
+    // Normalized, or +Z (glam's try_normalize fallback on the CPU).
+    var n = normals[i].xyz;
+    let len = length(n);
+    if (len > 0.0 && len <= 3.4e38) {
+        n = n / len;
+    } else {
+        n = vec3<f32>(0.0, 0.0, 1.0);
+    }
+    // glam's Vec3::any_orthonormal_pair (Duff et al. 2017), with Rust's
+    // signum (the sign bit decides, also for zero).
+    let sign = select(1.0, -1.0, (bitcast<u32>(n.z) & 0x80000000u) != 0u);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    let t1 = vec3<f32>(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+    let t2 = vec3<f32>(b, sign + n.y * n.y * a, -n.y);
+    let origin = point + n * ray_offset(point);
+    if (!all(abs(origin) <= vec3<f32>(3.4e38))) {
+        ao[i] = 1.0;
+        return;
+    }
+    let shift = hash(params.seed_lo ^ hash(id ^ hash(params.seed_hi)));
+    var sum = 0.0;
+    for (var k = 0u; k < params.rays; k = k + 1u) {
+        let r1 = (f32(k) + uniform01(id, 3u * k)) / f32(params.rays);
+        let r2 = uniform01(id, 3u * k + 1u);
+        let phi = TAU * r2;
+        let s = sin(phi);
+        let c = cos(phi);
+        let rr = sqrt(r1);
+        let dir = t1 * (rr * c) + t2 * (rr * s) + n * sqrt(max(1.0 - r1, 0.0));
+        if (params.estimator == 0u) {
+            sum = sum + closest(origin, dir, params.radius) / params.radius;
+        } else {
+            let u = f32((k * GOLDEN + shift) >> 8u) / 16777216.0;
+            if (misses(origin, dir, u * params.radius)) {
+                sum = sum + 1.0;
+            }
+        }
+    }
+    ao[i] = sum / f32(params.rays);
+}

@@ -1,0 +1,226 @@
+//! The GPU backend against the CPU backend on the same points with the same
+//! sample sequence. These tests need a Vulkan adapter with ray queries
+//! (lavapipe on a machine without a GPU). Without one they say so and
+//! pass, unless `PSAO_REQUIRE_GPU` is set (CI sets it: there they must
+//! run).
+
+use glam::Vec3;
+use psao_gpu::*;
+use psao_scene::*;
+
+fn context() -> Option<GpuContext> {
+    match GpuContext::new() {
+        Ok(c) => Some(c),
+        Err(e) if std::env::var_os("PSAO_REQUIRE_GPU").is_none() => {
+            eprintln!("skipped (set PSAO_REQUIRE_GPU to fail instead): {e}");
+            None
+        }
+        Err(e) => panic!("PSAO_REQUIRE_GPU is set: {e}"),
+    }
+}
+
+/// The default scene with its trellis made solid (alpha masks are not on
+/// the GPU yet).
+fn solid_default_scene() -> Scene {
+    let mut s = default_scene();
+    for m in &mut s.meshes {
+        m.alpha = None;
+    }
+    s
+}
+
+/// World-space points and normals of a pipeline's instances at its time,
+/// with stable ids.
+fn points_of(p: &Pipeline) -> (Vec<u32>, Vec<Vec3>, Vec<Vec3>) {
+    let (mut ids, mut pts, mut nrm) = (Vec::new(), Vec::new(), Vec::new());
+    for i in 0..p.instance_count() {
+        let (pos, n) = p.current_points(i).unwrap();
+        let t = p.transform(i).unwrap();
+        let nm = t.matrix3.inverse().transpose();
+        for k in 0..pos.len() {
+            ids.push(ids.len() as u32);
+            pts.push(t.transform_point3(pos[k]));
+            nrm.push((nm * n[k]).normalize());
+        }
+    }
+    (ids, pts, nrm)
+}
+
+/// Share of values that agree within 1/255, and the largest difference.
+fn agreement(a: &[f32], b: &[f32]) -> (f64, f32) {
+    assert_eq!(a.len(), b.len());
+    let close = a
+        .iter()
+        .zip(b)
+        .filter(|(x, y)| (*x - *y).abs() <= 1.0 / 255.0)
+        .count();
+    let worst = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max);
+    (close as f64 / a.len().max(1) as f64, worst)
+}
+
+#[test]
+fn gpu_ao_matches_the_cpu_backend_with_both_estimators() {
+    let Some(ctx) = context() else { return };
+    let scene = solid_default_scene();
+    let p = Pipeline::new(
+        scene.clone(),
+        PipelineConfig {
+            density: 16.0,
+            ..PipelineConfig::default()
+        },
+    )
+    .unwrap();
+    let (ids, pts, nrm) = points_of(&p);
+    assert!(pts.len() > 2000, "{} points", pts.len());
+    let cpu_tracer = PosedScene::new(&scene, 0.0).unwrap().tracer();
+    let gpu_scene = GpuScene::new(&ctx, &scene).unwrap();
+    let ao = GpuAo::new(&ctx).unwrap();
+    for estimator in [Estimator::ClosestHit, Estimator::LaineKarras] {
+        let params = AoParams {
+            rays: 32,
+            estimator,
+            ..AoParams::default()
+        };
+        let cpu = cpu_tracer.trace_ids(&ids, &pts, &nrm, &params).unwrap();
+        let gpu = ao
+            .trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params)
+            .unwrap();
+        assert_eq!(cpu.rays, gpu.rays);
+        let (share, worst) = agreement(&cpu.ao, &gpu.ao);
+        eprintln!(
+            "{estimator:?}: {} points, {:.4}% within 1/255, worst {worst}",
+            pts.len(),
+            share * 100.0
+        );
+        assert!(
+            share >= 0.999,
+            "{estimator:?}: only {:.3}% of points within 1/255 (worst {worst})",
+            share * 100.0
+        );
+    }
+}
+
+#[test]
+fn a_deforming_mesh_updates_its_blas() {
+    let Some(ctx) = context() else { return };
+    let scene = cesium_man_scene();
+    let mut p = Pipeline::new(
+        scene.clone(),
+        PipelineConfig {
+            density: 64.0,
+            ..PipelineConfig::default()
+        },
+    )
+    .unwrap();
+    let mut gpu_scene = GpuScene::new(&ctx, &scene).unwrap();
+    let ao = GpuAo::new(&ctx).unwrap();
+    let params = AoParams {
+        rays: 32,
+        ..AoParams::default()
+    };
+    let (ids, pts0, nrm0) = points_of(&p);
+    let at0 = ao
+        .trace_ids(&ctx, &gpu_scene, &ids, &pts0, &nrm0, &params)
+        .unwrap();
+    // Half a second on, the figure has moved its limbs.
+    let t = 0.5;
+    p.step(t).unwrap();
+    gpu_scene.pose(&ctx, &scene, t).unwrap();
+    let (ids, pts, nrm) = points_of(&p);
+    let cpu = PosedScene::new(&scene, t)
+        .unwrap()
+        .tracer()
+        .trace_ids(&ids, &pts, &nrm, &params)
+        .unwrap();
+    let gpu = ao
+        .trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params)
+        .unwrap();
+    let (share, worst) = agreement(&cpu.ao, &gpu.ao);
+    assert!(
+        share >= 0.999,
+        "after the pose: {:.3}% within 1/255 (worst {worst})",
+        share * 100.0
+    );
+    // The stale structures would not have given this: the old points
+    // against the new pose differ from the old AO.
+    let moved = pts0
+        .iter()
+        .zip(&pts)
+        .filter(|(a, b)| (**a - **b).length() > 1e-3)
+        .count();
+    assert!(moved > 20, "{moved} points moved");
+    let (same, _) = agreement(&at0.ao, &gpu.ao);
+    assert!(
+        same < 0.999,
+        "AO changed with the pose ({:.3}% equal)",
+        same * 100.0
+    );
+}
+
+#[test]
+fn unsupported_scenes_and_bad_inputs_are_errors() {
+    let Some(ctx) = context() else { return };
+    // The trellis is alpha-masked.
+    let e = GpuScene::new(&ctx, &default_scene()).unwrap_err();
+    assert!(matches!(e, GpuError::Unsupported(_)), "{e}");
+    assert!(e.to_string().contains("alpha"), "{e}");
+    let scene = solid_default_scene();
+    let gs = GpuScene::new(&ctx, &scene).unwrap();
+    let ao = GpuAo::new(&ctx).unwrap();
+    let e = ao
+        .trace_ids(&ctx, &gs, &[0], &[Vec3::ZERO], &[], &AoParams::default())
+        .unwrap_err();
+    assert!(matches!(e, GpuError::Input(_)), "{e}");
+    let e = ao
+        .trace_ids(
+            &ctx,
+            &gs,
+            &[0],
+            &[Vec3::ZERO],
+            &[Vec3::Y],
+            &AoParams {
+                radius: -1.0,
+                ..AoParams::default()
+            },
+        )
+        .unwrap_err();
+    assert!(matches!(e, GpuError::Scene(_)), "{e}");
+    // Non-finite points are open, as on the CPU; no points, no work.
+    let r = ao
+        .trace_ids(
+            &ctx,
+            &gs,
+            &[0, 1],
+            &[Vec3::NAN, Vec3::new(0.0, f32::INFINITY, 0.0)],
+            &[Vec3::Y, Vec3::Y],
+            &AoParams::default(),
+        )
+        .unwrap();
+    assert_eq!(r.ao, vec![1.0, 1.0]);
+    let r = ao
+        .trace_ids(&ctx, &gs, &[], &[], &[], &AoParams::default())
+        .unwrap();
+    assert!(r.ao.is_empty());
+}
+
+#[test]
+fn the_missing_driver_error_says_what_to_install() {
+    let e = GpuError::NoAdapter {
+        details: "none".into(),
+    };
+    let s = e.to_string();
+    assert!(s.contains("no Vulkan adapter with ray queries"), "{s}");
+    assert!(
+        s.contains("lavapipe") && s.contains("mesa-vulkan-drivers"),
+        "{s}"
+    );
+    let e = GpuError::NoRayQuery {
+        adapter: "x".into(),
+        driver: "y".into(),
+    };
+    assert!(e.to_string().contains("no Vulkan adapter with ray queries"));
+}
