@@ -2,7 +2,7 @@
 //! samples, estimates and offsets rays exactly as psao-scene's CPU tracer
 //! does, so that the same seed gives the same rays on both.
 
-use psao_scene::{AoParams, AoResult, Estimator};
+use psao_scene::{AoParams, AoResult, Estimator, morton_order};
 use wgpu::util::DeviceExt;
 
 use crate::accel::GpuScene;
@@ -158,8 +158,18 @@ impl GpuAo {
             count: n as u32,
             row: per_row * WORKGROUP,
         };
-        let pts: Vec<[f32; 4]> = points.iter().map(|v| [v.x, v.y, v.z, 0.0]).collect();
-        let nrm: Vec<[f32; 4]> = normals.iter().map(|v| [v.x, v.y, v.z, 0.0]).collect();
+        // Neighbouring invocations trace neighbouring points (coherent rays),
+        // as the CPU backend does; results go back to input order below.
+        let order = morton_order(points);
+        let pts: Vec<[f32; 4]> = order
+            .iter()
+            .map(|&i| points[i].extend(0.0).to_array())
+            .collect();
+        let nrm: Vec<[f32; 4]> = order
+            .iter()
+            .map(|&i| normals[i].extend(0.0).to_array())
+            .collect();
+        let sorted_ids: Vec<u32> = order.iter().map(|&i| ids[i]).collect();
         let readback = ctx.checked("AO pass", || {
             let d = &ctx.device;
             let init = |label, contents: &[u8], usage| {
@@ -177,7 +187,7 @@ impl GpuAo {
             let s = wgpu::BufferUsages::STORAGE;
             let pb = init("psao-gpu points", bytemuck::cast_slice(&pts), s);
             let nb = init("psao-gpu normals", bytemuck::cast_slice(&nrm), s);
-            let ib = init("psao-gpu ids", bytemuck::cast_slice(ids), s);
+            let ib = init("psao-gpu ids", bytemuck::cast_slice(&sorted_ids), s);
             let size = (n * 4) as u64;
             let out = d.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("psao-gpu ao out"),
@@ -249,13 +259,17 @@ impl GpuAo {
                 what: "AO readback",
                 details: e.to_string(),
             })?;
-        let ao: Vec<f32> = {
+        let mut ao = vec![1.0f32; n];
+        {
             let view = slice.get_mapped_range().map_err(|e| GpuError::Rejected {
                 what: "AO readback",
                 details: e.to_string(),
             })?;
-            bytemuck::cast_slice(&view).to_vec()
-        };
+            let sorted: &[f32] = bytemuck::cast_slice(&view);
+            for (&i, &v) in order.iter().zip(sorted) {
+                ao[i] = v;
+            }
+        }
         readback.unmap();
         Ok(AoResult { ao, rays })
     }

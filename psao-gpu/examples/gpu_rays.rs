@@ -1,0 +1,105 @@
+//! Rays per second of the GPU backend (wgpu ray queries) against the CPU
+//! backend (obvhs) on the same points of the default scene (its trellis
+//! made solid), same rays, same run; both estimators. Prints the device,
+//! the rates, their ratio and how far the results differ.
+//!
+//! `cargo run --release -p psao-gpu --example gpu_rays [-- --density 64 --rays 64 --reps 3]`
+
+use std::time::Instant;
+
+use glam::Vec3;
+use psao_gpu::{GpuAo, GpuContext, GpuScene};
+use psao_scene::*;
+
+fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
+    let args: Vec<String> = std::env::args().collect();
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+fn main() {
+    let density: f32 = arg("--density", 64.0);
+    let rays: u32 = arg("--rays", 64);
+    let reps: u32 = arg("--reps", 3).max(1);
+    let ctx = match GpuContext::new() {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::exit(2);
+        }
+    };
+    let mut scene = default_scene();
+    for m in &mut scene.meshes {
+        m.alpha = None;
+    }
+    let p = Pipeline::new(
+        scene.clone(),
+        PipelineConfig {
+            density,
+            ..PipelineConfig::default()
+        },
+    )
+    .expect("the default scene builds");
+    let (mut ids, mut pts, mut nrm) = (Vec::new(), Vec::<Vec3>::new(), Vec::<Vec3>::new());
+    for i in 0..p.instance_count() {
+        let (pos, n) = p.current_points(i).expect("instance");
+        let t = p.transform(i).expect("instance");
+        let nm = t.matrix3.inverse().transpose();
+        for k in 0..pos.len() {
+            ids.push(ids.len() as u32);
+            pts.push(t.transform_point3(pos[k]));
+            nrm.push((nm * n[k]).normalize());
+        }
+    }
+    let cpu = PosedScene::new(&scene, 0.0).expect("poses").tracer();
+    let gpu_scene = GpuScene::new(&ctx, &scene).expect("GPU scene");
+    let ao = GpuAo::new(&ctx).expect("AO pass");
+    println!(
+        "default scene (trellis solid): {} points x {rays} rays, {} triangles; CPU: {} threads (obvhs); GPU: {}",
+        pts.len(),
+        gpu_scene.triangles(),
+        std::thread::available_parallelism().map_or(1, |n| n.get()),
+        ctx.describe()
+    );
+    for estimator in [Estimator::ClosestHit, Estimator::LaineKarras] {
+        let params = AoParams {
+            rays,
+            estimator,
+            ..AoParams::default()
+        };
+        // Warm up (the first dispatch compiles the shader in the driver).
+        let _ = ao.trace_ids(&ctx, &gpu_scene, &ids[..64.min(ids.len())], &pts[..64.min(pts.len())], &nrm[..64.min(nrm.len())], &params);
+        let (mut t_cpu, mut t_gpu) = (f64::MAX, f64::MAX);
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for _ in 0..reps {
+            let t = Instant::now();
+            a = cpu.trace_ids(&ids, &pts, &nrm, &params).expect("cpu").ao;
+            t_cpu = t_cpu.min(t.elapsed().as_secs_f64());
+            let t = Instant::now();
+            b = ao
+                .trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params)
+                .expect("gpu")
+                .ao;
+            t_gpu = t_gpu.min(t.elapsed().as_secs_f64());
+        }
+        let n_rays = (pts.len() as u64 * rays as u64) as f64;
+        let within = a
+            .iter()
+            .zip(&b)
+            .filter(|(x, y)| (*x - *y).abs() <= 1.0 / 255.0)
+            .count() as f64
+            / a.len().max(1) as f64;
+        println!(
+            "{estimator:?}: CPU {:.2} Mrays/s ({:.3} s), GPU {:.2} Mrays/s ({:.3} s, upload and readback included); GPU/CPU {:.2}x; {:.3}% of points within 1/255",
+            n_rays / t_cpu / 1e6,
+            t_cpu,
+            n_rays / t_gpu / 1e6,
+            t_gpu,
+            t_cpu / t_gpu,
+            within * 100.0
+        );
+    }
+}
