@@ -71,7 +71,14 @@ fn main() {
             ..AoParams::default()
         };
         // Warm up (the first dispatch compiles the shader in the driver).
-        let _ = ao.trace_ids(&ctx, &gpu_scene, &ids[..64.min(ids.len())], &pts[..64.min(pts.len())], &nrm[..64.min(nrm.len())], &params);
+        let _ = ao.trace_ids(
+            &ctx,
+            &gpu_scene,
+            &ids[..64.min(ids.len())],
+            &pts[..64.min(pts.len())],
+            &nrm[..64.min(nrm.len())],
+            &params,
+        );
         let (mut t_cpu, mut t_gpu) = (f64::MAX, f64::MAX);
         let (mut a, mut b) = (Vec::new(), Vec::new());
         for _ in 0..reps {

@@ -247,30 +247,11 @@ impl GpuAo {
             ctx.queue.submit(Some(enc.finish()));
             readback
         })?;
-        let slice = readback.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        ctx.wait()?;
-        rx.recv()
-            .map_err(|e| GpuError::DeviceLost(e.to_string()))?
-            .map_err(|e| GpuError::Rejected {
-                what: "AO readback",
-                details: e.to_string(),
-            })?;
+        let sorted = ctx.read_f32(&readback)?;
         let mut ao = vec![1.0f32; n];
-        {
-            let view = slice.get_mapped_range().map_err(|e| GpuError::Rejected {
-                what: "AO readback",
-                details: e.to_string(),
-            })?;
-            let sorted: &[f32] = bytemuck::cast_slice(&view);
-            for (&i, &v) in order.iter().zip(sorted) {
-                ao[i] = v;
-            }
+        for (&i, &v) in order.iter().zip(&sorted) {
+            ao[i] = v;
         }
-        readback.unmap();
         Ok(AoResult { ao, rays })
     }
 }

@@ -102,6 +102,32 @@ impl GpuContext {
         }
     }
 
+    /// Maps a `MAP_READ` buffer of f32 values once the queue is done and
+    /// copies them out.
+    pub(crate) fn read_f32(&self, buffer: &wgpu::Buffer) -> Result<Vec<f32>, GpuError> {
+        let slice = buffer.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait()?;
+        let rejected = |e: String| GpuError::Rejected {
+            what: "readback",
+            details: e,
+        };
+        rx.recv()
+            .map_err(|e| GpuError::DeviceLost(e.to_string()))?
+            .map_err(|e| rejected(e.to_string()))?;
+        let values = {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| rejected(e.to_string()))?;
+            bytemuck::cast_slice::<u8, f32>(&view).to_vec()
+        };
+        buffer.unmap();
+        Ok(values)
+    }
+
     /// Waits for submitted work.
     pub(crate) fn wait(&self) -> Result<(), GpuError> {
         self.device

@@ -5,7 +5,11 @@
 //! per skinned instance rebuilt as it deforms, a TLAS of the instances
 //! placed by their transforms) and point AO ([`GpuAo`]) that samples,
 //! estimates and offsets rays exactly as the CPU backend
-//! ([`psao_scene::AoTracer`]) does, both estimators.
+//! ([`psao_scene::AoTracer`]) does, both estimators; and, for clients, the
+//! mirror on the GPU ([`GpuMirror`], uploaded whole or by changed ranges)
+//! with the reconstruction in WGSL ([`RECONSTRUCT_WGSL`], to include in a
+//! renderer's shaders, or as a compute pass over a G-buffer:
+//! [`GpuReconstruct`]).
 //!
 //! Without a Vulkan driver with ray queries, [`GpuContext::new`] returns a
 //! [`GpuError`] that says what to install (on a machine without a GPU:
@@ -13,15 +17,18 @@
 //! one.
 //!
 //! Not here yet (issue 5): alpha-masked meshes, the GPU dirty-set
-//! compaction, WGSL reconstruction for clients, `--backend gpu` in the
-//! pipeline and `psao bench`.
+//! compaction, `--backend gpu` in the pipeline and `psao bench`.
 
 mod accel;
 mod ao;
 mod context;
 mod error;
+mod mirror;
+mod reconstruct;
 
 pub use accel::GpuScene;
 pub use ao::GpuAo;
 pub use context::GpuContext;
 pub use error::GpuError;
+pub use mirror::{GpuMirror, MAX_GPU_INSTANCE_ID};
+pub use reconstruct::{GpuReconstruct, RECONSTRUCT_WGSL};

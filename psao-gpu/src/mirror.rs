@@ -1,0 +1,289 @@
+//! A client's mirror on the GPU: the flat buffers `reconstruct.wgsl` reads
+//! (per-instance parameters, every instance's bucket entries and point
+//! words one after another, the normal table), uploaded whole when the set
+//! of instances or their layout changes and by the changed ranges the
+//! [`Mirror`] reports otherwise.
+
+use psao_codec::{Change, InstanceDef, Mirror, WeightParams, normal_table};
+use wgpu::util::DeviceExt;
+
+use crate::context::GpuContext;
+use crate::error::GpuError;
+
+/// `PsaoInstance` of `reconstruct.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+struct InstanceGpu {
+    to_local: [[f32; 4]; 4],
+    normal: [[f32; 4]; 3],
+    origin: [f32; 4],
+    cell_size: [f32; 4],
+    dims: [u32; 4],
+    layout: [u32; 4],
+    params: [f32; 4],
+}
+
+/// Where one instance's arrays start in the flat buffers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Slot {
+    def: InstanceDef,
+    first_bucket: u32,
+    first_word: u32,
+}
+
+/// The mirror's buffers on the device.
+#[derive(Debug)]
+pub struct GpuMirror {
+    instances: wgpu::Buffer,
+    buckets: wgpu::Buffer,
+    words: wgpu::Buffer,
+    normals: wgpu::Buffer,
+    /// Per instance id, where its arrays are (None: not defined).
+    slots: Vec<Option<Slot>>,
+    /// Bytes uploaded by the last [`sync`](Self::sync).
+    last_upload: u64,
+}
+
+/// Largest instance id the GPU mirror indexes densely.
+pub const MAX_GPU_INSTANCE_ID: u32 = 1 << 20;
+
+fn storage(ctx: &GpuContext, label: &str, bytes: &[u8]) -> wgpu::Buffer {
+    // wgpu rejects zero-sized bindings: keep at least 16 bytes.
+    let mut data = bytes.to_vec();
+    if data.len() < 16 {
+        data.resize(16, 0);
+    }
+    ctx.device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents: &data,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+        })
+}
+
+impl GpuMirror {
+    /// An upload of `mirror` as it is now (its change list is left alone).
+    pub fn new(ctx: &GpuContext, mirror: &Mirror) -> Result<GpuMirror, GpuError> {
+        let table: Vec<[f32; 4]> = normal_table()
+            .iter()
+            .map(|n| n.extend(0.0).to_array())
+            .collect();
+        let normals = ctx.checked("mirror upload", || {
+            storage(ctx, "psao-gpu normal table", bytemuck::cast_slice(&table))
+        })?;
+        let mut m = GpuMirror {
+            instances: normals.clone(),
+            buckets: normals.clone(),
+            words: normals.clone(),
+            normals,
+            slots: Vec::new(),
+            last_upload: 0,
+        };
+        m.upload_all(ctx, mirror)?;
+        Ok(m)
+    }
+
+    /// Brings the buffers up to `mirror` and clears its change list: the
+    /// changed bucket and word ranges are written in place; a new, removed
+    /// or redefined instance, or a change list that says everything may
+    /// have changed, uploads everything again. Returns the bytes written.
+    pub fn sync(&mut self, ctx: &GpuContext, mirror: &mut Mirror) -> Result<u64, GpuError> {
+        let changes = mirror.take_changes();
+        let layout_changed = changes.all
+            || changes
+                .items
+                .iter()
+                .any(|c| matches!(c, Change::Defined(_) | Change::Removed(_)));
+        if layout_changed || self.layout_differs(mirror) {
+            self.upload_all(ctx, mirror)?;
+            return Ok(self.last_upload);
+        }
+        let mut bytes = 0u64;
+        let mut transforms = false;
+        ctx.checked("mirror update", || {
+            for c in &changes.items {
+                match *c {
+                    Change::Buckets(id, ref r) => {
+                        if let (Some(Some(slot)), Some(inst)) =
+                            (self.slots.get(id as usize), mirror.instance(id))
+                        {
+                            let entries = &inst.buckets()[r.start as usize..r.end as usize];
+                            let flat: Vec<[u32; 2]> =
+                                entries.iter().map(|e| [e.key, e.cell]).collect();
+                            let at = (slot.first_bucket as u64 + r.start as u64) * 8;
+                            ctx.queue
+                                .write_buffer(&self.buckets, at, bytemuck::cast_slice(&flat));
+                            bytes += flat.len() as u64 * 8;
+                        }
+                    }
+                    Change::Words(id, ref r) => {
+                        if let (Some(Some(slot)), Some(inst)) =
+                            (self.slots.get(id as usize), mirror.instance(id))
+                        {
+                            let words = &inst.words()[r.start as usize..r.end as usize];
+                            let at = (slot.first_word as u64 + r.start as u64) * 4;
+                            ctx.queue
+                                .write_buffer(&self.words, at, bytemuck::cast_slice(words));
+                            bytes += words.len() as u64 * 4;
+                        }
+                    }
+                    Change::Transform(_) => transforms = true,
+                    Change::Defined(_) | Change::Removed(_) => {}
+                }
+            }
+        })?;
+        if transforms {
+            let table = self.instance_table(mirror);
+            ctx.queue
+                .write_buffer(&self.instances, 0, bytemuck::cast_slice(&table));
+            bytes += (table.len() * std::mem::size_of::<InstanceGpu>()) as u64;
+        }
+        self.last_upload = bytes;
+        Ok(bytes)
+    }
+
+    /// Whether the mirror's instances or their definitions differ from the
+    /// uploaded layout.
+    fn layout_differs(&self, mirror: &Mirror) -> bool {
+        let mut n = 0;
+        for (id, inst) in mirror.instances() {
+            n += 1;
+            match self.slots.get(id as usize) {
+                Some(Some(s)) if s.def == *inst.def() => {}
+                _ => return true,
+            }
+        }
+        n != self.slots.iter().flatten().count()
+    }
+
+    fn upload_all(&mut self, ctx: &GpuContext, mirror: &Mirror) -> Result<(), GpuError> {
+        let max_id = mirror.instances().map(|(id, _)| id).max();
+        if let Some(id) = max_id.filter(|&id| id >= MAX_GPU_INSTANCE_ID) {
+            return Err(GpuError::Limits {
+                what: "instance id",
+                needed: id as u64,
+                limit: MAX_GPU_INSTANCE_ID as u64 - 1,
+            });
+        }
+        let count = max_id.map_or(0, |m| m as usize + 1);
+        let mut slots = vec![None; count];
+        let (mut buckets, mut words) = (Vec::<[u32; 2]>::new(), Vec::<u32>::new());
+        for (id, inst) in mirror.instances() {
+            slots[id as usize] = Some(Slot {
+                def: *inst.def(),
+                first_bucket: buckets.len() as u32,
+                first_word: words.len() as u32,
+            });
+            buckets.extend(inst.buckets().iter().map(|e| [e.key, e.cell]));
+            words.extend_from_slice(inst.words());
+        }
+        let limit = ctx.device.limits().max_storage_buffer_binding_size;
+        for (what, len) in [
+            ("bucket entry bytes", buckets.len() * 8),
+            ("point word bytes", words.len() * 4),
+        ] {
+            if len as u64 > limit {
+                return Err(GpuError::Limits {
+                    what,
+                    needed: len as u64,
+                    limit,
+                });
+            }
+        }
+        self.slots = slots;
+        let table = self.instance_table(mirror);
+        let (i, b, w) = ctx.checked("mirror upload", || {
+            (
+                storage(ctx, "psao-gpu instances", bytemuck::cast_slice(&table)),
+                storage(ctx, "psao-gpu buckets", bytemuck::cast_slice(&buckets)),
+                storage(ctx, "psao-gpu words", bytemuck::cast_slice(&words)),
+            )
+        })?;
+        self.instances = i;
+        self.buckets = b;
+        self.words = w;
+        self.last_upload = (table.len() * std::mem::size_of::<InstanceGpu>()
+            + buckets.len() * 8
+            + words.len() * 4) as u64;
+        Ok(())
+    }
+
+    /// The per-instance parameters, indexed by instance id.
+    fn instance_table(&self, mirror: &Mirror) -> Vec<InstanceGpu> {
+        let mut table = vec![InstanceGpu::default(); self.slots.len().max(1)];
+        for (id, slot) in self.slots.iter().enumerate() {
+            let (Some(slot), Some(inst)) = (slot, mirror.instance(id as u32)) else {
+                continue;
+            };
+            let d = slot.def;
+            let w = WeightParams::of(&d);
+            let mut g = InstanceGpu {
+                origin: d.origin.extend(w.radius).to_array(),
+                cell_size: d.cell_size.extend(w.noise).to_array(),
+                dims: [
+                    d.dims.x,
+                    d.dims.y,
+                    d.dims.z,
+                    (1u32 << d.table_log2).wrapping_sub(1),
+                ],
+                layout: [
+                    d.bucket_capacity as u32,
+                    d.cell_capacity as u32,
+                    slot.first_bucket,
+                    slot.first_word,
+                ],
+                params: [w.t_n, w.t_d, 0.0, 0.0],
+                ..InstanceGpu::default()
+            };
+            if let Some(t) = inst.transform() {
+                let m = t.affine();
+                let det = m.matrix3.determinant();
+                if m.is_finite() && det.is_finite() && det.abs() > f32::MIN_POSITIVE {
+                    let inv = m.inverse();
+                    g.to_local = [
+                        inv.matrix3.x_axis.extend(0.0).to_array(),
+                        inv.matrix3.y_axis.extend(0.0).to_array(),
+                        inv.matrix3.z_axis.extend(0.0).to_array(),
+                        inv.translation.extend(0.0).to_array(),
+                    ];
+                    // Rows of M^T are the columns of M.
+                    g.normal = [
+                        m.matrix3.x_axis.extend(0.0).to_array(),
+                        m.matrix3.y_axis.extend(0.0).to_array(),
+                        m.matrix3.z_axis.extend(0.0).to_array(),
+                    ];
+                    g.params[2] = 1.0;
+                }
+            }
+            table[id] = g;
+        }
+        table
+    }
+
+    /// Bytes written by the last upload or sync.
+    pub fn last_upload_bytes(&self) -> u64 {
+        self.last_upload
+    }
+
+    /// The bind group entries of `reconstruct.wgsl`'s group (bindings 0-3).
+    pub fn bind_entries(&self) -> [wgpu::BindGroupEntry<'_>; 4] {
+        [
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: self.instances.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: self.buckets.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: self.words.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 3,
+                resource: self.normals.as_entire_binding(),
+            },
+        ]
+    }
+}

@@ -1,0 +1,229 @@
+//! The client's reconstruction on the GPU: `reconstruct.wgsl` (which a
+//! renderer can include in its own shaders, [`RECONSTRUCT_WGSL`]) run as a
+//! compute pass over a G-buffer.
+
+use psao_scene::{GBuffer, NO_INSTANCE};
+use wgpu::util::DeviceExt;
+
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::mirror::GpuMirror;
+
+/// The reconstruction functions and their bindings (group 0, bindings
+/// 0-3: instances, bucket entries, point words, normal table; see
+/// [`GpuMirror::bind_entries`]). Call `psao_ao(instance, world_position,
+/// world_normal)` from any shader stage.
+pub const RECONSTRUCT_WGSL: &str = include_str!("shaders/reconstruct.wgsl");
+
+const WORKGROUP: u32 = 64;
+
+/// The reconstruction compute pass.
+#[derive(Debug)]
+pub struct GpuReconstruct {
+    pipeline: wgpu::ComputePipeline,
+    mirror_layout: wgpu::BindGroupLayout,
+    pass_layout: wgpu::BindGroupLayout,
+}
+
+fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+impl GpuReconstruct {
+    /// Compiles the pass.
+    pub fn new(ctx: &GpuContext) -> Result<GpuReconstruct, GpuError> {
+        ctx.checked("reconstruction shader compilation", || {
+            let source = format!(
+                "{RECONSTRUCT_WGSL}\n{}",
+                include_str!("shaders/reconstruct_pass.wgsl")
+            );
+            let module = ctx
+                .device
+                .create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some("psao-gpu reconstruct.wgsl"),
+                    source: wgpu::ShaderSource::Wgsl(source.into()),
+                });
+            let mirror_layout =
+                ctx.device
+                    .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                        label: Some("psao-gpu mirror"),
+                        entries: &[
+                            storage_entry(0, true),
+                            storage_entry(1, true),
+                            storage_entry(2, true),
+                            storage_entry(3, true),
+                        ],
+                    });
+            let pass_layout =
+                ctx.device
+                    .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                        label: Some("psao-gpu reconstruct pass"),
+                        entries: &[
+                            storage_entry(0, true),
+                            storage_entry(1, true),
+                            storage_entry(2, true),
+                            storage_entry(3, false),
+                            wgpu::BindGroupLayoutEntry {
+                                binding: 4,
+                                visibility: wgpu::ShaderStages::COMPUTE,
+                                ty: wgpu::BindingType::Buffer {
+                                    ty: wgpu::BufferBindingType::Uniform,
+                                    has_dynamic_offset: false,
+                                    min_binding_size: None,
+                                },
+                                count: None,
+                            },
+                        ],
+                    });
+            let pl = ctx
+                .device
+                .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                    label: Some("psao-gpu reconstruct"),
+                    bind_group_layouts: &[Some(&mirror_layout), Some(&pass_layout)],
+                    immediate_size: 0,
+                });
+            let pipeline = ctx
+                .device
+                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some("psao-gpu reconstruct"),
+                    layout: Some(&pl),
+                    module: &module,
+                    entry_point: Some("main"),
+                    compilation_options: Default::default(),
+                    cache: None,
+                });
+            GpuReconstruct {
+                pipeline,
+                mirror_layout,
+                pass_layout,
+            }
+        })
+    }
+
+    /// AO per pixel of `g` from the mirror on the GPU (1 where nothing was
+    /// hit or the instance cannot be sampled), read back to the host.
+    pub fn run(
+        &self,
+        ctx: &GpuContext,
+        mirror: &GpuMirror,
+        g: &GBuffer,
+    ) -> Result<Vec<f32>, GpuError> {
+        g.check()?;
+        let n = g.pixels();
+        if n == 0 {
+            return Ok(Vec::new());
+        }
+        let limits = ctx.device.limits();
+        if (n as u64) * 16 > limits.max_storage_buffer_binding_size {
+            return Err(GpuError::Limits {
+                what: "G-buffer bytes",
+                needed: n as u64 * 16,
+                limit: limits.max_storage_buffer_binding_size,
+            });
+        }
+        let groups = (n as u32).div_ceil(WORKGROUP);
+        let per_row = groups.min(limits.max_compute_workgroups_per_dimension.max(1));
+        let rows = groups.div_ceil(per_row);
+        let pos: Vec<[f32; 4]> = g
+            .position
+            .iter()
+            .map(|p| p.extend(0.0).to_array())
+            .collect();
+        let nrm: Vec<[f32; 4]> = g.normal.iter().map(|p| p.extend(0.0).to_array()).collect();
+        let ids: Vec<u32> = g
+            .instance
+            .iter()
+            .map(|&i| if i == NO_INSTANCE { u32::MAX } else { i })
+            .collect();
+        let size = [n as u32, per_row * WORKGROUP, 0, 0];
+        let readback = ctx.checked("reconstruction pass", || {
+            let d = &ctx.device;
+            let init = |label, contents: &[u8], usage| {
+                d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(label),
+                    contents,
+                    usage,
+                })
+            };
+            let s = wgpu::BufferUsages::STORAGE;
+            let pb = init("psao-gpu gbuffer position", bytemuck::cast_slice(&pos), s);
+            let nb = init("psao-gpu gbuffer normal", bytemuck::cast_slice(&nrm), s);
+            let ib = init("psao-gpu gbuffer instance", bytemuck::cast_slice(&ids), s);
+            let ub = init(
+                "psao-gpu pass size",
+                bytemuck::cast_slice(&size),
+                wgpu::BufferUsages::UNIFORM,
+            );
+            let bytes = n as u64 * 4;
+            let out = d.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("psao-gpu ao image"),
+                size: bytes,
+                usage: s | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            let readback = d.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("psao-gpu ao image readback"),
+                size: bytes,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let mirror_group = d.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("psao-gpu mirror"),
+                layout: &self.mirror_layout,
+                entries: &mirror.bind_entries(),
+            });
+            let pass_group = d.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("psao-gpu reconstruct pass"),
+                layout: &self.pass_layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: pb.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: nb.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: ib.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: out.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 4,
+                        resource: ub.as_entire_binding(),
+                    },
+                ],
+            });
+            let mut enc = d.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("psao-gpu reconstruct"),
+            });
+            {
+                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("psao-gpu reconstruct"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &mirror_group, &[]);
+                pass.set_bind_group(1, &pass_group, &[]);
+                pass.dispatch_workgroups(per_row, rows, 1);
+            }
+            enc.copy_buffer_to_buffer(&out, 0, &readback, 0, bytes);
+            ctx.queue.submit(Some(enc.finish()));
+            readback
+        })?;
+        ctx.read_f32(&readback)
+    }
+}
