@@ -209,6 +209,47 @@ impl GpuScene {
         self.build(ctx, scene, &pose, false)
     }
 
+    /// Places the instances by `transforms` (one per instance of the
+    /// scene this was made for) and, for a skinned instance, uploads
+    /// `vertices[i]` (its current local vertex positions, the mesh's vertex
+    /// count) before rebuilding its BLAS; then rebuilds the TLAS. This is
+    /// what a server pipeline that animates the scene itself calls.
+    pub fn place(
+        &mut self,
+        ctx: &GpuContext,
+        scene: &Scene,
+        transforms: &[glam::Affine3A],
+        vertices: &[Option<&[glam::Vec3]>],
+    ) -> Result<(), GpuError> {
+        let n = scene.instances.len();
+        if transforms.len() != n || vertices.len() != n || self.skinned.len() != n {
+            return Err(GpuError::Input(format!(
+                "{} transforms and {} vertex lists for {n} instances",
+                transforms.len(),
+                vertices.len()
+            )));
+        }
+        if let Some(i) = transforms.iter().position(|t| !t.is_finite()) {
+            return Err(GpuError::Input(format!("instance {i}: transform is not finite")));
+        }
+        for (i, slot) in self.skinned.iter().enumerate() {
+            let (Some(b), Some(v)) = (slot, vertices[i]) else {
+                continue;
+            };
+            if v.len() as u32 != b.size.vertex_count {
+                return Err(GpuError::Input(format!(
+                    "instance {i}: {} vertices for a mesh of {}",
+                    v.len(),
+                    b.size.vertex_count
+                )));
+            }
+            let flat: Vec<[f32; 3]> = v.iter().map(|p| p.to_array()).collect();
+            ctx.queue
+                .write_buffer(&b.vertices, 0, bytemuck::cast_slice(&flat));
+        }
+        self.build_with(ctx, scene, transforms, false)
+    }
+
     /// Fills the TLAS from `pose` and builds it, with the mesh BLASes on
     /// the first build and the skinned ones every time.
     fn build(
@@ -216,6 +257,17 @@ impl GpuScene {
         ctx: &GpuContext,
         scene: &Scene,
         pose: &psao_scene::Pose,
+        first: bool,
+    ) -> Result<(), GpuError> {
+        self.build_with(ctx, scene, &pose.instances, first)
+    }
+
+    /// Fills the TLAS from per-instance transforms and builds it.
+    fn build_with(
+        &mut self,
+        ctx: &GpuContext,
+        scene: &Scene,
+        transforms: &[glam::Affine3A],
         first: bool,
     ) -> Result<(), GpuError> {
         let Some(tlas) = &mut self.tlas else {
@@ -232,7 +284,7 @@ impl GpuScene {
                 }
                 _ => continue,
             };
-            let m = pose.instances[i];
+            let m = transforms[i];
             let c = m.matrix3;
             let t = m.translation;
             // Row-major 3x4.

@@ -16,11 +16,15 @@
 //! Mesa's lavapipe); nothing panics, and the other crates do not need this
 //! one.
 //!
-//! Not here yet (issue 5): alpha-masked meshes, the GPU dirty-set
-//! compaction, `--backend gpu` in the pipeline and `psao bench`.
+//! A server pipeline traces on the GPU with [`GpuBackend`]
+//! ([`psao_scene::Pipeline::with_backend`]).
+//!
+//! Not here yet (issue 5): alpha-masked meshes and the GPU dirty-set
+//! compaction.
 
 mod accel;
 mod ao;
+mod backend;
 mod context;
 mod error;
 mod mirror;
@@ -28,6 +32,7 @@ mod reconstruct;
 
 pub use accel::GpuScene;
 pub use ao::GpuAo;
+pub use backend::GpuBackend;
 pub use context::GpuContext;
 pub use error::GpuError;
 pub use mirror::{GpuMirror, MAX_GPU_INSTANCE_ID};

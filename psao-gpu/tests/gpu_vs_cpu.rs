@@ -296,3 +296,35 @@ fn gpu_reconstruction_matches_the_cpu_and_follows_partial_uploads() {
     // The shader text is there for renderers to include.
     assert!(RECONSTRUCT_WGSL.contains("fn psao_ao("));
 }
+
+#[test]
+fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
+    let Some(_ctx) = context() else { return };
+    let scene = solid_default_scene();
+    let config = PipelineConfig {
+        density: 16.0,
+        ao: AoParams {
+            rays: 16,
+            ..AoParams::default()
+        },
+        ..PipelineConfig::default()
+    };
+    let mut cpu = Pipeline::new(scene.clone(), config.clone()).unwrap();
+    let backend = GpuBackend::new(&scene).unwrap();
+    let mut gpu = Pipeline::with_backend(scene, config, Box::new(backend)).unwrap();
+    assert!(gpu.backend_name().starts_with("gpu"), "{}", gpu.backend_name());
+    assert_eq!(cpu.keyframe().unwrap().bytes, gpu.keyframe().unwrap().bytes);
+    // The box slides and the walker walks: the same points are traced and
+    // the same dirty sets sent.
+    let (mut traced, mut frames) = (0, 0);
+    for _ in 0..20 {
+        let (a, ra) = cpu.step(1.0 / 30.0).unwrap();
+        let (b, rb) = gpu.step(1.0 / 30.0).unwrap();
+        assert_eq!(ra.traced, rb.traced);
+        assert_eq!(ra.updated, rb.updated, "dirty sets differ");
+        assert_eq!(a.map(|f| f.bytes), b.map(|f| f.bytes));
+        traced += rb.traced;
+        frames += 1;
+    }
+    assert!(traced > 0 && frames == 20);
+}

@@ -59,6 +59,14 @@ pub enum SceneError {
         /// Instance index.
         instance: usize,
     },
+    /// An AO backend ([`crate::AoBackend`]) failed.
+    #[error("AO backend {backend}: {reason}")]
+    Backend {
+        /// The backend's name.
+        backend: String,
+        /// What went wrong.
+        reason: String,
+    },
     /// A parameter is out of its range.
     #[error("parameter `{name}` = {value} is out of range: {rule}")]
     Parameter {

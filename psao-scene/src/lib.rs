@@ -76,7 +76,7 @@ pub use gltf_import::{
 pub use layout::{LayoutParams, layout};
 pub use metrics::{MetricError, error_map, psnr, rmse, ssim};
 pub use node::{Node, Trs, compose};
-pub use pipeline::{FrameReport, Pipeline, PipelineConfig, ViewerCull, Views};
+pub use pipeline::{AoBackend, FrameReport, Pipeline, PipelineConfig, ViewerCull, Views};
 pub use pixel_ao::{ClientImage, psao_image, ray_traced_ao};
 pub use points::{Anchor, MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
 pub use pose::Pose;

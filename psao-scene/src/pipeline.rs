@@ -24,7 +24,7 @@ use glam::{Affine3A, Mat3A, Vec3};
 use psao_codec::{EncodedFrame, Encoder, EncoderConfig, GridTable, Thresholds};
 
 use crate::alpha::AlphaMask;
-use crate::ao::{AoParams, AoTracer, Geometry, Layer, TriangleBvh, ray_offset};
+use crate::ao::{AoParams, AoResult, AoTracer, Geometry, Layer, TriangleBvh, ray_offset};
 use crate::camera::Frustum;
 use crate::error::{SceneError, check_param};
 use crate::layout::{LayoutParams, layout};
@@ -217,10 +217,38 @@ struct InstanceState {
     bvh: Option<Arc<TriangleBvh>>,
 }
 
+/// Where a [`Pipeline`] traces its AO rays instead of its own CPU tracer
+/// (for instance psao-gpu's ray queries). A backend must trace the rays
+/// the CPU tracer would ([`AoTracer::trace_ids`]: same sampling, estimator,
+/// radius and offset) so that both give the same points and frames.
+pub trait AoBackend: Send {
+    /// A short name for reports ("gpu: <adapter>").
+    fn name(&self) -> String;
+
+    /// Places the scene as it is now before a trace: per instance its
+    /// local-to-world transform and, for an instance whose mesh deforms
+    /// (skinning), its current local vertex positions (`None`: the mesh's
+    /// own positions).
+    fn place(&mut self, transforms: &[Affine3A], vertices: &[Option<&[Vec3]>])
+    -> Result<(), SceneError>;
+
+    /// AO at world points with unit normals and stable ids, as
+    /// [`AoTracer::trace_ids`].
+    fn trace_ids(
+        &mut self,
+        ids: &[u32],
+        points: &[Vec3],
+        normals: &[Vec3],
+        params: &AoParams,
+    ) -> Result<AoResult, SceneError>;
+}
+
 /// A server streaming one scene.
 pub struct Pipeline {
     scene: Scene,
     config: PipelineConfig,
+    /// Traces instead of the CPU tracer when set.
+    backend: Option<Box<dyn AoBackend>>,
     instances: Vec<InstanceState>,
     masks: Vec<Option<Arc<AlphaMask>>>,
     encoder: Encoder,
@@ -267,6 +295,29 @@ impl Pipeline {
     /// scene that f32 cannot place finely enough for its AO radius and
     /// point spacing ([`check_precision`], in the pose at time 0).
     pub fn new(scene: Scene, config: PipelineConfig) -> Result<Pipeline, SceneError> {
+        Pipeline::build(scene, config, None)
+    }
+
+    /// As [`new`](Self::new), with AO traced by `backend` (from the first
+    /// trace on) instead of the CPU tracer.
+    pub fn with_backend(
+        scene: Scene,
+        config: PipelineConfig,
+        backend: Box<dyn AoBackend>,
+    ) -> Result<Pipeline, SceneError> {
+        Pipeline::build(scene, config, Some(backend))
+    }
+
+    /// The backend's name, or "cpu".
+    pub fn backend_name(&self) -> String {
+        self.backend.as_ref().map_or("cpu".into(), |b| b.name())
+    }
+
+    fn build(
+        scene: Scene,
+        config: PipelineConfig,
+        backend: Option<Box<dyn AoBackend>>,
+    ) -> Result<Pipeline, SceneError> {
         scene.validate()?;
         config.ao.validate()?;
         if let Some(c) = &config.cull {
@@ -351,6 +402,7 @@ impl Pipeline {
         }
         let mut pipeline = Pipeline {
             scene,
+            backend,
             encoder: Encoder::new(config.encoder),
             config,
             instances,
@@ -368,8 +420,8 @@ impl Pipeline {
             .iter()
             .map(|s| (0..s.points.len() as u32).collect())
             .collect();
-        let tracer = pipeline.tracer(false);
-        pipeline.trace_and_update(&tracer, &all, true)?;
+        let tracer = pipeline.backend.is_none().then(|| pipeline.tracer(false));
+        pipeline.trace_and_update(tracer.as_ref(), &all, true)?;
         for s in &mut pipeline.instances {
             s.table.take_dirty();
         }
@@ -585,7 +637,7 @@ impl Pipeline {
     /// rays, updated).
     fn trace_and_update(
         &mut self,
-        tracer: &AoTracer,
+        tracer: Option<&AoTracer>,
         which: &[Vec<u32>],
         force: bool,
     ) -> Result<(u64, u64, u64), SceneError> {
@@ -600,7 +652,21 @@ impl Pipeline {
             }
             base += s.points.len() as u32;
         }
-        let result = tracer.trace_ids(&ids, &pts, &nrm, &self.config.ao)?;
+        let result = match (&mut self.backend, tracer) {
+            (Some(backend), _) => {
+                let transforms: Vec<Affine3A> =
+                    self.instances.iter().map(|s| s.transform).collect();
+                let vertices: Vec<Option<&[Vec3]>> = self
+                    .instances
+                    .iter()
+                    .map(|s| (!s.vertices.is_empty()).then_some(s.vertices.as_slice()))
+                    .collect();
+                backend.place(&transforms, &vertices)?;
+                backend.trace_ids(&ids, &pts, &nrm, &self.config.ao)?
+            }
+            (None, Some(tracer)) => tracer.trace_ids(&ids, &pts, &nrm, &self.config.ao)?,
+            (None, None) => self.tracer(false).trace_ids(&ids, &pts, &nrm, &self.config.ao)?,
+        };
         let mut updated = 0u64;
         let mut at = 0usize;
         let th = self.config.thresholds;
@@ -748,11 +814,11 @@ impl Pipeline {
             // Rebuilt the next time something is traced.
             self.whole_layer = None;
         }
-        let tracer = anything.then(|| self.tracer(false));
+        let tracer = (anything && self.backend.is_none()).then(|| self.tracer(false));
         report.t_bvh = t2.elapsed();
         let t3 = Instant::now();
-        if let Some(tracer) = &tracer {
-            let (traced, rays, updated) = self.trace_and_update(tracer, &which, false)?;
+        if anything {
+            let (traced, rays, updated) = self.trace_and_update(tracer.as_ref(), &which, false)?;
             report.traced = traced;
             report.rays = rays;
             report.updated = updated;
