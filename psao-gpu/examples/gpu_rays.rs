@@ -1,6 +1,7 @@
 //! Rays per second of the GPU backend (wgpu ray queries) against the CPU
-//! backend (obvhs) on the same points of the default scene (its trellis
-//! made solid), same rays, same run; both estimators. Prints the device,
+//! backend (obvhs) on the same points of the default scene (rigid,
+//! skinned and alpha-masked instances), same rays, same run; both
+//! estimators. Prints the device,
 //! the rates, their ratio and how far the results differ.
 //!
 //! `cargo run --release -p psao-gpu --example gpu_rays [-- --density 64 --rays 64 --reps 3]`
@@ -31,10 +32,7 @@ fn main() {
             std::process::exit(2);
         }
     };
-    let mut scene = default_scene();
-    for m in &mut scene.meshes {
-        m.alpha = None;
-    }
+    let scene = default_scene();
     let p = Pipeline::new(
         scene.clone(),
         PipelineConfig {
@@ -58,7 +56,7 @@ fn main() {
     let gpu_scene = GpuScene::new(&ctx, &scene).expect("GPU scene");
     let ao = GpuAo::new(&ctx).expect("AO pass");
     println!(
-        "default scene (trellis solid): {} points x {rays} rays, {} triangles; CPU: {} threads (obvhs); GPU: {}",
+        "default scene: {} points x {rays} rays, {} triangles; CPU: {} threads (obvhs); GPU: {}",
         pts.len(),
         gpu_scene.triangles(),
         std::thread::available_parallelism().map_or(1, |n| n.get()),

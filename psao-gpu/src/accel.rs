@@ -6,6 +6,7 @@
 use psao_scene::Scene;
 use wgpu::util::DeviceExt;
 
+use crate::alpha::AlphaTables;
 use crate::context::GpuContext;
 use crate::error::GpuError;
 
@@ -21,7 +22,13 @@ struct MeshBlas {
 impl MeshBlas {
     /// A BLAS over `positions` and `indices` (uploaded now, built by the
     /// next [`GpuScene::build`]).
-    fn new(ctx: &GpuContext, positions: &[glam::Vec3], indices: &[u32], dynamic: bool) -> MeshBlas {
+    fn new(
+        ctx: &GpuContext,
+        positions: &[glam::Vec3],
+        indices: &[u32],
+        dynamic: bool,
+        opaque: bool,
+    ) -> MeshBlas {
         let flat: Vec<[f32; 3]> = positions.iter().map(|p| p.to_array()).collect();
         let usage = wgpu::BufferUsages::BLAS_INPUT | wgpu::BufferUsages::COPY_DST;
         let vertices = ctx
@@ -43,7 +50,12 @@ impl MeshBlas {
             vertex_count: positions.len() as u32,
             index_format: Some(wgpu::IndexFormat::Uint32),
             index_count: Some(indices.len() as u32),
-            flags: wgpu::AccelerationStructureGeometryFlags::OPAQUE,
+            // Alpha-masked geometry reports candidate hits to the shader.
+            flags: if opaque {
+                wgpu::AccelerationStructureGeometryFlags::OPAQUE
+            } else {
+                wgpu::AccelerationStructureGeometryFlags::empty()
+            },
         };
         let blas = ctx.device.create_blas(
             &wgpu::CreateBlasDescriptor {
@@ -94,22 +106,19 @@ pub struct GpuScene {
     skinned: Vec<Option<MeshBlas>>,
     /// The instances placed, or `None` when there is no triangle at all.
     tlas: Option<wgpu::Tlas>,
+    /// The alpha masks, per instance.
+    alpha: AlphaTables,
     triangles: usize,
     time: f32,
 }
 
 impl GpuScene {
     /// Uploads `scene` and builds its acceleration structures posed at
-    /// time 0. Alpha-masked meshes are refused for now
-    /// ([`GpuError::Unsupported`]); so is a scene beyond the device's
-    /// limits ([`GpuError::Limits`]).
+    /// time 0. Alpha-masked meshes are not opaque to the rays: the AO pass
+    /// tests each candidate hit against the mask. A scene beyond the
+    /// device's limits is refused ([`GpuError::Limits`]).
     pub fn new(ctx: &GpuContext, scene: &Scene) -> Result<GpuScene, GpuError> {
         scene.validate()?;
-        if let Some(m) = scene.meshes.iter().position(|m| m.alpha.is_some()) {
-            return Err(GpuError::Unsupported(format!(
-                "mesh {m} is alpha-masked (rays would not pass through its holes)"
-            )));
-        }
         let limits = ctx.device.limits();
         for m in &scene.meshes {
             let tris = m.triangle_count() as u64;
@@ -144,8 +153,9 @@ impl GpuScene {
                         .iter()
                         .enumerate()
                         .any(|(i, inst)| inst.mesh == k && !skinned_instance(i));
-                    (used_rigid && m.triangle_count() > 0)
-                        .then(|| MeshBlas::new(ctx, &m.positions, &m.indices, false))
+                    (used_rigid && m.triangle_count() > 0).then(|| {
+                        MeshBlas::new(ctx, &m.positions, &m.indices, false, m.alpha.is_none())
+                    })
                 })
                 .collect();
             let skinned: Vec<Option<MeshBlas>> = (0..scene.instances.len())
@@ -153,7 +163,7 @@ impl GpuScene {
                     let m = &scene.meshes[scene.instances[i].mesh];
                     (skinned_instance(i) && m.triangle_count() > 0).then(|| {
                         let (p, _) = scene.skinned(i, &pose);
-                        MeshBlas::new(ctx, &p, &m.indices, true)
+                        MeshBlas::new(ctx, &p, &m.indices, true, m.alpha.is_none())
                     })
                 })
                 .collect();
@@ -177,6 +187,7 @@ impl GpuScene {
             meshes,
             skinned,
             tlas,
+            alpha: AlphaTables::new(ctx, scene)?,
             triangles: scene.meshes.iter().map(|m| m.triangle_count()).sum(),
             time: 0.0,
         };
@@ -230,7 +241,9 @@ impl GpuScene {
             )));
         }
         if let Some(i) = transforms.iter().position(|t| !t.is_finite()) {
-            return Err(GpuError::Input(format!("instance {i}: transform is not finite")));
+            return Err(GpuError::Input(format!(
+                "instance {i}: transform is not finite"
+            )));
         }
         for (i, slot) in self.skinned.iter().enumerate() {
             let (Some(b), Some(v)) = (slot, vertices[i]) else {
@@ -316,6 +329,11 @@ impl GpuScene {
     /// The TLAS, if the scene has any triangle.
     pub(crate) fn tlas(&self) -> Option<&wgpu::Tlas> {
         self.tlas.as_ref()
+    }
+
+    /// The alpha tables.
+    pub(crate) fn alpha(&self) -> &AlphaTables {
+        &self.alpha
     }
 
     /// Triangles in the scene's meshes.

@@ -80,6 +80,8 @@ impl GpuAo {
                         storage(3, true),
                         storage(4, true),
                         storage(5, false),
+                        storage(6, true),
+                        storage(7, true),
                     ],
                 });
             let pl = ctx
@@ -229,7 +231,10 @@ impl GpuAo {
                         binding: 5,
                         resource: out.as_entire_binding(),
                     },
-                ],
+                ]
+                .into_iter()
+                .chain(scene.alpha().bind_entries())
+                .collect::<Vec<_>>(),
             });
             let mut enc = d.create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("psao-gpu ao"),

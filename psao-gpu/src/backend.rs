@@ -46,7 +46,11 @@ impl AoBackend for GpuBackend {
         format!("gpu: {}", self.ctx.describe())
     }
 
-    fn place(&mut self, transforms: &[Affine3A], vertices: &[Option<&[Vec3]>]) -> Result<(), SceneError> {
+    fn place(
+        &mut self,
+        transforms: &[Affine3A],
+        vertices: &[Option<&[Vec3]>],
+    ) -> Result<(), SceneError> {
         self.accel
             .place(&self.ctx, &self.scene, transforms, vertices)
             .map_err(|e| self.fail(e))

@@ -19,10 +19,10 @@
 //! A server pipeline traces on the GPU with [`GpuBackend`]
 //! ([`psao_scene::Pipeline::with_backend`]).
 //!
-//! Not here yet (issue 5): alpha-masked meshes and the GPU dirty-set
-//! compaction.
+//! Not here yet (issue 5): the GPU dirty-set compaction.
 
 mod accel;
+mod alpha;
 mod ao;
 mod backend;
 mod context;

@@ -229,8 +229,11 @@ pub trait AoBackend: Send {
     /// local-to-world transform and, for an instance whose mesh deforms
     /// (skinning), its current local vertex positions (`None`: the mesh's
     /// own positions).
-    fn place(&mut self, transforms: &[Affine3A], vertices: &[Option<&[Vec3]>])
-    -> Result<(), SceneError>;
+    fn place(
+        &mut self,
+        transforms: &[Affine3A],
+        vertices: &[Option<&[Vec3]>],
+    ) -> Result<(), SceneError>;
 
     /// AO at world points with unit normals and stable ids, as
     /// [`AoTracer::trace_ids`].
@@ -665,7 +668,9 @@ impl Pipeline {
                 backend.trace_ids(&ids, &pts, &nrm, &self.config.ao)?
             }
             (None, Some(tracer)) => tracer.trace_ids(&ids, &pts, &nrm, &self.config.ao)?,
-            (None, None) => self.tracer(false).trace_ids(&ids, &pts, &nrm, &self.config.ao)?,
+            (None, None) => self
+                .tracer(false)
+                .trace_ids(&ids, &pts, &nrm, &self.config.ao)?,
         };
         let mut updated = 0u64;
         let mut at = 0usize;

@@ -31,6 +31,75 @@ struct Params {
 @group(0) @binding(4) var<storage, read> ids: array<u32>;
 @group(0) @binding(5) var<storage, read_write> ao: array<f32>;
 
+// Alpha masks (psao-scene's AlphaMask), per instance (the TLAS instances'
+// custom data is the instance index).
+struct AlphaInfo {
+    masked: u32,
+    index_offset: u32,
+    vertex_alpha_offset: u32,
+    uv_offset: u32,
+    texel_offset: u32,
+    width: u32,
+    height: u32,
+    cutoff: f32,
+    factor: f32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
+}
+@group(0) @binding(6) var<storage, read> alpha_info: array<AlphaInfo>;
+// Triangle indices, vertex alphas (f32 bits), texture coordinates (two f32
+// bits each) and texels, at the offsets of the infos.
+@group(0) @binding(7) var<storage, read> alpha_data: array<u32>;
+
+fn alpha_f32(i: u32) -> f32 {
+    return bitcast<f32>(alpha_data[i]);
+}
+
+fn alpha_uv(o: u32, vertex: u32) -> vec2<f32> {
+    return vec2<f32>(alpha_f32(o + 2u * vertex), alpha_f32(o + 2u * vertex + 1u));
+}
+
+const NONE: u32 = 0xFFFFFFFFu;
+
+// AlphaTexture::wrap: floor(rem_euclid(x, 1) * n), at most n - 1.
+fn wrap(x: f32, n: u32) -> u32 {
+    var r = x % 1.0;
+    if (r < 0.0) {
+        r = r + 1.0;
+    }
+    return min(u32(r * f32(n)), n - 1u);
+}
+
+// AlphaMask::solid at barycentrics (u, v) of triangle `prim` of
+// `instance`'s mesh (weights 1 - u - v, u, v of its three corners).
+fn solid(instance: u32, prim: u32, bary: vec2<f32>) -> bool {
+    let info = alpha_info[instance];
+    if (info.masked == 0u) {
+        return true;
+    }
+    let w = vec3<f32>(1.0 - bary.x - bary.y, bary.x, bary.y);
+    let base = info.index_offset + 3u * prim;
+    let v = vec3<u32>(alpha_data[base], alpha_data[base + 1u], alpha_data[base + 2u]);
+    var a = info.factor;
+    if (info.vertex_alpha_offset != NONE) {
+        let o = info.vertex_alpha_offset;
+        a = a * (alpha_f32(o + v.x) * w.x + alpha_f32(o + v.y) * w.y + alpha_f32(o + v.z) * w.z);
+    }
+    if (info.uv_offset != NONE) {
+        let o = info.uv_offset;
+        let uv = alpha_uv(o, v.x) * w.x + alpha_uv(o, v.y) * w.y + alpha_uv(o, v.z) * w.z;
+        var texel = 1.0;
+        if (info.width > 0u && info.height > 0u && all(abs(uv) <= vec2<f32>(3.4e38))) {
+            let x = wrap(uv.x, info.width);
+            let y = wrap(uv.y, info.height);
+            texel = f32(alpha_data[info.texel_offset + y * info.width + x]) / 255.0;
+        }
+        a = a * texel;
+    }
+    return a >= info.cutoff;
+}
+
 const GOLDEN: u32 = 0x9E3779B9u;
 const TAU: f32 = 6.28318530717958647692;
 
@@ -57,8 +126,14 @@ fn ray_offset(p: vec3<f32>) -> f32 {
 // Hit distance along (origin, dir) up to tmax, or tmax on a miss.
 fn closest(origin: vec3<f32>, dir: vec3<f32>, tmax: f32) -> f32 {
     var rq: ray_query;
-    rayQueryInitialize(&rq, acc, RayDesc(RAY_FLAG_FORCE_OPAQUE, 0xFFu, 0.0, tmax, origin, dir));
-    while (rayQueryProceed(&rq)) {}
+    rayQueryInitialize(&rq, acc, RayDesc(RAY_FLAG_NONE, 0xFFu, 0.0, tmax, origin, dir));
+    while (rayQueryProceed(&rq)) {
+        // Only alpha-masked (non-opaque) triangles come here.
+        let c = rayQueryGetCandidateIntersection(&rq);
+        if (c.kind == RAY_QUERY_INTERSECTION_TRIANGLE && solid(c.instance_custom_data, c.primitive_index, c.barycentrics)) {
+            rayQueryConfirmIntersection(&rq);
+        }
+    }
     let hit = rayQueryGetCommittedIntersection(&rq);
     if (hit.kind == RAY_QUERY_INTERSECTION_NONE) {
         return tmax;
@@ -69,8 +144,13 @@ fn closest(origin: vec3<f32>, dir: vec3<f32>, tmax: f32) -> f32 {
 // Whether nothing lies along (origin, dir) up to tmax.
 fn misses(origin: vec3<f32>, dir: vec3<f32>, tmax: f32) -> bool {
     var rq: ray_query;
-    rayQueryInitialize(&rq, acc, RayDesc(RAY_FLAG_FORCE_OPAQUE | RAY_FLAG_TERMINATE_ON_FIRST_HIT, 0xFFu, 0.0, tmax, origin, dir));
-    while (rayQueryProceed(&rq)) {}
+    rayQueryInitialize(&rq, acc, RayDesc(RAY_FLAG_TERMINATE_ON_FIRST_HIT, 0xFFu, 0.0, tmax, origin, dir));
+    while (rayQueryProceed(&rq)) {
+        let c = rayQueryGetCandidateIntersection(&rq);
+        if (c.kind == RAY_QUERY_INTERSECTION_TRIANGLE && solid(c.instance_custom_data, c.primitive_index, c.barycentrics)) {
+            rayQueryConfirmIntersection(&rq);
+        }
+    }
     let hit = rayQueryGetCommittedIntersection(&rq);
     return hit.kind == RAY_QUERY_INTERSECTION_NONE;
 }
