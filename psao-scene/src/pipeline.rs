@@ -222,7 +222,7 @@ struct InstanceState {
 /// the CPU tracer would ([`AoTracer::trace_ids`]: same sampling, estimator,
 /// radius and offset) so that both give the same points and frames.
 pub trait AoBackend: Send {
-    /// A short name for reports ("gpu: <adapter>").
+    /// A short name for reports, such as `gpu: ADAPTER`.
     fn name(&self) -> String;
 
     /// Places the scene as it is now before a trace: per instance its
