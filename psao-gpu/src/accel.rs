@@ -96,6 +96,35 @@ impl MeshBlas {
     }
 }
 
+/// The layout of a scene that its acceleration structures depend on.
+#[derive(Clone, Debug, PartialEq)]
+struct Shape {
+    meshes: Vec<(usize, usize)>,
+    instances: Vec<(usize, bool)>,
+}
+
+impl Shape {
+    fn of(scene: &Scene) -> Shape {
+        Shape {
+            meshes: scene
+                .meshes
+                .iter()
+                .map(|m| (m.positions.len(), m.indices.len()))
+                .collect(),
+            instances: scene
+                .instances
+                .iter()
+                .map(|i| {
+                    (
+                        i.mesh,
+                        i.skin.is_some() && scene.meshes[i.mesh].skin.is_some(),
+                    )
+                })
+                .collect(),
+        }
+    }
+}
+
 /// A scene's acceleration structures on the GPU, posed at one time.
 #[derive(Debug)]
 pub struct GpuScene {
@@ -108,6 +137,10 @@ pub struct GpuScene {
     tlas: Option<wgpu::Tlas>,
     /// The alpha masks, per instance.
     alpha: AlphaTables,
+    /// What the structures were built for: per mesh (vertices, indices),
+    /// per instance (mesh, skinned); `pose` and `place` refuse another
+    /// scene.
+    shape: Shape,
     triangles: usize,
     time: f32,
 }
@@ -127,6 +160,25 @@ impl GpuScene {
                     what: "triangles in one mesh",
                     needed: tris,
                     limit: limits.max_blas_primitive_count as u64,
+                });
+            }
+        }
+        // The TLAS instances' custom data (24 bits) carries the instance
+        // index.
+        if scene.instances.len() as u64 > 1 << 24 {
+            return Err(GpuError::Limits {
+                what: "instances (24-bit instance data)",
+                needed: scene.instances.len() as u64,
+                limit: 1 << 24,
+            });
+        }
+        for m in &scene.meshes {
+            let bytes = (m.positions.len() * 12).max(m.indices.len() * 4) as u64;
+            if bytes > limits.max_buffer_size {
+                return Err(GpuError::Limits {
+                    what: "bytes of one mesh's vertices or indices",
+                    needed: bytes,
+                    limit: limits.max_buffer_size,
                 });
             }
         }
@@ -188,6 +240,7 @@ impl GpuScene {
             skinned,
             tlas,
             alpha: AlphaTables::new(ctx, scene)?,
+            shape: Shape::of(scene),
             triangles: scene.meshes.iter().map(|m| m.triangle_count()).sum(),
             time: 0.0,
         };
@@ -202,22 +255,29 @@ impl GpuScene {
         if !t.is_finite() {
             return Err(GpuError::Input(format!("time {t} is not finite")));
         }
-        if scene.instances.len() != self.skinned.len() || scene.meshes.len() != self.meshes.len() {
+        self.check_shape(scene)?;
+        let pose = scene.pose(t);
+        let skinned: Vec<Option<Vec<glam::Vec3>>> = (0..scene.instances.len())
+            .map(|i| {
+                self.skinned[i]
+                    .is_some()
+                    .then(|| scene.skinned(i, &pose).0.into_owned())
+            })
+            .collect();
+        let vertices: Vec<Option<&[glam::Vec3]>> = skinned.iter().map(|v| v.as_deref()).collect();
+        self.place(ctx, scene, &pose.instances, &vertices)?;
+        self.time = t;
+        Ok(())
+    }
+
+    /// Refuses a scene other than the one these structures were built for.
+    fn check_shape(&self, scene: &Scene) -> Result<(), GpuError> {
+        if Shape::of(scene) != self.shape {
             return Err(GpuError::Input(
-                "the scene is not the one these acceleration structures were made for".into(),
+                "the scene's meshes or instances are not those these acceleration structures were built for".into(),
             ));
         }
-        let pose = scene.pose(t);
-        for (i, slot) in self.skinned.iter().enumerate() {
-            if let Some(b) = slot {
-                let (p, _) = scene.skinned(i, &pose);
-                let flat: Vec<[f32; 3]> = p.iter().map(|v| v.to_array()).collect();
-                ctx.queue
-                    .write_buffer(&b.vertices, 0, bytemuck::cast_slice(&flat));
-            }
-        }
-        self.time = t;
-        self.build(ctx, scene, &pose, false)
+        Ok(())
     }
 
     /// Places the instances by `transforms` (one per instance of the
@@ -232,6 +292,7 @@ impl GpuScene {
         transforms: &[glam::Affine3A],
         vertices: &[Option<&[glam::Vec3]>],
     ) -> Result<(), GpuError> {
+        self.check_shape(scene)?;
         let n = scene.instances.len();
         if transforms.len() != n || vertices.len() != n || self.skinned.len() != n {
             return Err(GpuError::Input(format!(
@@ -240,15 +301,23 @@ impl GpuScene {
                 vertices.len()
             )));
         }
-        if let Some(i) = transforms.iter().position(|t| !t.is_finite()) {
+        if let Some(i) = transforms.iter().position(|t| {
+            let det = t.matrix3.determinant();
+            !t.is_finite() || !det.is_finite() || det.abs() <= f32::MIN_POSITIVE
+        }) {
             return Err(GpuError::Input(format!(
-                "instance {i}: transform is not finite"
+                "instance {i}: transform is not finite or not invertible"
             )));
         }
         for (i, slot) in self.skinned.iter().enumerate() {
-            let (Some(b), Some(v)) = (slot, vertices[i]) else {
-                continue;
-            };
+            let Some(b) = slot else { continue };
+            // None: the mesh's own positions.
+            let v = vertices[i].unwrap_or(&scene.meshes[scene.instances[i].mesh].positions);
+            if let Some(k) = v.iter().position(|p| !p.is_finite()) {
+                return Err(GpuError::Input(format!(
+                    "instance {i}: vertex {k} is not finite"
+                )));
+            }
             if v.len() as u32 != b.size.vertex_count {
                 return Err(GpuError::Input(format!(
                     "instance {i}: {} vertices for a mesh of {}",

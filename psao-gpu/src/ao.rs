@@ -12,6 +12,10 @@ use crate::error::GpuError;
 /// Threads per workgroup of the AO pass (the shader's `workgroup_size`).
 const WORKGROUP: u32 = 64;
 
+/// Most points traced in one dispatch (4 MiB of points: within every
+/// device's storage binding limit, and short enough for a watchdog).
+const CHUNK: usize = 1 << 18;
+
 /// The shader's `Params`.
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -135,15 +139,54 @@ impl GpuAo {
                 rays,
             });
         };
-        let limits = ctx.device.limits();
-        let bytes = n as u64 * 16;
-        if bytes > limits.max_storage_buffer_binding_size {
-            return Err(GpuError::Limits {
-                what: "bytes of points in one pass",
-                needed: bytes,
-                limit: limits.max_storage_buffer_binding_size,
-            });
+        // Neighbouring invocations trace neighbouring points (coherent rays),
+        // as the CPU backend does; results go back to input order below.
+        let order = morton_order(points);
+        let pts: Vec<[f32; 4]> = order
+            .iter()
+            .map(|&i| points[i].extend(0.0).to_array())
+            .collect();
+        let nrm: Vec<[f32; 4]> = order
+            .iter()
+            .map(|&i| normals[i].extend(0.0).to_array())
+            .collect();
+        let sorted_ids: Vec<u32> = order.iter().map(|&i| ids[i]).collect();
+        // Bounded dispatches: within binding limits, and short enough for
+        // a GPU's watchdog.
+        let mut sorted = Vec::with_capacity(n);
+        for start in (0..n).step_by(CHUNK) {
+            let end = (start + CHUNK).min(n);
+            sorted.extend(self.dispatch(
+                ctx,
+                scene,
+                tlas,
+                &pts[start..end],
+                &nrm[start..end],
+                &sorted_ids[start..end],
+                p,
+            )?);
         }
+        let mut ao = vec![1.0f32; n];
+        for (&i, &v) in order.iter().zip(&sorted) {
+            ao[i] = v;
+        }
+        Ok(AoResult { ao, rays })
+    }
+
+    /// One dispatch over (sorted) points; AO in the same order.
+    #[allow(clippy::too_many_arguments)]
+    fn dispatch(
+        &self,
+        ctx: &GpuContext,
+        scene: &GpuScene,
+        tlas: &wgpu::Tlas,
+        pts: &[[f32; 4]],
+        nrm: &[[f32; 4]],
+        sorted_ids: &[u32],
+        p: &AoParams,
+    ) -> Result<Vec<f32>, GpuError> {
+        let n = pts.len();
+        let limits = ctx.device.limits();
         let groups = (n as u32).div_ceil(WORKGROUP);
         let per_row = groups.min(limits.max_compute_workgroups_per_dimension.max(1));
         let rows = groups.div_ceil(per_row);
@@ -160,18 +203,6 @@ impl GpuAo {
             count: n as u32,
             row: per_row * WORKGROUP,
         };
-        // Neighbouring invocations trace neighbouring points (coherent rays),
-        // as the CPU backend does; results go back to input order below.
-        let order = morton_order(points);
-        let pts: Vec<[f32; 4]> = order
-            .iter()
-            .map(|&i| points[i].extend(0.0).to_array())
-            .collect();
-        let nrm: Vec<[f32; 4]> = order
-            .iter()
-            .map(|&i| normals[i].extend(0.0).to_array())
-            .collect();
-        let sorted_ids: Vec<u32> = order.iter().map(|&i| ids[i]).collect();
         let readback = ctx.checked("AO pass", || {
             let d = &ctx.device;
             let init = |label, contents: &[u8], usage| {
@@ -187,9 +218,9 @@ impl GpuAo {
                 wgpu::BufferUsages::UNIFORM,
             );
             let s = wgpu::BufferUsages::STORAGE;
-            let pb = init("psao-gpu points", bytemuck::cast_slice(&pts), s);
-            let nb = init("psao-gpu normals", bytemuck::cast_slice(&nrm), s);
-            let ib = init("psao-gpu ids", bytemuck::cast_slice(&sorted_ids), s);
+            let pb = init("psao-gpu points", bytemuck::cast_slice(pts), s);
+            let nb = init("psao-gpu normals", bytemuck::cast_slice(nrm), s);
+            let ib = init("psao-gpu ids", bytemuck::cast_slice(sorted_ids), s);
             let size = (n * 4) as u64;
             let out = d.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("psao-gpu ao out"),
@@ -252,11 +283,6 @@ impl GpuAo {
             ctx.queue.submit(Some(enc.finish()));
             readback
         })?;
-        let sorted = ctx.read_f32(&readback)?;
-        let mut ao = vec![1.0f32; n];
-        for (&i, &v) in order.iter().zip(&sorted) {
-            ao[i] = v;
-        }
-        Ok(AoResult { ao, rays })
+        ctx.read_f32(&readback)
     }
 }

@@ -15,8 +15,8 @@ pub struct GpuContext {
 }
 
 impl GpuContext {
-    /// Opens the first Vulkan adapter with ray queries (high performance
-    /// preferred). Without a Vulkan driver, or with one lacking ray queries,
+    /// Opens a Vulkan adapter with ray queries (a discrete GPU preferred,
+    /// then an integrated one, then a CPU driver such as lavapipe). Without a Vulkan driver, or with one lacking ray queries,
     /// returns an error that says what to install; never panics.
     pub fn new() -> Result<GpuContext, GpuError> {
         pollster::block_on(Self::open())
@@ -27,45 +27,66 @@ impl GpuContext {
             backends: wgpu::Backends::VULKAN,
             ..wgpu::InstanceDescriptor::new_without_display_handle()
         });
-        let adapter = instance
-            .request_adapter(&wgpu::RequestAdapterOptions {
-                power_preference: wgpu::PowerPreference::HighPerformance,
-                force_fallback_adapter: false,
-                compatible_surface: None,
-                ..Default::default()
-            })
-            .await
-            .map_err(|e| GpuError::NoAdapter {
-                details: e.to_string(),
-            })?;
-        let info = adapter.get_info();
+        let adapters = instance.enumerate_adapters(wgpu::Backends::VULKAN).await;
+        if adapters.is_empty() {
+            return Err(GpuError::NoAdapter {
+                details: "the Vulkan loader found no device".into(),
+            });
+        }
         let needed = wgpu::Features::EXPERIMENTAL_RAY_QUERY;
-        if !adapter.features().contains(needed) {
+        // Among adapters with ray queries: a discrete GPU first, then an
+        // integrated one, then anything else (lavapipe is a CPU device).
+        let rank = |t: wgpu::DeviceType| match t {
+            wgpu::DeviceType::DiscreteGpu => 0,
+            wgpu::DeviceType::IntegratedGpu => 1,
+            wgpu::DeviceType::VirtualGpu => 2,
+            wgpu::DeviceType::Cpu => 3,
+            wgpu::DeviceType::Other => 4,
+        };
+        let Some(adapter) = adapters
+            .iter()
+            .filter(|a| a.features().contains(needed))
+            .min_by_key(|a| rank(a.get_info().device_type))
+        else {
+            let info = adapters[0].get_info();
             return Err(GpuError::NoRayQuery {
                 adapter: info.name.clone(),
                 driver: format!("{} {}", info.driver, info.driver_info),
             });
-        }
-        // SAFETY: `ExperimentalFeatures::enabled` is `unsafe` only as an
-        // acknowledgement that wgpu's experimental APIs (here: ray queries
-        // and acceleration structures) may still have bugs; it has no
-        // memory-safety precondition a caller could violate. We use those
-        // APIs only through wgpu's validated, safe calls, inside error
-        // scopes, and check results against the CPU backend in tests.
+        };
+        let info = adapter.get_info();
+        // SAFETY: `ExperimentalFeatures::enabled` is `unsafe` because wgpu's
+        // experimental APIs (ray queries, acceleration structures) may still
+        // hit undefined behaviour through otherwise safe calls when used
+        // outside what wgpu validates. This crate stays inside it: scenes
+        // are validated before upload (`Scene::validate`: indices below the
+        // vertex count, finite vertices), a skinned BLAS is rebuilt only
+        // from the same number of vertices it was created with (checked in
+        // `GpuScene::place`), every BLAS lives as long as the `GpuScene`
+        // whose TLAS refers to it and none is compacted, and ray queries run
+        // only in the compute passes of this crate, whose results the tests
+        // compare with the CPU backend.
         #[allow(unsafe_code)]
         let experimental = unsafe { wgpu::ExperimentalFeatures::enabled() };
         let (device, queue) = adapter
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("psao-gpu"),
                 required_features: needed,
-                required_limits: wgpu::Limits::default()
-                    .using_acceleration_structure_values(adapter.limits()),
+                // All the adapter offers: larger buffers and bindings than
+                // wgpu's portable defaults.
+                required_limits: adapter.limits(),
                 experimental_features: experimental,
                 memory_hints: wgpu::MemoryHints::Performance,
                 trace: wgpu::Trace::Off,
             })
             .await
             .map_err(|e| GpuError::Device(e.to_string()))?;
+        // Errors outside an error scope would panic in wgpu's default
+        // handler; every call that can fail runs inside `checked`, and
+        // anything else is logged rather than aborting the process.
+        device.on_uncaptured_error(std::sync::Arc::new(|e: wgpu::Error| {
+            eprintln!("psao-gpu: uncaptured GPU error: {e}");
+        }));
         Ok(GpuContext {
             device,
             queue,

@@ -42,6 +42,12 @@ pub struct GpuMirror {
     slots: Vec<Option<Slot>>,
     /// Bytes uploaded by the last [`sync`](Self::sync).
     last_upload: u64,
+    /// A failed upload left the buffers behind the mirror: the next sync
+    /// uploads everything.
+    needs_full: bool,
+    /// Counts reallocations of the buffers (bind groups made from
+    /// [`bind_entries`](Self::bind_entries) must be remade when it changes).
+    generation: u64,
 }
 
 /// Largest instance id the GPU mirror indexes densely.
@@ -78,6 +84,8 @@ impl GpuMirror {
             normals,
             slots: Vec::new(),
             last_upload: 0,
+            needs_full: false,
+            generation: 0,
         };
         m.upload_all(ctx, mirror)?;
         Ok(m)
@@ -86,16 +94,23 @@ impl GpuMirror {
     /// Brings the buffers up to `mirror` and clears its change list: the
     /// changed bucket and word ranges are written in place; a new, removed
     /// or redefined instance, or a change list that says everything may
-    /// have changed, uploads everything again. Returns the bytes written.
+    /// have changed, uploads everything again (and bumps
+    /// [`generation`](Self::generation)). On an error the change list is
+    /// kept and the next sync uploads everything. Returns the bytes
+    /// written.
     pub fn sync(&mut self, ctx: &GpuContext, mirror: &mut Mirror) -> Result<u64, GpuError> {
-        let changes = mirror.take_changes();
+        let changes = mirror.changes().clone();
         let layout_changed = changes.all
             || changes
                 .items
                 .iter()
                 .any(|c| matches!(c, Change::Defined(_) | Change::Removed(_)));
-        if layout_changed || self.layout_differs(mirror) {
+        if self.needs_full || layout_changed || self.layout_differs(mirror) {
+            // The change list is kept until the upload succeeded.
+            self.needs_full = true;
             self.upload_all(ctx, mirror)?;
+            self.needs_full = false;
+            mirror.clear_changes();
             return Ok(self.last_upload);
         }
         let mut bytes = 0u64;
@@ -131,13 +146,15 @@ impl GpuMirror {
                     Change::Defined(_) | Change::Removed(_) => {}
                 }
             }
-        })?;
-        if transforms {
-            let table = self.instance_table(mirror);
-            ctx.queue
-                .write_buffer(&self.instances, 0, bytemuck::cast_slice(&table));
-            bytes += (table.len() * std::mem::size_of::<InstanceGpu>()) as u64;
-        }
+            if transforms {
+                let table = self.instance_table(mirror);
+                ctx.queue
+                    .write_buffer(&self.instances, 0, bytemuck::cast_slice(&table));
+                bytes += (table.len() * std::mem::size_of::<InstanceGpu>()) as u64;
+            }
+        })
+        .inspect_err(|_| self.needs_full = true)?;
+        mirror.clear_changes();
         self.last_upload = bytes;
         Ok(bytes)
     }
@@ -190,8 +207,15 @@ impl GpuMirror {
                 });
             }
         }
-        self.slots = slots;
-        let table = self.instance_table(mirror);
+        let table_bytes = slots.len().max(1) as u64 * std::mem::size_of::<InstanceGpu>() as u64;
+        if table_bytes > limit {
+            return Err(GpuError::Limits {
+                what: "bytes of the per-instance table (largest instance id + 1)",
+                needed: table_bytes,
+                limit,
+            });
+        }
+        let table = Self::table_of(&slots, mirror);
         let (i, b, w) = ctx.checked("mirror upload", || {
             (
                 storage(ctx, "psao-gpu instances", bytemuck::cast_slice(&table)),
@@ -199,9 +223,12 @@ impl GpuMirror {
                 storage(ctx, "psao-gpu words", bytemuck::cast_slice(&words)),
             )
         })?;
+        // Only now, with the new buffers made, does the layout change.
+        self.slots = slots;
         self.instances = i;
         self.buckets = b;
         self.words = w;
+        self.generation += 1;
         self.last_upload = (table.len() * std::mem::size_of::<InstanceGpu>()
             + buckets.len() * 8
             + words.len() * 4) as u64;
@@ -210,8 +237,12 @@ impl GpuMirror {
 
     /// The per-instance parameters, indexed by instance id.
     fn instance_table(&self, mirror: &Mirror) -> Vec<InstanceGpu> {
-        let mut table = vec![InstanceGpu::default(); self.slots.len().max(1)];
-        for (id, slot) in self.slots.iter().enumerate() {
+        Self::table_of(&self.slots, mirror)
+    }
+
+    fn table_of(slots: &[Option<Slot>], mirror: &Mirror) -> Vec<InstanceGpu> {
+        let mut table = vec![InstanceGpu::default(); slots.len().max(1)];
+        for (id, slot) in slots.iter().enumerate() {
             let (Some(slot), Some(inst)) = (slot, mirror.instance(id as u32)) else {
                 continue;
             };
@@ -263,6 +294,13 @@ impl GpuMirror {
     /// Bytes written by the last upload or sync.
     pub fn last_upload_bytes(&self) -> u64 {
         self.last_upload
+    }
+
+    /// How many times the buffers were reallocated (a keyframe, a new or
+    /// removed instance): bind groups made from
+    /// [`bind_entries`](Self::bind_entries) must be remade when it changes.
+    pub fn generation(&self) -> u64 {
+        self.generation
     }
 
     /// The bind group entries of `reconstruct.wgsl`'s group (bindings 0-3).

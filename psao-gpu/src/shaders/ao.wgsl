@@ -102,6 +102,7 @@ fn solid(instance: u32, prim: u32, bary: vec2<f32>) -> bool {
 
 const GOLDEN: u32 = 0x9E3779B9u;
 const TAU: f32 = 6.28318530717958647692;
+const PI: f32 = 3.14159265358979323846;
 
 // psao_scene::hash (a PCG-style integer hash).
 fn hash(x0: u32) -> u32 {
@@ -115,6 +116,17 @@ fn uniform01(stream: u32, index: u32) -> f32 {
     let s = hash(params.seed_lo ^ hash(params.seed_hi));
     let h = hash(s ^ hash(stream ^ hash(index)));
     return f32(h >> 8u) / 16777216.0;
+}
+
+// Whether every component is finite (by the exponent bits: compilers may
+// assume ordered comparisons never see NaN or infinity).
+fn finite3(v: vec3<f32>) -> bool {
+    let e = bitcast<vec3<u32>>(v) & vec3<u32>(0x7F800000u);
+    return all(e != vec3<u32>(0x7F800000u));
+}
+
+fn finite1(x: f32) -> bool {
+    return (bitcast<u32>(x) & 0x7F800000u) != 0x7F800000u;
 }
 
 // psao_scene::ray_offset.
@@ -163,16 +175,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let point = points[i].xyz;
     let id = ids[i];
-    let finite = all(abs(point) <= vec3<f32>(3.4e38));
-    if (params.rays == 0u || !finite) {
+    if (params.rays == 0u || !finite3(point)) {
         ao[i] = 1.0;
         return;
     }
-    // Normalized, or +Z (glam's try_normalize fallback on the CPU).
+    // Normalized as glam's try_normalize (times the reciprocal length), or
+    // +Z as the CPU's fallback.
     var n = normals[i].xyz;
-    let len = length(n);
-    if (len > 0.0 && len <= 3.4e38) {
-        n = n / len;
+    let rcp = 1.0 / length(n);
+    if (finite1(rcp) && rcp > 0.0) {
+        n = n * rcp;
     } else {
         n = vec3<f32>(0.0, 0.0, 1.0);
     }
@@ -184,7 +196,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let t1 = vec3<f32>(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
     let t2 = vec3<f32>(b, sign + n.y * n.y * a, -n.y);
     let origin = point + n * ray_offset(point);
-    if (!all(abs(origin) <= vec3<f32>(3.4e38))) {
+    if (!finite3(origin)) {
         ao[i] = 1.0;
         return;
     }
@@ -193,9 +205,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     for (var k = 0u; k < params.rays; k = k + 1u) {
         let r1 = (f32(k) + uniform01(id, 3u * k)) / f32(params.rays);
         let r2 = uniform01(id, 3u * k + 1u);
-        let phi = TAU * r2;
-        let s = sin(phi);
-        let c = cos(phi);
+        // sin and cos of phi in [0, 2 pi), taken in [-pi, pi) where their
+        // accuracy is bounded: sin(x) = -sin(x - pi), cos(x) = -cos(x - pi).
+        let phi = TAU * r2 - PI;
+        let s = -sin(phi);
+        let c = -cos(phi);
         let rr = sqrt(r1);
         let dir = t1 * (rr * c) + t2 * (rr * s) + n * sqrt(max(1.0 - r1, 0.0));
         if (params.estimator == 0u) {

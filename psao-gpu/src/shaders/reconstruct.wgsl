@@ -38,6 +38,12 @@ struct PsaoInstance {
 // The 256 decoded octahedral normals (xyz; w unused).
 @group(0) @binding(3) var<storage, read> psao_normals: array<vec4<f32>, 256>;
 
+// Whether every component is finite (by the exponent bits).
+fn psao_finite3(v: vec3<f32>) -> bool {
+    let e = bitcast<vec3<u32>>(v) & vec3<u32>(0x7F800000u);
+    return all(e != vec3<u32>(0x7F800000u));
+}
+
 const PSAO_EMPTY: u32 = 0xFFFFFFFFu;
 const PSAO_ALLOC: u32 = 0x80000000u;
 
@@ -131,13 +137,21 @@ fn psao_ao(instance: u32, position: vec3<f32>, normal: vec3<f32>) -> f32 {
     if (inst.params.z == 0.0) {
         return 1.0;
     }
-    let x = inst.to_local_x.xyz * position.x + inst.to_local_y.xyz * position.y + inst.to_local_z.xyz * position.z + inst.to_local_t.xyz;
-    let nl = vec3<f32>(dot(inst.normal_x.xyz, normal), dot(inst.normal_y.xyz, normal), dot(inst.normal_z.xyz, normal));
-    let len = length(nl);
-    if (!(len > 0.0) || !all(abs(x) <= vec3<f32>(3.4e38))) {
+    if (!psao_finite3(position) || !psao_finite3(normal)) {
         return 1.0;
     }
-    let n = nl / len;
+    let x = inst.to_local_x.xyz * position.x + inst.to_local_y.xyz * position.y + inst.to_local_z.xyz * position.z + inst.to_local_t.xyz;
+    let nl = vec3<f32>(dot(inst.normal_x.xyz, normal), dot(inst.normal_y.xyz, normal), dot(inst.normal_z.xyz, normal));
+    if (!psao_finite3(x) || !psao_finite3(nl)) {
+        return 1.0;
+    }
+    // As glam's normalize_or_zero: times the reciprocal length, or zero
+    // (which then gives no point weight unless T_n < 0, as on the CPU).
+    let rcp = 1.0 / length(nl);
+    var n = vec3<f32>(0.0);
+    if ((bitcast<u32>(rcp) & 0x7F800000u) != 0x7F800000u && rcp > 0.0) {
+        n = nl * rcp;
+    }
     let first = psao_sums(inst, x, n, inst.origin.w);
     if (first.x > 0.0) {
         return first.y / first.x;

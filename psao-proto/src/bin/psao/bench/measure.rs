@@ -34,6 +34,7 @@ use psao_scene::{
     SaoParams, Scene, View, psao_image, ray_traced_ao, rmse, sao, ssim,
 };
 
+use super::Backend;
 use super::images;
 
 /// Client frames per second: frame times lie on this grid.
@@ -73,6 +74,8 @@ pub struct Settings {
     /// Network delay, ms: a tick's frame reaches the client one server
     /// period plus this after its scene time.
     pub network_ms: f32,
+    /// Where PSAO servers trace.
+    pub backend: Backend,
 }
 
 impl Settings {
@@ -91,6 +94,7 @@ impl Settings {
             rtao_rays: vec![1, 4, 16],
             window: 1.0,
             network_ms: 0.0,
+            backend: Backend::Cpu,
         }
     }
 
@@ -128,6 +132,9 @@ impl Settings {
         }
         if self.rates.contains(&0) {
             return Err("a server rate of 0 Hz never ticks".into());
+        }
+        if self.backend == Backend::Gpu && !cfg!(feature = "gpu") {
+            return Err("this psao was built without GPU support: cargo run --release -p psao-proto --features gpu --bin psao -- bench --backend gpu".into());
         }
         if !(self.network_ms.is_finite() && (0.0..=10_000.0).contains(&self.network_ms)) {
             return Err("--network-ms must lie in [0, 10000]".into());
@@ -572,7 +579,11 @@ fn measure_psao(
         ..PipelineConfig::default()
     };
     let started = Instant::now();
-    let mut pipeline = Pipeline::new(scene.clone(), config).map_err(|e| e.to_string())?;
+    let mut pipeline = match s.backend {
+        Backend::Cpu => Pipeline::new(scene.clone(), config),
+        Backend::Gpu => gpu_pipeline(scene, config)?,
+    }
+    .map_err(|e| e.to_string())?;
     let mut client = Decoder::new(Limits::default());
     let keyframe = pipeline.keyframe().map_err(|e| e.to_string())?;
     client
@@ -647,4 +658,28 @@ fn measure_psao(
     row.keyframe_bytes = Some(keyframe.bytes.len());
     row.unknown_px = unknown;
     Ok((row, first))
+}
+
+/// A pipeline tracing with wgpu ray queries.
+#[cfg(feature = "gpu")]
+fn gpu_pipeline(
+    scene: &Scene,
+    config: PipelineConfig,
+) -> Result<Result<Pipeline, psao_scene::SceneError>, String> {
+    let backend = psao_gpu::GpuBackend::new(scene).map_err(|e| e.to_string())?;
+    Ok(Pipeline::with_backend(
+        scene.clone(),
+        config,
+        Box::new(backend),
+    ))
+}
+
+/// Without the `gpu` feature there is no GPU backend (`Settings::validate`
+/// says so first).
+#[cfg(not(feature = "gpu"))]
+fn gpu_pipeline(
+    _scene: &Scene,
+    _config: PipelineConfig,
+) -> Result<Result<Pipeline, psao_scene::SceneError>, String> {
+    Err("this psao was built without GPU support (--features gpu)".into())
 }

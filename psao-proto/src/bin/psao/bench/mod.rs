@@ -17,6 +17,15 @@ use psao_scene::{Scene, cesium_man_scene, default_scene, load_gltf, stage};
 
 pub use measure::Settings;
 
+/// Where PSAO servers trace.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Backend {
+    /// The CPU tracer (obvhs).
+    Cpu,
+    /// wgpu ray queries (psao-gpu).
+    Gpu,
+}
+
 /// Arguments of `psao bench`.
 #[derive(clap::Args)]
 pub struct BenchArgs {
@@ -57,6 +66,10 @@ pub struct BenchArgs {
     /// server period plus this after its scene time.
     #[arg(long)]
     network_ms: Option<f32>,
+    /// Where PSAO servers trace their AO rays: `cpu` (obvhs) or `gpu`
+    /// (wgpu ray queries; build with `--features gpu`).
+    #[arg(long, value_enum, default_value_t = Backend::Cpu)]
+    backend: Backend,
     /// Output folder.
     #[arg(long, default_value = "bench-out")]
     out: PathBuf,
@@ -93,6 +106,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     if let Some(n) = args.network_ms {
         settings.network_ms = n;
     }
+    settings.backend = args.backend;
     settings.validate()?;
     let mut scenes: Vec<(String, Scene)> = Vec::new();
     if !args.only_gltf {

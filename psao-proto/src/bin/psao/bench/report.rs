@@ -73,12 +73,16 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius 0.6), PSAO {} rays per point; client times are the AO pass alone on {} threads.\n",
+        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius 0.6), PSAO {} rays per point traced on the {} backend; client times are the AO work per frame on {} threads.\n",
         s.width,
         s.height,
         s.frames,
         s.reference_rays,
         s.point_rays,
+        match s.backend {
+            super::Backend::Cpu => "CPU",
+            super::Backend::Gpu => "GPU",
+        },
         std::thread::available_parallelism().map_or(1, |n| n.get())
     );
     for r in results {
