@@ -8,18 +8,11 @@
 
 use std::time::Instant;
 
-use glam::Vec3;
 use psao_gpu::{GpuAo, GpuContext, GpuScene};
 use psao_scene::*;
 
-fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
-    let args: Vec<String> = std::env::args().collect();
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1))
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
+mod support;
+use support::arg;
 
 fn main() {
     let density: f32 = arg("--density", 64.0);
@@ -41,17 +34,7 @@ fn main() {
         },
     )
     .expect("the default scene builds");
-    let (mut ids, mut pts, mut nrm) = (Vec::new(), Vec::<Vec3>::new(), Vec::<Vec3>::new());
-    for i in 0..p.instance_count() {
-        let (pos, n) = p.current_points(i).expect("instance");
-        let t = p.transform(i).expect("instance");
-        let nm = t.matrix3.inverse().transpose();
-        for k in 0..pos.len() {
-            ids.push(ids.len() as u32);
-            pts.push(t.transform_point3(pos[k]));
-            nrm.push((nm * n[k]).normalize());
-        }
-    }
+    let (ids, pts, nrm) = support::world_points(&p);
     let cpu = PosedScene::new(&scene, 0.0).expect("poses").tracer();
     let gpu_scene = GpuScene::new(&ctx, &scene).expect("GPU scene");
     let ao = GpuAo::new(&ctx).expect("AO pass");

@@ -13,14 +13,8 @@ use psao_codec::{Decoder, Limits};
 use psao_gpu::{GpuContext, GpuMirror, GpuReconstruct};
 use psao_scene::*;
 
-fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
-    let args: Vec<String> = std::env::args().collect();
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1))
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
+mod support;
+use support::arg;
 
 fn best(reps: u32, mut f: impl FnMut()) -> f64 {
     (0..reps)

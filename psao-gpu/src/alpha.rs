@@ -3,7 +3,6 @@
 //! solid, exactly as psao-scene's `AlphaMask::solid` does.
 
 use psao_scene::Scene;
-use wgpu::util::DeviceExt;
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -60,19 +59,6 @@ pub(crate) struct AlphaTables {
     data: wgpu::Buffer,
 }
 
-fn storage(ctx: &GpuContext, label: &str, bytes: &[u8]) -> wgpu::Buffer {
-    let mut data = bytes.to_vec();
-    if data.len() < 16 {
-        data.resize(16, 0);
-    }
-    ctx.device
-        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents: &data,
-            usage: wgpu::BufferUsages::STORAGE,
-        })
-}
-
 impl AlphaTables {
     /// The tables of `scene` (every mask's data once per mesh).
     pub(crate) fn new(ctx: &GpuContext, scene: &Scene) -> Result<AlphaTables, GpuError> {
@@ -118,8 +104,16 @@ impl AlphaTables {
             scene.instances.iter().map(|i| per_mesh[i.mesh]).collect()
         };
         ctx.checked("alpha mask upload", || AlphaTables {
-            info: storage(ctx, "psao-gpu alpha info", bytemuck::cast_slice(&info)),
-            data: storage(ctx, "psao-gpu alpha data", bytemuck::cast_slice(&data)),
+            info: ctx.buffer_with(
+                "psao-gpu alpha info",
+                bytemuck::cast_slice(&info),
+                wgpu::BufferUsages::STORAGE,
+            ),
+            data: ctx.buffer_with(
+                "psao-gpu alpha data",
+                bytemuck::cast_slice(&data),
+                wgpu::BufferUsages::STORAGE,
+            ),
         })
     }
 

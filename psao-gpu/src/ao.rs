@@ -3,10 +3,9 @@
 //! does, so that the same seed gives the same rays on both.
 
 use psao_scene::{AoParams, AoResult, Estimator, morton_order};
-use wgpu::util::DeviceExt;
 
 use crate::accel::GpuScene;
-use crate::context::GpuContext;
+use crate::context::{GpuContext, storage_layout};
 use crate::error::GpuError;
 
 /// Threads per workgroup of the AO pass (the shader's `workgroup_size`).
@@ -47,16 +46,6 @@ impl GpuAo {
                     label: Some("psao-gpu ao.wgsl"),
                     source: wgpu::ShaderSource::Wgsl(include_str!("shaders/ao.wgsl").into()),
                 });
-            let storage = |binding: u32, read_only: bool| wgpu::BindGroupLayoutEntry {
-                binding,
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Storage { read_only },
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
-                },
-                count: None,
-            };
             let layout = ctx
                 .device
                 .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -80,12 +69,12 @@ impl GpuAo {
                             },
                             count: None,
                         },
-                        storage(2, true),
-                        storage(3, true),
-                        storage(4, true),
-                        storage(5, false),
-                        storage(6, true),
-                        storage(7, true),
+                        storage_layout(2, true),
+                        storage_layout(3, true),
+                        storage_layout(4, true),
+                        storage_layout(5, false),
+                        storage_layout(6, true),
+                        storage_layout(7, true),
                     ],
                 });
             let pl = ctx
@@ -186,10 +175,7 @@ impl GpuAo {
         p: &AoParams,
     ) -> Result<Vec<f32>, GpuError> {
         let n = pts.len();
-        let limits = ctx.device.limits();
-        let groups = (n as u32).div_ceil(WORKGROUP);
-        let per_row = groups.min(limits.max_compute_workgroups_per_dimension.max(1));
-        let rows = groups.div_ceil(per_row);
+        let grid = ctx.grid(n, WORKGROUP);
         let params = Params {
             radius: p.radius,
             bias: p.bias,
@@ -201,88 +187,48 @@ impl GpuAo {
             seed_lo: p.seed as u32,
             seed_hi: (p.seed >> 32) as u32,
             count: n as u32,
-            row: per_row * WORKGROUP,
+            row: grid.0 * WORKGROUP,
         };
         let readback = ctx.checked("AO pass", || {
-            let d = &ctx.device;
-            let init = |label, contents: &[u8], usage| {
-                d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some(label),
-                    contents,
-                    usage,
-                })
-            };
-            let uniform = init(
+            let s = wgpu::BufferUsages::STORAGE;
+            let uniform = ctx.buffer_with(
                 "psao-gpu ao params",
                 bytemuck::bytes_of(&params),
                 wgpu::BufferUsages::UNIFORM,
             );
-            let s = wgpu::BufferUsages::STORAGE;
-            let pb = init("psao-gpu points", bytemuck::cast_slice(pts), s);
-            let nb = init("psao-gpu normals", bytemuck::cast_slice(nrm), s);
-            let ib = init("psao-gpu ids", bytemuck::cast_slice(sorted_ids), s);
-            let size = (n * 4) as u64;
-            let out = d.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("psao-gpu ao out"),
-                size,
-                usage: s | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
-            });
-            let readback = d.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("psao-gpu ao readback"),
-                size,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            let bind = d.create_bind_group(&wgpu::BindGroupDescriptor {
+            let pb = ctx.buffer_with("psao-gpu points", bytemuck::cast_slice(pts), s);
+            let nb = ctx.buffer_with("psao-gpu normals", bytemuck::cast_slice(nrm), s);
+            let ib = ctx.buffer_with("psao-gpu ids", bytemuck::cast_slice(sorted_ids), s);
+            let (out, readback) = ctx.output_f32("psao-gpu ao out", n);
+            let entries: Vec<wgpu::BindGroupEntry<'_>> = [
+                (0, tlas.as_binding()),
+                (1, uniform.as_entire_binding()),
+                (2, pb.as_entire_binding()),
+                (3, nb.as_entire_binding()),
+                (4, ib.as_entire_binding()),
+                (5, out.as_entire_binding()),
+            ]
+            .into_iter()
+            .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource })
+            .chain(scene.alpha().bind_entries())
+            .collect();
+            let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("psao-gpu ao bind"),
                 layout: &self.layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: tlas.as_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: uniform.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: pb.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: nb.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 4,
-                        resource: ib.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 5,
-                        resource: out.as_entire_binding(),
-                    },
-                ]
-                .into_iter()
-                .chain(scene.alpha().bind_entries())
-                .collect::<Vec<_>>(),
+                entries: &entries,
             });
-            let mut enc = d.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("psao-gpu ao"),
-            });
-            {
-                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("psao-gpu ao"),
-                    timestamp_writes: None,
-                });
-                pass.set_pipeline(&self.pipeline);
-                pass.set_bind_group(0, &bind, &[]);
-                pass.dispatch_workgroups(per_row, rows, 1);
-            }
-            enc.copy_buffer_to_buffer(&out, 0, &readback, 0, size);
-            ctx.queue.submit(Some(enc.finish()));
+            ctx.submit_pass(
+                "psao-gpu ao",
+                &self.pipeline,
+                &[&bind],
+                grid,
+                &out,
+                &readback,
+            );
             readback
         })?;
-        ctx.read_f32(&readback)
+        let mut ao = ctx.read_f32(&readback)?;
+        ao.truncate(n);
+        Ok(ao)
     }
 }

@@ -1,7 +1,23 @@
 //! The device: a Vulkan adapter with ray queries, opened with the
 //! experimental ray-query feature.
 
+use wgpu::util::DeviceExt;
+
 use crate::error::GpuError;
+
+/// A compute-stage storage buffer binding.
+pub(crate) fn storage_layout(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
 
 /// A wgpu device and queue that can build acceleration structures and run
 /// ray queries.
@@ -121,6 +137,88 @@ impl GpuContext {
             }),
             None => Ok(r),
         }
+    }
+
+    /// A buffer holding `bytes` (padded to 16 bytes: wgpu refuses empty
+    /// bindings). Call inside [`checked`](Self::checked).
+    pub(crate) fn buffer_with(
+        &self,
+        label: &str,
+        bytes: &[u8],
+        usage: wgpu::BufferUsages,
+    ) -> wgpu::Buffer {
+        let mut data = bytes.to_vec();
+        if data.len() < 16 {
+            data.resize(16, 0);
+        }
+        self.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: &data,
+                usage,
+            })
+    }
+
+    /// An f32 output buffer of `count` values for a pass, and the
+    /// mappable buffer it is copied to.
+    pub(crate) fn output_f32(&self, label: &str, count: usize) -> (wgpu::Buffer, wgpu::Buffer) {
+        let size = (count.max(4) * 4) as u64;
+        let out = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let readback = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        (out, readback)
+    }
+
+    /// Workgroups for `n` invocations of `workgroup` threads: (per row,
+    /// rows), rows past the device's per-dimension limit.
+    pub(crate) fn grid(&self, n: usize, workgroup: u32) -> (u32, u32) {
+        let groups = (n as u32).div_ceil(workgroup).max(1);
+        let per_row = groups.min(
+            self.device
+                .limits()
+                .max_compute_workgroups_per_dimension
+                .max(1),
+        );
+        (per_row, groups.div_ceil(per_row))
+    }
+
+    /// Records and submits a compute pass of `pipeline` with `groups`
+    /// bound in order over `grid` workgroups, then copies `out` to
+    /// `readback`. Call inside [`checked`](Self::checked).
+    pub(crate) fn submit_pass(
+        &self,
+        label: &str,
+        pipeline: &wgpu::ComputePipeline,
+        groups: &[&wgpu::BindGroup],
+        grid: (u32, u32),
+        out: &wgpu::Buffer,
+        readback: &wgpu::Buffer,
+    ) {
+        let mut enc = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(label),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(pipeline);
+            for (i, g) in groups.iter().enumerate() {
+                pass.set_bind_group(i as u32, *g, &[]);
+            }
+            pass.dispatch_workgroups(grid.0, grid.1, 1);
+        }
+        enc.copy_buffer_to_buffer(out, 0, readback, 0, out.size());
+        self.queue.submit(Some(enc.finish()));
     }
 
     /// Maps a `MAP_READ` buffer of f32 values once the queue is done and

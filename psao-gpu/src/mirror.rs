@@ -5,7 +5,6 @@
 //! [`Mirror`] reports otherwise.
 
 use psao_codec::{Change, InstanceDef, Mirror, WeightParams, normal_table};
-use wgpu::util::DeviceExt;
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -53,20 +52,6 @@ pub struct GpuMirror {
 /// Largest instance id the GPU mirror indexes densely.
 pub const MAX_GPU_INSTANCE_ID: u32 = 1 << 20;
 
-fn storage(ctx: &GpuContext, label: &str, bytes: &[u8]) -> wgpu::Buffer {
-    // wgpu rejects zero-sized bindings: keep at least 16 bytes.
-    let mut data = bytes.to_vec();
-    if data.len() < 16 {
-        data.resize(16, 0);
-    }
-    ctx.device
-        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents: &data,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-        })
-}
-
 impl GpuMirror {
     /// An upload of `mirror` as it is now (its change list is left alone).
     pub fn new(ctx: &GpuContext, mirror: &Mirror) -> Result<GpuMirror, GpuError> {
@@ -75,7 +60,11 @@ impl GpuMirror {
             .map(|n| n.extend(0.0).to_array())
             .collect();
         let normals = ctx.checked("mirror upload", || {
-            storage(ctx, "psao-gpu normal table", bytemuck::cast_slice(&table))
+            ctx.buffer_with(
+                "psao-gpu normal table",
+                bytemuck::cast_slice(&table),
+                wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            )
         })?;
         let mut m = GpuMirror {
             instances: normals.clone(),
@@ -218,9 +207,21 @@ impl GpuMirror {
         let table = Self::table_of(&slots, mirror);
         let (i, b, w) = ctx.checked("mirror upload", || {
             (
-                storage(ctx, "psao-gpu instances", bytemuck::cast_slice(&table)),
-                storage(ctx, "psao-gpu buckets", bytemuck::cast_slice(&buckets)),
-                storage(ctx, "psao-gpu words", bytemuck::cast_slice(&words)),
+                ctx.buffer_with(
+                    "psao-gpu instances",
+                    bytemuck::cast_slice(&table),
+                    wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                ),
+                ctx.buffer_with(
+                    "psao-gpu buckets",
+                    bytemuck::cast_slice(&buckets),
+                    wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                ),
+                ctx.buffer_with(
+                    "psao-gpu words",
+                    bytemuck::cast_slice(&words),
+                    wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                ),
             )
         })?;
         // Only now, with the new buffers made, does the layout change.

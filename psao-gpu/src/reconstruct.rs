@@ -3,9 +3,8 @@
 //! compute pass over a G-buffer.
 
 use psao_scene::{GBuffer, NO_INSTANCE};
-use wgpu::util::DeviceExt;
 
-use crate::context::GpuContext;
+use crate::context::{GpuContext, storage_layout};
 use crate::error::GpuError;
 use crate::mirror::GpuMirror;
 
@@ -23,19 +22,6 @@ pub struct GpuReconstruct {
     pipeline: wgpu::ComputePipeline,
     mirror_layout: wgpu::BindGroupLayout,
     pass_layout: wgpu::BindGroupLayout,
-}
-
-fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only },
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    }
 }
 
 impl GpuReconstruct {
@@ -57,10 +43,10 @@ impl GpuReconstruct {
                     .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                         label: Some("psao-gpu mirror"),
                         entries: &[
-                            storage_entry(0, true),
-                            storage_entry(1, true),
-                            storage_entry(2, true),
-                            storage_entry(3, true),
+                            storage_layout(0, true),
+                            storage_layout(1, true),
+                            storage_layout(2, true),
+                            storage_layout(3, true),
                         ],
                     });
             let pass_layout =
@@ -68,10 +54,10 @@ impl GpuReconstruct {
                     .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                         label: Some("psao-gpu reconstruct pass"),
                         entries: &[
-                            storage_entry(0, true),
-                            storage_entry(1, true),
-                            storage_entry(2, true),
-                            storage_entry(3, false),
+                            storage_layout(0, true),
+                            storage_layout(1, true),
+                            storage_layout(2, true),
+                            storage_layout(3, false),
                             wgpu::BindGroupLayoutEntry {
                                 binding: 4,
                                 visibility: wgpu::ShaderStages::COMPUTE,
@@ -130,9 +116,7 @@ impl GpuReconstruct {
                 limit: limits.max_storage_buffer_binding_size,
             });
         }
-        let groups = (n as u32).div_ceil(WORKGROUP);
-        let per_row = groups.min(limits.max_compute_workgroups_per_dimension.max(1));
-        let rows = groups.div_ceil(per_row);
+        let grid = ctx.grid(n, WORKGROUP);
         let pos: Vec<[f32; 4]> = g
             .position
             .iter()
@@ -144,86 +128,48 @@ impl GpuReconstruct {
             .iter()
             .map(|&i| if i == NO_INSTANCE { u32::MAX } else { i })
             .collect();
-        let size = [n as u32, per_row * WORKGROUP, 0, 0];
+        let size = [n as u32, grid.0 * WORKGROUP, 0, 0];
         let readback = ctx.checked("reconstruction pass", || {
-            let d = &ctx.device;
-            let init = |label, contents: &[u8], usage| {
-                d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some(label),
-                    contents,
-                    usage,
-                })
-            };
             let s = wgpu::BufferUsages::STORAGE;
-            let pb = init("psao-gpu gbuffer position", bytemuck::cast_slice(&pos), s);
-            let nb = init("psao-gpu gbuffer normal", bytemuck::cast_slice(&nrm), s);
-            let ib = init("psao-gpu gbuffer instance", bytemuck::cast_slice(&ids), s);
-            let ub = init(
+            let pb = ctx.buffer_with("psao-gpu gbuffer position", bytemuck::cast_slice(&pos), s);
+            let nb = ctx.buffer_with("psao-gpu gbuffer normal", bytemuck::cast_slice(&nrm), s);
+            let ib = ctx.buffer_with("psao-gpu gbuffer instance", bytemuck::cast_slice(&ids), s);
+            let ub = ctx.buffer_with(
                 "psao-gpu pass size",
                 bytemuck::cast_slice(&size),
                 wgpu::BufferUsages::UNIFORM,
             );
-            let bytes = n as u64 * 4;
-            let out = d.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("psao-gpu ao image"),
-                size: bytes,
-                usage: s | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
-            });
-            let readback = d.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("psao-gpu ao image readback"),
-                size: bytes,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            let mirror_group = d.create_bind_group(&wgpu::BindGroupDescriptor {
+            let (out, readback) = ctx.output_f32("psao-gpu ao image", n);
+            let mirror_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("psao-gpu mirror"),
                 layout: &self.mirror_layout,
                 entries: &mirror.bind_entries(),
             });
-            let pass_group = d.create_bind_group(&wgpu::BindGroupDescriptor {
+            let entries: Vec<wgpu::BindGroupEntry<'_>> = [&pb, &nb, &ib, &out, &ub]
+                .into_iter()
+                .enumerate()
+                .map(|(k, b)| wgpu::BindGroupEntry {
+                    binding: k as u32,
+                    resource: b.as_entire_binding(),
+                })
+                .collect();
+            let pass_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("psao-gpu reconstruct pass"),
                 layout: &self.pass_layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: pb.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: nb.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: ib.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: out.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 4,
-                        resource: ub.as_entire_binding(),
-                    },
-                ],
+                entries: &entries,
             });
-            let mut enc = d.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("psao-gpu reconstruct"),
-            });
-            {
-                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("psao-gpu reconstruct"),
-                    timestamp_writes: None,
-                });
-                pass.set_pipeline(&self.pipeline);
-                pass.set_bind_group(0, &mirror_group, &[]);
-                pass.set_bind_group(1, &pass_group, &[]);
-                pass.dispatch_workgroups(per_row, rows, 1);
-            }
-            enc.copy_buffer_to_buffer(&out, 0, &readback, 0, bytes);
-            ctx.queue.submit(Some(enc.finish()));
+            ctx.submit_pass(
+                "psao-gpu reconstruct",
+                &self.pipeline,
+                &[&mirror_group, &pass_group],
+                grid,
+                &out,
+                &readback,
+            );
             readback
         })?;
-        ctx.read_f32(&readback)
+        let mut ao = ctx.read_f32(&readback)?;
+        ao.truncate(n);
+        Ok(ao)
     }
 }

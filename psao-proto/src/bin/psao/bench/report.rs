@@ -204,40 +204,26 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
                 k.psnr
             ));
         }
-        let better: Vec<String> = r
-            .rows
-            .iter()
-            .filter(|row| {
-                matches!(row.method, Method::Rtao { .. })
-                    && row.psnr > p.psnr
-                    && row.client_ms > p.client_ms
-            })
-            .map(|row| {
-                format!(
-                    "{} ({:.2} dB at {:.2} ms)",
-                    row.method.label(),
-                    row.psnr,
-                    row.client_ms
-                )
-            })
-            .collect();
-        let cheaper: Vec<String> = r
-            .rows
-            .iter()
-            .filter(|row| {
-                matches!(row.method, Method::Rtao { .. })
-                    && row.psnr > p.psnr
-                    && row.client_ms <= p.client_ms
-            })
-            .map(|row| {
-                format!(
-                    "{} ({:.2} dB at {:.2} ms)",
-                    row.method.label(),
-                    row.psnr,
-                    row.client_ms
-                )
-            })
-            .collect();
+        // RTAO rows above PSAO's PSNR, with more (or not more) client time.
+        let rtao_above = |more_time: bool| -> Vec<String> {
+            r.rows
+                .iter()
+                .filter(|row| {
+                    matches!(row.method, Method::Rtao { .. })
+                        && row.psnr > p.psnr
+                        && (row.client_ms > p.client_ms) == more_time
+                })
+                .map(|row| {
+                    format!(
+                        "{} ({:.2} dB at {:.2} ms)",
+                        row.method.label(),
+                        row.psnr,
+                        row.client_ms
+                    )
+                })
+                .collect()
+        };
+        let (better, cheaper) = (rtao_above(true), rtao_above(false));
         if !cheaper.is_empty() {
             out.push(format!(
                 "Per-pixel RTAO beats PSAO-{focus} in less client time: {}.",

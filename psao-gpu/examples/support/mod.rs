@@ -1,0 +1,33 @@
+//! What the psao-gpu examples share: argument reading and the server
+//! points of a pipeline.
+
+use glam::Vec3;
+use psao_scene::Pipeline;
+
+/// The value after `name` on the command line, or `default`.
+pub fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
+    let args: Vec<String> = std::env::args().collect();
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+/// Every point of the pipeline's instances in world space, with ids.
+#[allow(dead_code)]
+pub fn world_points(p: &Pipeline) -> (Vec<u32>, Vec<Vec3>, Vec<Vec3>) {
+    let (mut ids, mut pts, mut nrm) = (Vec::new(), Vec::new(), Vec::new());
+    for i in 0..p.instance_count() {
+        let (Some((pos, n)), Some(t)) = (p.current_points(i), p.transform(i)) else {
+            continue;
+        };
+        let nm = t.matrix3.inverse().transpose();
+        for k in 0..pos.len() {
+            ids.push(ids.len() as u32);
+            pts.push(t.transform_point3(pos[k]));
+            nrm.push((nm * n[k]).normalize());
+        }
+    }
+    (ids, pts, nrm)
+}
