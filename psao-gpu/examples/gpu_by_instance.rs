@@ -57,7 +57,7 @@ fn main() {
     println!("| instance | kind | points | GPU ms | CPU ms | GPU / CPU |");
     println!("|---|---|---|---|---|---|");
     let dynamic = scene.dynamic_instances();
-    for i in 0..p.instance_count() {
+    for (i, &moves) in dynamic.iter().enumerate() {
         let (Some((pos, n)), Some(t)) = (p.current_points(i), p.transform(i)) else {
             continue;
         };
@@ -80,7 +80,7 @@ fn main() {
         });
         let kind = if scene.instances[i].skin.is_some() {
             "skinned"
-        } else if dynamic[i] {
+        } else if moves {
             "moving"
         } else {
             "static"
