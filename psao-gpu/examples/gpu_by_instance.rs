@@ -5,34 +5,16 @@
 //!
 //! `cargo run --release -p psao-gpu --example gpu_by_instance [-- --density 256 --most 1200]`
 
-use std::time::Instant;
-
-use psao_gpu::{GpuAo, GpuContext, GpuScene};
+use psao_gpu::{GpuAo, GpuScene};
 use psao_scene::*;
 
 mod support;
 use support::arg;
 
-fn best(reps: u32, mut f: impl FnMut()) -> f64 {
-    (0..reps)
-        .map(|_| {
-            let t = Instant::now();
-            f();
-            t.elapsed().as_secs_f64() * 1e3
-        })
-        .fold(f64::MAX, f64::min)
-}
-
 fn main() {
     let density: f32 = arg("--density", 256.0);
     let most: usize = arg("--most", 1200);
-    let ctx = match GpuContext::new() {
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!("error: {e}");
-            std::process::exit(2);
-        }
-    };
+    let ctx = support::open_context();
     let scene = default_scene();
     let p = Pipeline::new(
         scene.clone(),
@@ -50,7 +32,7 @@ fn main() {
         ..AoParams::default()
     };
     println!("default scene, density {density}, GPU: {}", ctx.describe());
-    let pose_ms = best(3, || {
+    let pose_ms = support::best_ms(3, || {
         gpu_scene.pose(&ctx, &scene, 0.0).expect("poses");
     });
     println!("posing the GPU scene (skinned BLAS, TLAS): {pose_ms:.2} ms");
@@ -71,11 +53,11 @@ fn main() {
         let ids: Vec<u32> = (0..take as u32).collect();
         // Warm up (the driver compiles the shader on first use).
         let _ = ao.trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params);
-        let g = best(3, || {
+        let g = support::best_ms(3, || {
             ao.trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params)
                 .expect("gpu");
         });
-        let c = best(3, || {
+        let c = support::best_ms(3, || {
             cpu.trace_ids(&ids, &pts, &nrm, &params).expect("cpu");
         });
         let kind = if scene.instances[i].skin.is_some() {

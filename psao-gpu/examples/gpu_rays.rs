@@ -8,7 +8,7 @@
 
 use std::time::Instant;
 
-use psao_gpu::{GpuAo, GpuContext, GpuScene};
+use psao_gpu::{GpuAo, GpuScene};
 use psao_scene::*;
 
 mod support;
@@ -18,13 +18,7 @@ fn main() {
     let density: f32 = arg("--density", 64.0);
     let rays: u32 = arg("--rays", 64);
     let reps: u32 = arg("--reps", 3).max(1);
-    let ctx = match GpuContext::new() {
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!("error: {e}");
-            std::process::exit(2);
-        }
-    };
+    let ctx = support::open_context();
     let scene = default_scene();
     let p = Pipeline::new(
         scene.clone(),

@@ -10,32 +10,16 @@
 use std::time::Instant;
 
 use psao_codec::{Decoder, Limits};
-use psao_gpu::{GpuContext, GpuMirror, GpuReconstruct};
+use psao_gpu::{GpuMirror, GpuReconstruct};
 use psao_scene::*;
 
 mod support;
 use support::arg;
 
-fn best(reps: u32, mut f: impl FnMut()) -> f64 {
-    (0..reps)
-        .map(|_| {
-            let t = Instant::now();
-            f();
-            t.elapsed().as_secs_f64() * 1e3
-        })
-        .fold(f64::MAX, f64::min)
-}
-
 fn main() {
     let density: f32 = arg("--density", 2048.0);
     let reps: u32 = arg("--reps", 3).max(1);
-    let ctx = match GpuContext::new() {
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!("error: {e}");
-            std::process::exit(2);
-        }
-    };
+    let ctx = support::open_context();
     let scene = default_scene();
     let mut p = Pipeline::new(
         scene.clone(),
@@ -62,12 +46,12 @@ fn main() {
     let pass = GpuReconstruct::new(&ctx).expect("pass");
     let _ = pass.run(&ctx, &gm, &g); // warm up: the driver compiles the shader
     let mut gpu = Vec::new();
-    let gpu_ms = best(reps, || gpu = pass.run(&ctx, &gm, &g).expect("gpu pass"));
+    let gpu_ms = support::best_ms(reps, || gpu = pass.run(&ctx, &gm, &g).expect("gpu pass"));
     let mut cpu = Vec::new();
-    let cpu_ms = best(reps, || {
+    let cpu_ms = support::best_ms(reps, || {
         cpu = psao_image(client.mirror(), &g).expect("cpu").ao
     });
-    let sao_ms = best(reps, || {
+    let sao_ms = support::best_ms(reps, || {
         let _ = sao(&g.depth, &view, &SaoParams::default()).expect("sao");
     });
     let same = cpu

@@ -1,7 +1,10 @@
 //! What the psao-gpu examples share: argument reading and the server
 //! points of a pipeline.
 
+use std::time::Instant;
+
 use glam::Vec3;
+use psao_gpu::GpuContext;
 use psao_scene::Pipeline;
 
 /// The value after `name` on the command line, or `default`.
@@ -30,4 +33,25 @@ pub fn world_points(p: &Pipeline) -> (Vec<u32>, Vec<Vec3>, Vec<Vec3>) {
         }
     }
     (ids, pts, nrm)
+}
+
+/// The device, or exit with status 2 and the error (what to install).
+#[allow(dead_code)]
+pub fn open_context() -> GpuContext {
+    GpuContext::new().unwrap_or_else(|e| {
+        eprintln!("error: {e}");
+        std::process::exit(2)
+    })
+}
+
+/// The fastest of `reps` runs of `f`, in milliseconds.
+#[allow(dead_code)]
+pub fn best_ms(reps: u32, mut f: impl FnMut()) -> f64 {
+    (0..reps.max(1))
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .fold(f64::MAX, f64::min)
 }
