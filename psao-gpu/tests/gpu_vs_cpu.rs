@@ -408,3 +408,69 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
     }
     assert!(traced > 0 && frames == 20);
 }
+
+#[test]
+fn a_moved_instance_rewrites_the_instance_table_in_place() {
+    let Some(ctx) = context() else { return };
+    // A floor, and a box floating far above it, sliding: its transform
+    // changes every frame.
+    let mut scene = Scene::default();
+    scene.add(
+        Mesh::quad(Vec3::new(-4.0, 0.0, -4.0), Vec3::Z * 8.0, Vec3::X * 8.0).subdivided(2),
+        glam::Affine3A::IDENTITY,
+    );
+    let node = scene.add_node("box", None, Trs::default());
+    scene.add_on_node(Mesh::cuboid(Vec3::splat(-0.25), Vec3::splat(0.25)), node);
+    scene.animations.push(Animation::translation(
+        "float",
+        node,
+        &[
+            (0.0, Vec3::new(-2.0, 5.0, 0.0)),
+            (2.0, Vec3::new(2.0, 5.0, 0.0)),
+        ],
+    ));
+    let mut p = Pipeline::new(
+        scene.clone(),
+        PipelineConfig {
+            density: 32.0,
+            ao: AoParams {
+                rays: 8,
+                ..AoParams::default()
+            },
+            ..PipelineConfig::default()
+        },
+    )
+    .unwrap();
+    let mut client = psao_codec::Decoder::new(psao_codec::Limits::default());
+    client.receive(&p.keyframe().unwrap().bytes).unwrap();
+    let mut gm = GpuMirror::new(&ctx, client.mirror()).unwrap();
+    let full = gm.last_upload_bytes();
+    client.mirror_mut().clear_changes();
+    let generation = gm.generation();
+    let (frame, report) = p.step(0.5).unwrap();
+    assert_eq!(report.transforms, 1, "{report:?}");
+    client.receive(&frame.unwrap().bytes).unwrap();
+    let bytes = gm.sync(&ctx, client.mirror_mut()).unwrap();
+    // The instance table (two instances, 192 bytes each) and the few
+    // words that changed; no reallocation.
+    assert!(bytes >= 2 * 192 && bytes < full / 4, "{bytes} of {full}");
+    assert_eq!(gm.generation(), generation, "no reallocation");
+    let view = View::new(
+        Camera {
+            eye: Vec3::new(0.0, 8.0, 6.0),
+            target: Vec3::new(0.0, 2.0, 0.0),
+            fov_y: 1.0,
+        },
+        48,
+        32,
+    )
+    .unwrap();
+    let g = PosedScene::new(&scene, 0.5).unwrap().gbuffer(&view);
+    assert!(g.instance.contains(&1), "the box is in view");
+    let gpu = GpuReconstruct::new(&ctx)
+        .unwrap()
+        .run(&ctx, &gm, &g)
+        .unwrap();
+    let cpu = psao_image(client.mirror(), &g).unwrap().ao;
+    assert_eq!(agreement(&cpu, &gpu).0, 1.0);
+}
