@@ -5,7 +5,7 @@
 use psao_scene::{AoParams, AoResult, Estimator, morton_order};
 
 use crate::accel::GpuScene;
-use crate::context::{GpuContext, storage_layout};
+use crate::context::{GpuContext, storage_layout, uniform_layout};
 use crate::error::GpuError;
 
 /// Threads per workgroup of the AO pass (the shader's `workgroup_size`).
@@ -40,12 +40,6 @@ impl GpuAo {
     /// Compiles the AO pass.
     pub fn new(ctx: &GpuContext) -> Result<GpuAo, GpuError> {
         ctx.checked("AO shader compilation", || {
-            let module = ctx
-                .device
-                .create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some("psao-gpu ao.wgsl"),
-                    source: wgpu::ShaderSource::Wgsl(include_str!("shaders/ao.wgsl").into()),
-                });
             let layout = ctx
                 .device
                 .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -59,16 +53,7 @@ impl GpuAo {
                             },
                             count: None,
                         },
-                        wgpu::BindGroupLayoutEntry {
-                            binding: 1,
-                            visibility: wgpu::ShaderStages::COMPUTE,
-                            ty: wgpu::BindingType::Buffer {
-                                ty: wgpu::BufferBindingType::Uniform,
-                                has_dynamic_offset: false,
-                                min_binding_size: None,
-                            },
-                            count: None,
-                        },
+                        uniform_layout(1),
                         storage_layout(2, true),
                         storage_layout(3, true),
                         storage_layout(4, true),
@@ -77,23 +62,11 @@ impl GpuAo {
                         storage_layout(7, true),
                     ],
                 });
-            let pl = ctx
-                .device
-                .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                    label: Some("psao-gpu ao pipeline layout"),
-                    bind_group_layouts: &[Some(&layout)],
-                    immediate_size: 0,
-                });
-            let pipeline = ctx
-                .device
-                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some("psao-gpu ao"),
-                    layout: Some(&pl),
-                    module: &module,
-                    entry_point: Some("main"),
-                    compilation_options: Default::default(),
-                    cache: None,
-                });
+            let pipeline = ctx.compute_pipeline(
+                "psao-gpu ao.wgsl",
+                include_str!("shaders/ao.wgsl"),
+                &[&layout],
+            );
             GpuAo { pipeline, layout }
         })
     }

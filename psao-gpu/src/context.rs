@@ -5,6 +5,20 @@ use wgpu::util::DeviceExt;
 
 use crate::error::GpuError;
 
+/// A compute-stage uniform buffer binding.
+pub(crate) fn uniform_layout(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
 /// A compute-stage storage buffer binding.
 pub(crate) fn storage_layout(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
@@ -156,6 +170,40 @@ impl GpuContext {
                 label: Some(label),
                 contents: &data,
                 usage,
+            })
+    }
+
+    /// The compute pipeline of `source`'s `main` with `groups` as its bind
+    /// group layouts, in order. Call inside [`checked`](Self::checked).
+    pub(crate) fn compute_pipeline(
+        &self,
+        label: &str,
+        source: &str,
+        groups: &[&wgpu::BindGroupLayout],
+    ) -> wgpu::ComputePipeline {
+        let module = self
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
+        let layouts: Vec<Option<&wgpu::BindGroupLayout>> =
+            groups.iter().map(|g| Some(*g)).collect();
+        let pl = self
+            .device
+            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(label),
+                bind_group_layouts: &layouts,
+                immediate_size: 0,
+            });
+        self.device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(label),
+                layout: Some(&pl),
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: Default::default(),
+                cache: None,
             })
     }
 

@@ -4,7 +4,7 @@
 
 use psao_scene::{GBuffer, NO_INSTANCE};
 
-use crate::context::{GpuContext, storage_layout};
+use crate::context::{GpuContext, storage_layout, uniform_layout};
 use crate::error::GpuError;
 use crate::mirror::GpuMirror;
 
@@ -32,12 +32,6 @@ impl GpuReconstruct {
                 "{RECONSTRUCT_WGSL}\n{}",
                 include_str!("shaders/reconstruct_pass.wgsl")
             );
-            let module = ctx
-                .device
-                .create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some("psao-gpu reconstruct.wgsl"),
-                    source: wgpu::ShaderSource::Wgsl(source.into()),
-                });
             let mirror_layout =
                 ctx.device
                     .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -58,35 +52,14 @@ impl GpuReconstruct {
                             storage_layout(1, true),
                             storage_layout(2, true),
                             storage_layout(3, false),
-                            wgpu::BindGroupLayoutEntry {
-                                binding: 4,
-                                visibility: wgpu::ShaderStages::COMPUTE,
-                                ty: wgpu::BindingType::Buffer {
-                                    ty: wgpu::BufferBindingType::Uniform,
-                                    has_dynamic_offset: false,
-                                    min_binding_size: None,
-                                },
-                                count: None,
-                            },
+                            uniform_layout(4),
                         ],
                     });
-            let pl = ctx
-                .device
-                .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                    label: Some("psao-gpu reconstruct"),
-                    bind_group_layouts: &[Some(&mirror_layout), Some(&pass_layout)],
-                    immediate_size: 0,
-                });
-            let pipeline = ctx
-                .device
-                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some("psao-gpu reconstruct"),
-                    layout: Some(&pl),
-                    module: &module,
-                    entry_point: Some("main"),
-                    compilation_options: Default::default(),
-                    cache: None,
-                });
+            let pipeline = ctx.compute_pipeline(
+                "psao-gpu reconstruct.wgsl",
+                &source,
+                &[&mirror_layout, &pass_layout],
+            );
             GpuReconstruct {
                 pipeline,
                 mirror_layout,
