@@ -21,6 +21,14 @@ fn offer() -> Offer {
     }
 }
 
+/// The offer of a server encoding with lz4 (id 1), as `server()` does.
+fn lz4_offer() -> Offer {
+    Offer {
+        compression: 1,
+        ..offer()
+    }
+}
+
 fn hello() -> Hello {
     Hello {
         version: 1,
@@ -258,14 +266,7 @@ fn the_client_acks_asks_for_one_keyframe_on_a_gap_and_resyncs() {
     ));
     assert!(c.take_transmit().is_none(), "no ACK before WELCOME");
     // The server encodes with lz4 (id 1).
-    let welcome = negotiate(
-        &hello,
-        &Offer {
-            compression: 1,
-            ..offer()
-        },
-    )
-    .unwrap();
+    let welcome = negotiate(&hello, &lz4_offer()).unwrap();
     c.on_control(&bytes(Control::Welcome(welcome))).unwrap();
     assert!(matches!(c.poll_event(), Some(ClientEvent::Welcomed(_))));
     // Three deltas; the client misses the second.
@@ -379,14 +380,7 @@ fn move_requests_and_cameras_leave_the_client_as_specified() {
 fn welcomed() -> ClientSession {
     let mut c = ClientSession::new(ClientConfig::default());
     let hello = hello_of(&mut c);
-    let welcome = negotiate(
-        &hello,
-        &Offer {
-            compression: 1,
-            ..offer()
-        },
-    )
-    .unwrap();
+    let welcome = negotiate(&hello, &lz4_offer()).unwrap();
     c.on_control(&bytes(Control::Welcome(welcome))).unwrap();
     assert!(matches!(c.poll_event(), Some(ClientEvent::Welcomed(_))));
     c
