@@ -72,4 +72,6 @@ pub use message::{BucketsMsg, CellsMsg, IndexIter, IndexList, Message, PlanarU32
 pub use mirror::{Change, Changes, Event, InstanceMirror, Mirror, Transform};
 pub use point::{POSITION_QUANTA, PointWord, normal_table};
 pub use reconstruct::{WeightParams, base_cell, reconstruct_ao, weight, world_to_local};
-pub use table::{DirtyCell, DirtySet, DropReason, GridTable, Placement, TableStats, Thresholds};
+pub use table::{
+    DirtyCell, DirtySet, DropReason, GridTable, Placement, SentPoint, TableStats, Thresholds,
+};

@@ -85,6 +85,42 @@ impl Default for Thresholds {
     }
 }
 
+/// What a client holds for one point, next to the point's new position
+/// and normal ([`GridTable::sent`]): all a new AO value is compared with.
+/// Plain data, so that a backend can compare where it traced (psao-gpu
+/// uploads it as it is).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SentPoint {
+    /// The word the client holds, or [`PointWord::EMPTY`] when the point
+    /// must be sent whatever its AO (not stored, or moving to another
+    /// cell).
+    pub word: PointWord,
+    /// The new position inside the word's cell, in cell units (as
+    /// [`PointWord::encode`] takes it; zero with an empty word).
+    pub frac: Vec3,
+    /// The new unit normal (zero when the given one has no direction).
+    pub normal: Vec3,
+    /// The cell holding the word (`u32::MAX` with an empty word).
+    pub cell: u32,
+}
+
+impl SentPoint {
+    /// Whether a point with this position, normal and AO `ao` is worth
+    /// sending (the paper's thresholds): its word is empty, it moved by
+    /// more than `position_quanta` quanta, its normal turned past
+    /// `normal_cos`, or its AO changed by more than `ao_steps`.
+    pub fn changed(&self, ao: f32, thresholds: &Thresholds) -> bool {
+        if !self.word.is_allocated() {
+            return true;
+        }
+        let moved = ((self.frac - self.word.frac()) * POSITION_QUANTA as f32).length()
+            > thresholds.position_quanta;
+        let turned = self.word.normal().dot(self.normal) < thresholds.normal_cos;
+        let shaded = quantize_ao(ao).abs_diff(self.word.fields().ao) > thresholds.ao_steps;
+        moved || turned || shaded
+    }
+}
+
 /// A changed cell: its index and its words as the client last saw them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct DirtyCell {
@@ -334,9 +370,36 @@ impl GridTable {
         loc.placement()
     }
 
+    /// What the client holds for point `id` against which a new
+    /// `local` position and `normal` (and then AO) are compared: the word
+    /// the client holds where the point stays in the same cell, otherwise
+    /// [`PointWord::EMPTY`] (it must be sent whatever its AO).
+    pub fn sent(&self, id: u32, local: Vec3, normal: Vec3) -> SentPoint {
+        let normal = normal.normalize_or_zero();
+        if let Placement::Stored { cell, slot } = self.placement(id)
+            && let Some(cell_pos) = self.def.cell_of(local)
+            && self.def.key(cell_pos) == self.cell_key[cell as usize]
+        {
+            let cap = self.def.cell_capacity as usize;
+            return SentPoint {
+                word: PointWord(self.words[cell as usize * cap + slot as usize]),
+                frac: (local - self.def.cell_min(cell_pos)) / self.def.cell_size,
+                normal,
+                cell,
+            };
+        }
+        SentPoint {
+            word: PointWord::EMPTY,
+            frac: Vec3::ZERO,
+            normal,
+            cell: u32::MAX,
+        }
+    }
+
     /// Sets a point only if it differs from what the client holds by more
-    /// than the thresholds (or moved to another cell, or is not stored).
-    /// Returns whether it was set.
+    /// than the thresholds (or moved to another cell, or is not stored):
+    /// [`GridTable::sent`] then [`SentPoint::changed`]. Returns whether it
+    /// was set.
     pub fn update_point(
         &mut self,
         id: u32,
@@ -345,21 +408,8 @@ impl GridTable {
         ao: f32,
         thresholds: &Thresholds,
     ) -> Result<bool, EncodeError> {
-        if let Placement::Stored { cell, slot } = self.placement(id)
-            && self.def.cell_of(local).map(|c| self.def.key(c))
-                == Some(self.cell_key[cell as usize])
-        {
-            let cap = self.def.cell_capacity as usize;
-            let old = PointWord(self.words[cell as usize * cap + slot as usize]);
-            let cell_pos = self.def.cell_of(local).unwrap_or_default();
-            let quantum = self.def.cell_size / POSITION_QUANTA as f32;
-            let old_pos = self.def.cell_min(cell_pos) + old.frac() * self.def.cell_size;
-            let moved = ((local - old_pos) / quantum).length() > thresholds.position_quanta;
-            let turned = old.normal().dot(normal.normalize_or_zero()) < thresholds.normal_cos;
-            let shaded = quantize_ao(ao).abs_diff(old.fields().ao) > thresholds.ao_steps;
-            if !(moved || turned || shaded) {
-                return Ok(false);
-            }
+        if !self.sent(id, local, normal).changed(ao, thresholds) {
+            return Ok(false);
         }
         self.set_point(id, local, normal, ao)?;
         Ok(true)

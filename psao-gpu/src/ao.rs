@@ -1,8 +1,11 @@
 //! Point AO with ray queries: the compute pass of `shaders/ao.wgsl`, which
 //! samples, estimates and offsets rays exactly as psao-scene's CPU tracer
-//! does, so that the same seed gives the same rays on both.
+//! does, so that the same seed gives the same rays on both; and the pass of
+//! `shaders/changed.wgsl`, which compares the new AO with what clients hold
+//! on the GPU and hands back only the points worth sending.
 
-use psao_scene::{AoParams, AoResult, Estimator, morton_order};
+use psao_codec::{SentPoint, Thresholds, normal_table};
+use psao_scene::{AoParams, AoResult, ChangedPoints, Estimator, morton_order};
 
 use crate::accel::GpuScene;
 use crate::context::{GpuContext, storage_layout, uniform_layout};
@@ -29,11 +32,73 @@ struct Params {
     row: u32,
 }
 
-/// The AO compute pipeline.
+/// The compare pass's `Params`.
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct CompareParams {
+    count: u32,
+    row: u32,
+    first: u32,
+    ao_steps: u32,
+    position_quanta: f32,
+    normal_cos: f32,
+    pad: [u32; 2],
+}
+
+/// The compare pass's `Sent` (a [`SentPoint`]).
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct SentGpu {
+    frac: [f32; 3],
+    word: u32,
+    normal: [f32; 3],
+    cell: u32,
+}
+
+/// The AO compute pipeline and the pass that compares its results with
+/// what clients hold.
 #[derive(Debug)]
 pub struct GpuAo {
     pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
+    compare: wgpu::ComputePipeline,
+    compare_layout: wgpu::BindGroupLayout,
+    normal_table: wgpu::Buffer,
+}
+
+/// A batch of points in Morton order: neighbouring invocations trace
+/// neighbouring points (coherent rays), as the CPU backend does.
+struct Sorted {
+    /// Input index of each sorted point.
+    order: Vec<usize>,
+    pts: Vec<[f32; 4]>,
+    nrm: Vec<[f32; 4]>,
+    ids: Vec<u32>,
+}
+
+impl Sorted {
+    fn new(ids: &[u32], points: &[glam::Vec3], normals: &[glam::Vec3]) -> Sorted {
+        let order = morton_order(points);
+        Sorted {
+            pts: order
+                .iter()
+                .map(|&i| points[i].extend(0.0).to_array())
+                .collect(),
+            nrm: order
+                .iter()
+                .map(|&i| normals[i].extend(0.0).to_array())
+                .collect(),
+            ids: order.iter().map(|&i| ids[i]).collect(),
+            order,
+        }
+    }
+
+    /// Bounded dispatches: within binding limits, and short enough for a
+    /// GPU's watchdog.
+    fn chunks(&self) -> impl Iterator<Item = std::ops::Range<usize>> + use<> {
+        let n = self.order.len();
+        (0..n).step_by(CHUNK).map(move |s| s..(s + CHUNK).min(n))
+    }
 }
 
 impl GpuAo {
@@ -67,7 +132,42 @@ impl GpuAo {
                 include_str!("shaders/ao.wgsl"),
                 &[&layout],
             );
-            GpuAo { pipeline, layout }
+            let compare_layout =
+                ctx.device
+                    .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                        label: Some("psao-gpu changed layout"),
+                        entries: &[
+                            uniform_layout(0),
+                            storage_layout(1, true),
+                            storage_layout(2, true),
+                            storage_layout(3, true),
+                            storage_layout(4, false),
+                            storage_layout(5, false),
+                            storage_layout(6, false),
+                            storage_layout(7, false),
+                        ],
+                    });
+            let compare = ctx.compute_pipeline(
+                "psao-gpu changed.wgsl",
+                include_str!("shaders/changed.wgsl"),
+                &[&compare_layout],
+            );
+            let table: Vec<[f32; 4]> = normal_table()
+                .iter()
+                .map(|n| n.extend(0.0).to_array())
+                .collect();
+            let normal_table = ctx.buffer_with(
+                "psao-gpu normal table",
+                bytemuck::cast_slice(&table),
+                wgpu::BufferUsages::STORAGE,
+            );
+            GpuAo {
+                pipeline,
+                layout,
+                compare,
+                compare_layout,
+                normal_table,
+            }
         })
     }
 
@@ -101,53 +201,246 @@ impl GpuAo {
                 rays,
             });
         };
-        // Neighbouring invocations trace neighbouring points (coherent rays),
-        // as the CPU backend does; results go back to input order below.
-        let order = morton_order(points);
-        let pts: Vec<[f32; 4]> = order
-            .iter()
-            .map(|&i| points[i].extend(0.0).to_array())
-            .collect();
-        let nrm: Vec<[f32; 4]> = order
-            .iter()
-            .map(|&i| normals[i].extend(0.0).to_array())
-            .collect();
-        let sorted_ids: Vec<u32> = order.iter().map(|&i| ids[i]).collect();
-        // Bounded dispatches: within binding limits, and short enough for
-        // a GPU's watchdog.
+        let batch = Sorted::new(ids, points, normals);
         let mut sorted = Vec::with_capacity(n);
-        for start in (0..n).step_by(CHUNK) {
-            let end = (start + CHUNK).min(n);
-            sorted.extend(self.dispatch(
-                ctx,
-                scene,
-                tlas,
-                &pts[start..end],
-                &nrm[start..end],
-                &sorted_ids[start..end],
-                p,
-            )?);
+        for range in batch.chunks() {
+            let len = range.len();
+            let readback = ctx.checked("AO pass", || {
+                let mut enc = ctx.encoder("psao-gpu ao");
+                let out = self.record_ao(ctx, scene, tlas, &mut enc, &batch, range, p);
+                let readback = ctx.readback("psao-gpu ao readback", out.size());
+                enc.copy_buffer_to_buffer(&out, 0, &readback, 0, out.size());
+                ctx.queue.submit(Some(enc.finish()));
+                readback
+            })?;
+            let mut ao = ctx.read_f32(&readback)?;
+            ao.truncate(len);
+            sorted.extend(ao);
         }
         let mut ao = vec![1.0f32; n];
-        for (&i, &v) in order.iter().zip(&sorted) {
+        for (&i, &v) in batch.order.iter().zip(&sorted) {
             ao[i] = v;
         }
         Ok(AoResult { ao, rays })
     }
 
-    /// One dispatch over (sorted) points; AO in the same order.
+    /// Traces as [`trace_ids`](Self::trace_ids) and compares each point's
+    /// new AO, position and normal with what its clients hold (`sent`, one
+    /// record per point; [`SentPoint::changed`]) on the GPU. Only the
+    /// changed points and cells are read back: the same
+    /// [`ChangedPoints`] as [`ChangedPoints::compare`] on the CPU's AO.
     #[allow(clippy::too_many_arguments)]
-    fn dispatch(
+    pub fn trace_changed(
+        &self,
+        ctx: &GpuContext,
+        scene: &GpuScene,
+        ids: &[u32],
+        points: &[glam::Vec3],
+        normals: &[glam::Vec3],
+        sent: &[SentPoint],
+        p: &AoParams,
+        thresholds: &Thresholds,
+    ) -> Result<ChangedPoints, GpuError> {
+        p.validate()?;
+        if points.len() != normals.len() || points.len() != ids.len() || points.len() != sent.len()
+        {
+            return Err(GpuError::Input(format!(
+                "{} points, {} normals, {} ids and {} records of what clients hold",
+                points.len(),
+                normals.len(),
+                ids.len(),
+                sent.len()
+            )));
+        }
+        let n = points.len();
+        let Some(tlas) = scene.tlas().filter(|_| n > 0) else {
+            let open = AoResult {
+                ao: vec![1.0; n],
+                rays: n as u64 * p.rays as u64,
+            };
+            return Ok(ChangedPoints::compare(&open, sent, thresholds)?);
+        };
+        // One bit per cell that can be listed, kept across the chunks.
+        let cells = sent
+            .iter()
+            .filter(|s| s.word.is_allocated())
+            .map(|s| s.cell as u64 + 1)
+            .max()
+            .unwrap_or(0);
+        let bitset_bytes = cells.div_ceil(32) * 4;
+        let limit = ctx.device.limits().max_storage_buffer_binding_size;
+        if bitset_bytes > limit {
+            return Err(GpuError::Limits {
+                what: "bytes of the listed-cell bits (one bit per cell)",
+                needed: bitset_bytes,
+                limit,
+            });
+        }
+        let batch = Sorted::new(ids, points, normals);
+        let listed = ctx.checked("listed-cell bits", || {
+            ctx.storage_out("psao-gpu listed cells", bitset_bytes)
+        })?;
+        let mut found: Vec<(usize, f32)> = Vec::new();
+        let mut out = ChangedPoints {
+            rays: n as u64 * p.rays as u64,
+            ..ChangedPoints::default()
+        };
+        for range in batch.chunks() {
+            let sent_sorted: Vec<SentGpu> = batch.order[range.clone()]
+                .iter()
+                .map(|&i| {
+                    let s = &sent[i];
+                    SentGpu {
+                        frac: s.frac.to_array(),
+                        word: s.word.0,
+                        normal: s.normal.to_array(),
+                        cell: s.cell,
+                    }
+                })
+                .collect();
+            let (first, len) = (range.start, range.len());
+            let (pairs, listed_cells) = self.changed_chunk(
+                ctx,
+                scene,
+                tlas,
+                &batch,
+                range,
+                &sent_sorted,
+                &listed,
+                p,
+                thresholds,
+            )?;
+            for [at, bits] in pairs {
+                let at = at as usize;
+                if !(first..first + len).contains(&at) {
+                    return Err(GpuError::Rejected {
+                        what: "changed points",
+                        details: format!(
+                            "point {at} outside the dispatch {first}..{}",
+                            first + len
+                        ),
+                    });
+                }
+                found.push((batch.order[at], f32::from_bits(bits)));
+            }
+            out.cells.extend(listed_cells);
+        }
+        found.sort_unstable_by_key(|x| x.0);
+        out.changed = found.iter().map(|x| x.0 as u32).collect();
+        out.ao = found.iter().map(|x| x.1).collect();
+        out.cells.sort_unstable();
+        Ok(out)
+    }
+
+    /// Traces and compares one chunk of a sorted batch; reads back the
+    /// counts, then only the listed (batch index, AO bits) pairs and cells.
+    #[allow(clippy::too_many_arguments)]
+    fn changed_chunk(
         &self,
         ctx: &GpuContext,
         scene: &GpuScene,
         tlas: &wgpu::Tlas,
-        pts: &[[f32; 4]],
-        nrm: &[[f32; 4]],
-        sorted_ids: &[u32],
+        batch: &Sorted,
+        range: std::ops::Range<usize>,
+        sent: &[SentGpu],
+        listed: &wgpu::Buffer,
         p: &AoParams,
-    ) -> Result<Vec<f32>, GpuError> {
-        let n = pts.len();
+        th: &Thresholds,
+    ) -> Result<(Vec<[u32; 2]>, Vec<u32>), GpuError> {
+        let len = range.len();
+        let grid = ctx.grid(len, WORKGROUP);
+        let params = CompareParams {
+            count: len as u32,
+            row: grid.0 * WORKGROUP,
+            first: range.start as u32,
+            ao_steps: th.ao_steps as u32,
+            position_quanta: th.position_quanta,
+            normal_cos: th.normal_cos,
+            pad: [0; 2],
+        };
+        let (counts, pairs, cells, counts_back) = ctx.checked("compare pass", || {
+            let mut enc = ctx.encoder("psao-gpu changed");
+            let ao = self.record_ao(ctx, scene, tlas, &mut enc, batch, range, p);
+            let uniform = ctx.buffer_with(
+                "psao-gpu changed params",
+                bytemuck::bytes_of(&params),
+                wgpu::BufferUsages::UNIFORM,
+            );
+            let sent = ctx.buffer_with(
+                "psao-gpu sent",
+                bytemuck::cast_slice(sent),
+                wgpu::BufferUsages::STORAGE,
+            );
+            let counts = ctx.storage_out("psao-gpu changed counts", 8);
+            let pairs = ctx.storage_out("psao-gpu changed points", len as u64 * 8);
+            let cells = ctx.storage_out("psao-gpu changed cells", len as u64 * 4);
+            let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("psao-gpu changed bind"),
+                layout: &self.compare_layout,
+                entries: &[
+                    (0, uniform.as_entire_binding()),
+                    (1, ao.as_entire_binding()),
+                    (2, sent.as_entire_binding()),
+                    (3, self.normal_table.as_entire_binding()),
+                    (4, counts.as_entire_binding()),
+                    (5, pairs.as_entire_binding()),
+                    (6, cells.as_entire_binding()),
+                    (7, listed.as_entire_binding()),
+                ]
+                .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource }),
+            });
+            GpuContext::record_pass(&mut enc, "psao-gpu changed", &self.compare, &[&bind], grid);
+            let counts_back = ctx.readback("psao-gpu changed counts", 16);
+            enc.copy_buffer_to_buffer(&counts, 0, &counts_back, 0, 8);
+            ctx.queue.submit(Some(enc.finish()));
+            (counts, pairs, cells, counts_back)
+        })?;
+        drop(counts);
+        let n = ctx.read::<u32>(&counts_back)?;
+        let (changed, listed_cells) = (n[0] as usize, n[1] as usize);
+        if changed > len || listed_cells > changed {
+            return Err(GpuError::Rejected {
+                what: "changed-point counts",
+                details: format!("{changed} points and {listed_cells} cells of {len}"),
+            });
+        }
+        if changed == 0 {
+            return Ok((Vec::new(), Vec::new()));
+        }
+        // Only what was listed crosses back.
+        let (pairs_back, cells_back) = ctx.checked("changed readback", || {
+            let mut enc = ctx.encoder("psao-gpu changed readback");
+            let pairs_back = ctx.readback("psao-gpu changed points", changed as u64 * 8);
+            enc.copy_buffer_to_buffer(&pairs, 0, &pairs_back, 0, changed as u64 * 8);
+            let cells_back = ctx.readback("psao-gpu changed cells", listed_cells as u64 * 4);
+            if listed_cells > 0 {
+                enc.copy_buffer_to_buffer(&cells, 0, &cells_back, 0, listed_cells as u64 * 4);
+            }
+            ctx.queue.submit(Some(enc.finish()));
+            (pairs_back, cells_back)
+        })?;
+        let mut pairs: Vec<[u32; 2]> = ctx.read(&pairs_back)?;
+        pairs.truncate(changed);
+        let mut cells: Vec<u32> = ctx.read(&cells_back)?;
+        cells.truncate(listed_cells);
+        Ok((pairs, cells))
+    }
+
+    /// Records the AO pass over `range` of a sorted batch into `enc` and
+    /// returns its output buffer (AO in sorted order). Call inside
+    /// [`GpuContext::checked`].
+    #[allow(clippy::too_many_arguments)]
+    fn record_ao(
+        &self,
+        ctx: &GpuContext,
+        scene: &GpuScene,
+        tlas: &wgpu::Tlas,
+        enc: &mut wgpu::CommandEncoder,
+        batch: &Sorted,
+        range: std::ops::Range<usize>,
+        p: &AoParams,
+    ) -> wgpu::Buffer {
+        let n = range.len();
         let grid = ctx.grid(n, WORKGROUP);
         let params = Params {
             radius: p.radius,
@@ -162,46 +455,42 @@ impl GpuAo {
             count: n as u32,
             row: grid.0 * WORKGROUP,
         };
-        let readback = ctx.checked("AO pass", || {
-            let s = wgpu::BufferUsages::STORAGE;
-            let uniform = ctx.buffer_with(
-                "psao-gpu ao params",
-                bytemuck::bytes_of(&params),
-                wgpu::BufferUsages::UNIFORM,
-            );
-            let pb = ctx.buffer_with("psao-gpu points", bytemuck::cast_slice(pts), s);
-            let nb = ctx.buffer_with("psao-gpu normals", bytemuck::cast_slice(nrm), s);
-            let ib = ctx.buffer_with("psao-gpu ids", bytemuck::cast_slice(sorted_ids), s);
-            let (out, readback) = ctx.output_f32("psao-gpu ao out", n);
-            let entries: Vec<wgpu::BindGroupEntry<'_>> = [
-                (0, tlas.as_binding()),
-                (1, uniform.as_entire_binding()),
-                (2, pb.as_entire_binding()),
-                (3, nb.as_entire_binding()),
-                (4, ib.as_entire_binding()),
-                (5, out.as_entire_binding()),
-            ]
-            .into_iter()
-            .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource })
-            .chain(scene.alpha().bind_entries())
-            .collect();
-            let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("psao-gpu ao bind"),
-                layout: &self.layout,
-                entries: &entries,
-            });
-            ctx.submit_pass(
-                "psao-gpu ao",
-                &self.pipeline,
-                &[&bind],
-                grid,
-                &out,
-                &readback,
-            );
-            readback
-        })?;
-        let mut ao = ctx.read_f32(&readback)?;
-        ao.truncate(n);
-        Ok(ao)
+        let s = wgpu::BufferUsages::STORAGE;
+        let uniform = ctx.buffer_with(
+            "psao-gpu ao params",
+            bytemuck::bytes_of(&params),
+            wgpu::BufferUsages::UNIFORM,
+        );
+        let pb = ctx.buffer_with(
+            "psao-gpu points",
+            bytemuck::cast_slice(&batch.pts[range.clone()]),
+            s,
+        );
+        let nb = ctx.buffer_with(
+            "psao-gpu normals",
+            bytemuck::cast_slice(&batch.nrm[range.clone()]),
+            s,
+        );
+        let ib = ctx.buffer_with("psao-gpu ids", bytemuck::cast_slice(&batch.ids[range]), s);
+        let out = ctx.storage_out("psao-gpu ao out", (n.max(4) * 4) as u64);
+        let entries: Vec<wgpu::BindGroupEntry<'_>> = [
+            (0, tlas.as_binding()),
+            (1, uniform.as_entire_binding()),
+            (2, pb.as_entire_binding()),
+            (3, nb.as_entire_binding()),
+            (4, ib.as_entire_binding()),
+            (5, out.as_entire_binding()),
+        ]
+        .into_iter()
+        .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource })
+        .chain(scene.alpha().bind_entries())
+        .collect();
+        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("psao-gpu ao bind"),
+            layout: &self.layout,
+            entries: &entries,
+        });
+        GpuContext::record_pass(enc, "psao-gpu ao", &self.pipeline, &[&bind], grid);
+        out
     }
 }

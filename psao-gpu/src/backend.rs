@@ -3,7 +3,8 @@
 //! the same way and traces the rays.
 
 use glam::{Affine3A, Vec3};
-use psao_scene::{AoBackend, AoParams, AoResult, Scene, SceneError};
+use psao_codec::{SentPoint, Thresholds};
+use psao_scene::{AoBackend, AoParams, AoResult, ChangedPoints, Scene, SceneError};
 
 use crate::accel::GpuScene;
 use crate::ao::GpuAo;
@@ -65,6 +66,31 @@ impl AoBackend for GpuBackend {
     ) -> Result<AoResult, SceneError> {
         self.ao
             .trace_ids(&self.ctx, &self.accel, ids, points, normals, params)
+            .map_err(|e| self.fail(e))
+    }
+
+    /// Compares on the GPU ([`GpuAo::trace_changed`]): only the changed
+    /// points cross back.
+    fn trace_changed(
+        &mut self,
+        ids: &[u32],
+        points: &[Vec3],
+        normals: &[Vec3],
+        sent: &[SentPoint],
+        params: &AoParams,
+        thresholds: &Thresholds,
+    ) -> Result<ChangedPoints, SceneError> {
+        self.ao
+            .trace_changed(
+                &self.ctx,
+                &self.accel,
+                ids,
+                points,
+                normals,
+                sent,
+                params,
+                thresholds,
+            )
             .map_err(|e| self.fail(e))
     }
 }

@@ -211,19 +211,18 @@ impl GpuContext {
     /// mappable buffer it is copied to.
     pub(crate) fn output_f32(&self, label: &str, count: usize) -> (wgpu::Buffer, wgpu::Buffer) {
         let size = (count.max(4) * 4) as u64;
-        let out = self.device.create_buffer(&wgpu::BufferDescriptor {
+        (self.storage_out(label, size), self.readback(label, size))
+    }
+
+    /// A zeroed storage buffer of `bytes` (at least 16) that a pass writes
+    /// and that can be copied out.
+    pub(crate) fn storage_out(&self, label: &str, bytes: u64) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
-            size,
+            size: bytes.max(16),
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
-        });
-        let readback = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(label),
-            size,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        (out, readback)
+        })
     }
 
     /// Workgroups for `n` invocations of `workgroup` threads: (per row,
@@ -239,6 +238,32 @@ impl GpuContext {
         (per_row, groups.div_ceil(per_row))
     }
 
+    /// Records a compute pass of `pipeline` with `groups` bound in order
+    /// over `grid` workgroups into `enc`.
+    pub(crate) fn record_pass(
+        enc: &mut wgpu::CommandEncoder,
+        label: &str,
+        pipeline: &wgpu::ComputePipeline,
+        groups: &[&wgpu::BindGroup],
+        grid: (u32, u32),
+    ) {
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some(label),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(pipeline);
+        for (i, g) in groups.iter().enumerate() {
+            pass.set_bind_group(i as u32, *g, &[]);
+        }
+        pass.dispatch_workgroups(grid.0, grid.1, 1);
+    }
+
+    /// A command encoder.
+    pub(crate) fn encoder(&self, label: &str) -> wgpu::CommandEncoder {
+        self.device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
+    }
+
     /// Records and submits a compute pass of `pipeline` with `groups`
     /// bound in order over `grid` workgroups, then copies `out` to
     /// `readback`. Call inside [`checked`](Self::checked).
@@ -251,27 +276,31 @@ impl GpuContext {
         out: &wgpu::Buffer,
         readback: &wgpu::Buffer,
     ) {
-        let mut enc = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
-        {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some(label),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(pipeline);
-            for (i, g) in groups.iter().enumerate() {
-                pass.set_bind_group(i as u32, *g, &[]);
-            }
-            pass.dispatch_workgroups(grid.0, grid.1, 1);
-        }
+        let mut enc = self.encoder(label);
+        Self::record_pass(&mut enc, label, pipeline, groups, grid);
         enc.copy_buffer_to_buffer(out, 0, readback, 0, out.size());
         self.queue.submit(Some(enc.finish()));
+    }
+
+    /// A mappable buffer of `bytes` (at least 16) to copy results into.
+    pub(crate) fn readback(&self, label: &str, bytes: u64) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: bytes.max(16),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
     }
 
     /// Maps a `MAP_READ` buffer of f32 values once the queue is done and
     /// copies them out.
     pub(crate) fn read_f32(&self, buffer: &wgpu::Buffer) -> Result<Vec<f32>, GpuError> {
+        self.read(buffer)
+    }
+
+    /// Maps a `MAP_READ` buffer once the queue is done and copies its
+    /// values out.
+    pub(crate) fn read<T: bytemuck::Pod>(&self, buffer: &wgpu::Buffer) -> Result<Vec<T>, GpuError> {
         let slice = buffer.slice(..);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
@@ -289,7 +318,7 @@ impl GpuContext {
             let view = slice
                 .get_mapped_range()
                 .map_err(|e| rejected(e.to_string()))?;
-            bytemuck::cast_slice::<u8, f32>(&view).to_vec()
+            bytemuck::pod_collect_to_vec::<u8, T>(&view)
         };
         buffer.unmap();
         Ok(values)

@@ -17,9 +17,10 @@
 //! one.
 //!
 //! A server pipeline traces on the GPU with [`GpuBackend`]
-//! ([`psao_scene::Pipeline::with_backend`]).
-//!
-//! Not here yet (issue 5): the GPU dirty-set compaction.
+//! ([`psao_scene::Pipeline::with_backend`]). It also compares the new AO
+//! with what clients hold on the GPU ([`GpuAo::trace_changed`]: the
+//! paper's thresholds, with the changed points and cells compacted with
+//! atomics), so only the points worth sending are read back.
 
 mod accel;
 mod alpha;

@@ -474,3 +474,219 @@ fn a_moved_instance_rewrites_the_instance_table_in_place() {
     let cpu = psao_image(client.mirror(), &g).unwrap().ao;
     assert_eq!(agreement(&cpu, &gpu).0, 1.0);
 }
+
+/// What clients of `p` hold for each of its points (cells numbered across
+/// instances, as the pipeline numbers them), in the order of `points_of`.
+fn held(p: &Pipeline) -> Vec<psao_codec::SentPoint> {
+    let mut sent = Vec::new();
+    let mut cell_base = 0;
+    for i in 0..p.instance_count() {
+        let table = p.table(i).unwrap();
+        let (pos, n) = p.current_points(i).unwrap();
+        for k in 0..pos.len() {
+            let mut s = table.sent(k as u32, pos[k], n[k]);
+            s.cell = s.cell.saturating_add(cell_base);
+            sent.push(s);
+        }
+        cell_base += table.def().cell_pool;
+    }
+    sent
+}
+
+#[test]
+fn the_gpu_compares_with_what_clients_hold_and_reads_back_only_changes() {
+    let Some(ctx) = context() else { return };
+    let scene = default_scene();
+    let p = Pipeline::new(
+        scene.clone(),
+        PipelineConfig {
+            density: 16.0,
+            ..PipelineConfig::default()
+        },
+    )
+    .unwrap();
+    let (ids, pts, nrm) = points_of(&p);
+    let mut sent = held(&p);
+    // Exercise every threshold: some points moved by 6.4 quanta, some
+    // turned around, some not held at all; the rest differ in AO only
+    // (another seed, 16 rays: steps of 16/255).
+    for (k, s) in sent.iter_mut().enumerate() {
+        match k % 17 {
+            3 => s.frac.x = (s.frac.x + 0.2) % 1.0,
+            5 => s.normal = -s.normal,
+            7 => *s = table_less(s.normal),
+            _ => {}
+        }
+    }
+    let params = AoParams {
+        rays: 16,
+        seed: 0x5eed_0002,
+        ..AoParams::default()
+    };
+    let th = psao_codec::Thresholds::default();
+    let gpu_scene = GpuScene::new(&ctx, &scene).unwrap();
+    let ao = GpuAo::new(&ctx).unwrap();
+    let on_gpu = ao
+        .trace_changed(&ctx, &gpu_scene, &ids, &pts, &nrm, &sent, &params, &th)
+        .unwrap();
+    // The same comparison on the host, on the GPU's own AO: identical.
+    let traced = ao
+        .trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params)
+        .unwrap();
+    let on_host = ChangedPoints::compare(&traced, &sent, &th).unwrap();
+    assert_eq!(on_gpu.changed, on_host.changed);
+    assert_eq!(on_gpu.cells, on_host.cells);
+    assert_eq!(on_gpu.rays, on_host.rays);
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&on_gpu.ao), bits(&on_host.ao));
+    // Not everything and not nothing: the comparison decided.
+    let n = pts.len();
+    assert!(
+        on_gpu.changed.len() > n / 10 && on_gpu.changed.len() < n,
+        "{} of {n} changed",
+        on_gpu.changed.len()
+    );
+    for (k, _) in sent
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| [3, 5, 7].contains(&(k % 17)))
+    {
+        assert!(
+            on_gpu.changed.binary_search(&(k as u32)).is_ok(),
+            "point {k}"
+        );
+    }
+    // Against the CPU backend's AO: the same decisions but for points
+    // whose AO differs in the last bits right at a threshold.
+    let cpu = PosedScene::new(&scene, 0.0)
+        .unwrap()
+        .tracer()
+        .trace_ids(&ids, &pts, &nrm, &params)
+        .unwrap();
+    let on_cpu = ChangedPoints::compare(&cpu, &sent, &th).unwrap();
+    let differ = on_cpu
+        .changed
+        .iter()
+        .filter(|k| on_gpu.changed.binary_search(k).is_err())
+        .count()
+        + on_gpu
+            .changed
+            .iter()
+            .filter(|k| on_cpu.changed.binary_search(k).is_err())
+            .count();
+    eprintln!(
+        "{n} points: {} changed on the GPU, {} on the CPU, {differ} decisions differ",
+        on_gpu.changed.len(),
+        on_cpu.changed.len()
+    );
+    assert!(differ * 1000 <= n, "{differ} of {n} decisions differ");
+    // Without the made-up records, setting the changed points dirties at
+    // least the cells listed.
+    let on_gpu = ao
+        .trace_changed(&ctx, &gpu_scene, &ids, &pts, &nrm, &held(&p), &params, &th)
+        .unwrap();
+    let mut tables: Vec<psao_codec::GridTable> = (0..p.instance_count())
+        .map(|i| p.table(i).unwrap().clone())
+        .collect();
+    let mut owners = Vec::new();
+    let mut cell_base = 0;
+    let mut bases = Vec::new();
+    for (i, t) in tables.iter().enumerate() {
+        bases.push(cell_base);
+        cell_base += t.def().cell_pool;
+        owners.extend((0..p.current_points(i).unwrap().0.len()).map(|k| (i, k)));
+    }
+    for t in &mut tables {
+        t.take_dirty();
+    }
+    for (&at, &v) in on_gpu.changed.iter().zip(&on_gpu.ao) {
+        let (i, k) = owners[at as usize];
+        let (pos, n) = p.current_points(i).unwrap();
+        tables[i].set_point(k as u32, pos[k], n[k], v).unwrap();
+    }
+    let dirty: Vec<u32> = tables
+        .iter_mut()
+        .enumerate()
+        .flat_map(|(i, t)| {
+            let base = bases[i];
+            t.take_dirty().cells.into_iter().map(move |c| base + c.cell)
+        })
+        .collect();
+    assert!(!on_gpu.cells.is_empty());
+    for c in &on_gpu.cells {
+        assert!(dirty.contains(c), "listed cell {c} is not dirty");
+    }
+}
+
+/// A record of a point its clients do not hold.
+fn table_less(normal: Vec3) -> psao_codec::SentPoint {
+    psao_codec::SentPoint {
+        word: psao_codec::PointWord::EMPTY,
+        frac: Vec3::ZERO,
+        normal,
+        cell: u32::MAX,
+    }
+}
+
+#[test]
+fn the_changed_point_lists_span_dispatches_and_list_each_cell_once() {
+    let Some(ctx) = context() else { return };
+    let scene = solid_default_scene();
+    let p = Pipeline::new(
+        scene.clone(),
+        PipelineConfig {
+            density: 16.0,
+            ..PipelineConfig::default()
+        },
+    )
+    .unwrap();
+    let (ids, pts, nrm) = points_of(&p);
+    let sent = held(&p);
+    // More points than one dispatch takes (2^18): the batch repeated,
+    // every copy held with AO 0 so that every copy changes.
+    let copies = (1usize << 18) / pts.len() + 2;
+    let rep = |v: &[Vec3]| v.repeat(copies);
+    let (pts, nrm) = (rep(&pts), rep(&nrm));
+    let ids: Vec<u32> = (0..copies as u32)
+        .flat_map(|c| ids.iter().map(move |&i| i + c * 1_000_000))
+        .collect();
+    let sent: Vec<_> = sent
+        .repeat(copies)
+        .into_iter()
+        .map(|mut s| {
+            if s.word.is_allocated() {
+                s.word = s.word.with_ao(0);
+            }
+            s
+        })
+        .collect();
+    assert!(pts.len() > 1 << 18);
+    let params = AoParams {
+        rays: 1,
+        estimator: Estimator::LaineKarras,
+        ..AoParams::default()
+    };
+    let th = psao_codec::Thresholds {
+        ao_steps: 0,
+        ..Default::default()
+    };
+    let gpu_scene = GpuScene::new(&ctx, &scene).unwrap();
+    let ao = GpuAo::new(&ctx).unwrap();
+    let on_gpu = ao
+        .trace_changed(&ctx, &gpu_scene, &ids, &pts, &nrm, &sent, &params, &th)
+        .unwrap();
+    let traced = ao
+        .trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params)
+        .unwrap();
+    let on_host = ChangedPoints::compare(&traced, &sent, &th).unwrap();
+    assert_eq!(on_gpu, on_host);
+    let mut once = on_gpu.cells.clone();
+    once.dedup();
+    assert_eq!(once, on_gpu.cells, "a cell listed twice");
+    assert!(!on_gpu.cells.is_empty());
+    assert!(
+        on_gpu.changed.len() > pts.len() / 4,
+        "{}",
+        on_gpu.changed.len()
+    );
+}

@@ -20,6 +20,7 @@ use obvhs::cwbvh::CwBvh;
 use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::ray::{Ray, RayHit};
 use obvhs::triangle::Triangle;
+use psao_codec::{SentPoint, Thresholds};
 use rayon::prelude::*;
 
 use crate::alpha::AlphaMask;
@@ -414,6 +415,56 @@ pub struct AoResult {
     pub ao: Vec<f32>,
     /// Rays traced.
     pub rays: u64,
+}
+
+/// The points of a batch worth sending: those whose new AO, position or
+/// normal passed the thresholds against what clients hold
+/// ([`psao_codec::SentPoint::changed`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ChangedPoints {
+    /// Indices into the batch of the changed points, ascending.
+    pub changed: Vec<u32>,
+    /// AO of each changed point, in the order of `changed`.
+    pub ao: Vec<f32>,
+    /// The cells whose held words change (`SentPoint::cell` of the changed
+    /// points that had a word), ascending, each once. A changed point
+    /// without a word gets a cell only when it is set.
+    pub cells: Vec<u32>,
+    /// Rays traced.
+    pub rays: u64,
+}
+
+impl ChangedPoints {
+    /// Compares a traced batch with what clients hold, one record per
+    /// point, on the host.
+    pub fn compare(
+        result: &AoResult,
+        sent: &[SentPoint],
+        thresholds: &Thresholds,
+    ) -> Result<ChangedPoints, SceneError> {
+        if sent.len() != result.ao.len() {
+            return Err(SceneError::SentCount {
+                points: result.ao.len(),
+                sent: sent.len(),
+            });
+        }
+        let mut out = ChangedPoints {
+            rays: result.rays,
+            ..ChangedPoints::default()
+        };
+        for (i, (s, &ao)) in sent.iter().zip(&result.ao).enumerate() {
+            if s.changed(ao, thresholds) {
+                out.changed.push(i as u32);
+                out.ao.push(ao);
+                if s.word.is_allocated() {
+                    out.cells.push(s.cell);
+                }
+            }
+        }
+        out.cells.sort_unstable();
+        out.cells.dedup();
+        Ok(out)
+    }
 }
 
 impl AoTracer {

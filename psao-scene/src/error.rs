@@ -106,6 +106,14 @@ pub enum SceneError {
         /// Normals.
         normals: usize,
     },
+    /// The records of what clients hold differ in number from the points.
+    #[error("{points} points but {sent} records of what clients hold")]
+    SentCount {
+        /// Points.
+        points: usize,
+        /// Records ([`psao_codec::SentPoint`]).
+        sent: usize,
+    },
     /// A node, skin, mesh attribute or instance reference is invalid.
     #[error("{element}: {reason}")]
     Element {

@@ -62,8 +62,8 @@ mod view;
 pub use alpha::{AlphaMask, AlphaTexture};
 pub use animation::{Animation, Channel, Interpolation, Keys};
 pub use ao::{
-    AoParams, AoResult, AoTracer, Estimator, Geometry, Layer, MAX_RAYS, TriangleBvh, TriangleMask,
-    morton_order, ray_offset,
+    AoParams, AoResult, AoTracer, ChangedPoints, Estimator, Geometry, Layer, MAX_RAYS, TriangleBvh,
+    TriangleMask, morton_order, ray_offset,
 };
 pub use camera::{Camera, CameraKey, CameraPath, Frustum};
 pub use default_scene::{MOVING_BOX, TRELLIS, WALKER, cesium_man_scene, default_scene};

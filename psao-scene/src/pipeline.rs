@@ -21,10 +21,12 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use glam::{Affine3A, Mat3A, Vec3};
-use psao_codec::{EncodedFrame, Encoder, EncoderConfig, GridTable, Thresholds};
+use psao_codec::{EncodedFrame, Encoder, EncoderConfig, GridTable, SentPoint, Thresholds};
 
 use crate::alpha::AlphaMask;
-use crate::ao::{AoParams, AoResult, AoTracer, Geometry, Layer, TriangleBvh, ray_offset};
+use crate::ao::{
+    AoParams, AoResult, AoTracer, ChangedPoints, Geometry, Layer, TriangleBvh, ray_offset,
+};
 use crate::camera::Frustum;
 use crate::error::{SceneError, check_param};
 use crate::layout::{LayoutParams, layout};
@@ -244,6 +246,24 @@ pub trait AoBackend: Send {
         normals: &[Vec3],
         params: &AoParams,
     ) -> Result<AoResult, SceneError>;
+
+    /// Traces as [`AoBackend::trace_ids`] and keeps the points worth
+    /// sending against what clients hold (`sent`, one record per point):
+    /// the same points as [`ChangedPoints::compare`] on the traced AO. The
+    /// default does exactly that on the host; a backend may compare where
+    /// it traced and hand back only the changed points.
+    fn trace_changed(
+        &mut self,
+        ids: &[u32],
+        points: &[Vec3],
+        normals: &[Vec3],
+        sent: &[SentPoint],
+        params: &AoParams,
+        thresholds: &Thresholds,
+    ) -> Result<ChangedPoints, SceneError> {
+        let result = self.trace_ids(ids, points, normals, params)?;
+        ChangedPoints::compare(&result, sent, thresholds)
+    }
 }
 
 /// A server streaming one scene.
@@ -645,16 +665,36 @@ impl Pipeline {
         force: bool,
     ) -> Result<(u64, u64, u64), SceneError> {
         let (mut ids, mut pts, mut nrm) = (Vec::new(), Vec::new(), Vec::new());
-        let mut base = 0u32;
-        for (s, list) in self.instances.iter().zip(which) {
+        // (instance, point) of each traced point, and what clients hold.
+        let (mut owner, mut sent) = (Vec::new(), Vec::new());
+        // Cells are numbered across instances: instance i's start after
+        // the pools of those before it.
+        let (mut base, mut cell_base) = (0u32, 0u32);
+        for (i, (s, list)) in self.instances.iter().zip(which).enumerate() {
             let nm = normal_matrix(&s.transform);
             for &k in list {
+                let (p, n) = (s.positions[k as usize], s.normals[k as usize]);
                 ids.push(base + k);
-                pts.push(s.transform.transform_point3(s.positions[k as usize]));
-                nrm.push((nm * s.normals[k as usize]).normalize_or_zero());
+                pts.push(s.transform.transform_point3(p));
+                nrm.push((nm * n).normalize_or_zero());
+                owner.push((i, k));
+                sent.push(if force {
+                    SentPoint {
+                        word: psao_codec::PointWord::EMPTY,
+                        frac: Vec3::ZERO,
+                        normal: Vec3::ZERO,
+                        cell: u32::MAX,
+                    }
+                } else {
+                    let mut held = s.table.sent(k, p, n);
+                    held.cell = held.cell.saturating_add(cell_base);
+                    held
+                });
             }
             base += s.points.len() as u32;
+            cell_base = cell_base.saturating_add(s.table.def().cell_pool);
         }
+        let (ao, th) = (self.config.ao, self.config.thresholds);
         let result = match (&mut self.backend, tracer) {
             (Some(backend), _) => {
                 let transforms: Vec<Affine3A> =
@@ -665,32 +705,39 @@ impl Pipeline {
                     .map(|s| (!s.vertices.is_empty()).then_some(s.vertices.as_slice()))
                     .collect();
                 backend.place(&transforms, &vertices)?;
-                backend.trace_ids(&ids, &pts, &nrm, &self.config.ao)?
+                backend.trace_changed(&ids, &pts, &nrm, &sent, &ao, &th)?
             }
-            (None, Some(tracer)) => tracer.trace_ids(&ids, &pts, &nrm, &self.config.ao)?,
-            (None, None) => self
-                .tracer(false)
-                .trace_ids(&ids, &pts, &nrm, &self.config.ao)?,
+            (None, Some(tracer)) => {
+                ChangedPoints::compare(&tracer.trace_ids(&ids, &pts, &nrm, &ao)?, &sent, &th)?
+            }
+            (None, None) => ChangedPoints::compare(
+                &self.tracer(false).trace_ids(&ids, &pts, &nrm, &ao)?,
+                &sent,
+                &th,
+            )?,
         };
-        let mut updated = 0u64;
-        let mut at = 0usize;
-        let th = self.config.thresholds;
-        for (s, list) in self.instances.iter_mut().zip(which) {
-            for &k in list {
-                let (p, n) = (s.positions[k as usize], s.normals[k as usize]);
-                let ao = result.ao[at];
-                at += 1;
-                let set = if force {
-                    s.table.set_point(k, p, n, ao).map(|_| true)
-                } else {
-                    s.table.update_point(k, p, n, ao, &th)
-                };
-                if set? {
-                    updated += 1;
-                }
-            }
+        if result.changed.len() != result.ao.len() {
+            return Err(SceneError::Backend {
+                backend: self.backend_name(),
+                reason: format!(
+                    "{} changed points but {} AO values",
+                    result.changed.len(),
+                    result.ao.len()
+                ),
+            });
         }
-        Ok((ids.len() as u64, result.rays, updated))
+        for (&at, &value) in result.changed.iter().zip(&result.ao) {
+            let Some(&(i, k)) = owner.get(at as usize) else {
+                return Err(SceneError::Backend {
+                    backend: self.backend_name(),
+                    reason: format!("changed point {at} of a batch of {}", owner.len()),
+                });
+            };
+            let s = &mut self.instances[i];
+            let (p, n) = (s.positions[k as usize], s.normals[k as usize]);
+            s.table.set_point(k, p, n, value)?;
+        }
+        Ok((ids.len() as u64, result.rays, result.changed.len() as u64))
     }
 
     /// Advances the scene by `dt` seconds and produces the frame clients
