@@ -181,6 +181,18 @@ impl GpuContext {
         source: &str,
         groups: &[&wgpu::BindGroupLayout],
     ) -> wgpu::ComputePipeline {
+        self.compute_pipeline_at(label, source, "main", groups)
+    }
+
+    /// The compute pipeline of `source`'s entry point `entry`, as
+    /// [`compute_pipeline`](Self::compute_pipeline).
+    pub(crate) fn compute_pipeline_at(
+        &self,
+        label: &str,
+        source: &str,
+        entry: &str,
+        groups: &[&wgpu::BindGroupLayout],
+    ) -> wgpu::ComputePipeline {
         let module = self
             .device
             .create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -201,17 +213,10 @@ impl GpuContext {
                 label: Some(label),
                 layout: Some(&pl),
                 module: &module,
-                entry_point: Some("main"),
+                entry_point: Some(entry),
                 compilation_options: Default::default(),
                 cache: None,
             })
-    }
-
-    /// An f32 output buffer of `count` values for a pass, and the
-    /// mappable buffer it is copied to.
-    pub(crate) fn output_f32(&self, label: &str, count: usize) -> (wgpu::Buffer, wgpu::Buffer) {
-        let size = (count.max(4) * 4) as u64;
-        (self.storage_out(label, size), self.readback(label, size))
     }
 
     /// A zeroed storage buffer of `bytes` (at least 16) that a pass writes
@@ -264,24 +269,6 @@ impl GpuContext {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
     }
 
-    /// Records and submits a compute pass of `pipeline` with `groups`
-    /// bound in order over `grid` workgroups, then copies `out` to
-    /// `readback`. Call inside [`checked`](Self::checked).
-    pub(crate) fn submit_pass(
-        &self,
-        label: &str,
-        pipeline: &wgpu::ComputePipeline,
-        groups: &[&wgpu::BindGroup],
-        grid: (u32, u32),
-        out: &wgpu::Buffer,
-        readback: &wgpu::Buffer,
-    ) {
-        let mut enc = self.encoder(label);
-        Self::record_pass(&mut enc, label, pipeline, groups, grid);
-        enc.copy_buffer_to_buffer(out, 0, readback, 0, out.size());
-        self.queue.submit(Some(enc.finish()));
-    }
-
     /// A mappable buffer of `bytes` (at least 16) to copy results into.
     pub(crate) fn readback(&self, label: &str, bytes: u64) -> wgpu::Buffer {
         self.device.create_buffer(&wgpu::BufferDescriptor {
@@ -322,6 +309,31 @@ impl GpuContext {
         };
         buffer.unmap();
         Ok(values)
+    }
+
+    /// Runs recorded passes alone and times them: first flushes the
+    /// uploads made at buffer creation (they go out with the next
+    /// submission), then submits `commands` and waits, then reads `out`
+    /// (f32 values) back. Returns the values and the passes' time.
+    pub(crate) fn timed_passes(
+        &self,
+        commands: wgpu::CommandBuffer,
+        out: &wgpu::Buffer,
+    ) -> Result<(Vec<f32>, std::time::Duration), GpuError> {
+        self.queue.submit(None);
+        self.wait()?;
+        let start = std::time::Instant::now();
+        self.queue.submit(Some(commands));
+        self.wait()?;
+        let passes = start.elapsed();
+        let readback = self.checked("readback", || {
+            let readback = self.readback("psao-gpu readback", out.size());
+            let mut enc = self.encoder("psao-gpu readback");
+            enc.copy_buffer_to_buffer(out, 0, &readback, 0, out.size());
+            self.queue.submit(Some(enc.finish()));
+            readback
+        })?;
+        Ok((self.read_f32(&readback)?, passes))
     }
 
     /// Waits for submitted work.

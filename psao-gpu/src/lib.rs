@@ -11,6 +11,9 @@
 //! renderer's shaders, or as a compute pass over a G-buffer:
 //! [`GpuReconstruct`]).
 //!
+//! The SAO baseline runs on the same device ([`GpuSao`], the passes of
+//! [`psao_scene::sao`]), so the reconstruction can be timed against it.
+//!
 //! Without a Vulkan driver with ray queries, [`GpuContext::new`] returns a
 //! [`GpuError`] that says what to install (on a machine without a GPU:
 //! Mesa's lavapipe); nothing panics, and the other crates do not need this
@@ -30,6 +33,7 @@ mod context;
 mod error;
 mod mirror;
 mod reconstruct;
+mod sao;
 
 pub use accel::GpuScene;
 pub use ao::GpuAo;
@@ -38,3 +42,4 @@ pub use context::GpuContext;
 pub use error::GpuError;
 pub use mirror::{GpuMirror, MAX_GPU_INSTANCE_ID};
 pub use reconstruct::{GpuReconstruct, RECONSTRUCT_WGSL};
+pub use sao::{GpuSao, PassTimes};

@@ -2,11 +2,14 @@
 //! renderer can include in its own shaders, [`RECONSTRUCT_WGSL`]) run as a
 //! compute pass over a G-buffer.
 
+use std::time::Instant;
+
 use psao_scene::{GBuffer, NO_INSTANCE};
 
 use crate::context::{GpuContext, storage_layout, uniform_layout};
 use crate::error::GpuError;
 use crate::mirror::GpuMirror;
+use crate::sao::PassTimes;
 
 /// The reconstruction functions and their bindings (group 0, bindings
 /// 0-3: instances, bucket entries, point words, normal table; see
@@ -76,10 +79,22 @@ impl GpuReconstruct {
         mirror: &GpuMirror,
         g: &GBuffer,
     ) -> Result<Vec<f32>, GpuError> {
+        self.run_timed(ctx, mirror, g).map(|r| r.0)
+    }
+
+    /// [`run`](Self::run), with how long the pass and the whole call took
+    /// (the mirror is already on the device).
+    pub fn run_timed(
+        &self,
+        ctx: &GpuContext,
+        mirror: &GpuMirror,
+        g: &GBuffer,
+    ) -> Result<(Vec<f32>, PassTimes), GpuError> {
+        let start = Instant::now();
         g.check()?;
         let n = g.pixels();
         if n == 0 {
-            return Ok(Vec::new());
+            return Ok((Vec::new(), PassTimes::default()));
         }
         let limits = ctx.device.limits();
         if (n as u64) * 16 > limits.max_storage_buffer_binding_size {
@@ -102,7 +117,7 @@ impl GpuReconstruct {
             .map(|&i| if i == NO_INSTANCE { u32::MAX } else { i })
             .collect();
         let size = [n as u32, grid.0 * WORKGROUP, 0, 0];
-        let readback = ctx.checked("reconstruction pass", || {
+        let (commands, out) = ctx.checked("reconstruction pass", || {
             let s = wgpu::BufferUsages::STORAGE;
             let pb = ctx.buffer_with("psao-gpu gbuffer position", bytemuck::cast_slice(&pos), s);
             let nb = ctx.buffer_with("psao-gpu gbuffer normal", bytemuck::cast_slice(&nrm), s);
@@ -112,7 +127,7 @@ impl GpuReconstruct {
                 bytemuck::cast_slice(&size),
                 wgpu::BufferUsages::UNIFORM,
             );
-            let (out, readback) = ctx.output_f32("psao-gpu ao image", n);
+            let out = ctx.storage_out("psao-gpu ao image", n as u64 * 4);
             let mirror_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("psao-gpu mirror"),
                 layout: &self.mirror_layout,
@@ -131,18 +146,24 @@ impl GpuReconstruct {
                 layout: &self.pass_layout,
                 entries: &entries,
             });
-            ctx.submit_pass(
+            let mut enc = ctx.encoder("psao-gpu reconstruct");
+            GpuContext::record_pass(
+                &mut enc,
                 "psao-gpu reconstruct",
                 &self.pipeline,
                 &[&mirror_group, &pass_group],
                 grid,
-                &out,
-                &readback,
             );
-            readback
+            (enc.finish(), out)
         })?;
-        let mut ao = ctx.read_f32(&readback)?;
+        let (mut ao, passes) = ctx.timed_passes(commands, &out)?;
         ao.truncate(n);
-        Ok(ao)
+        Ok((
+            ao,
+            PassTimes {
+                passes,
+                total: start.elapsed(),
+            },
+        ))
     }
 }

@@ -690,3 +690,83 @@ fn the_changed_point_lists_span_dispatches_and_list_each_cell_once() {
         on_gpu.changed.len()
     );
 }
+
+#[test]
+fn gpu_sao_matches_the_cpu_baseline() {
+    let Some(ctx) = context() else { return };
+    let scene = default_scene();
+    let cam = scene.camera.as_ref().unwrap().at(1.0);
+    // Odd sides: the pyramid's clamped edges and the quads' lone row and
+    // column.
+    let view = View::new(cam, 161, 97).unwrap();
+    let g = PosedScene::new(&scene, 1.0).unwrap().gbuffer(&view);
+    let mut depth = g.depth.clone();
+    // Sky in all its forms, as the CPU takes it.
+    for (i, d) in depth.iter_mut().enumerate() {
+        match i % 211 {
+            0 => *d = f32::NAN,
+            1 => *d = -1.0,
+            2 => *d = 0.0,
+            _ => {}
+        }
+    }
+    let sao_gpu = GpuSao::new(&ctx).unwrap();
+    for params in [
+        SaoParams::default(),
+        SaoParams {
+            blur_radius: 0,
+            ..SaoParams::default()
+        },
+        SaoParams {
+            mip_levels: 0,
+            contrast: 2.0,
+            ..SaoParams::default()
+        },
+    ] {
+        let cpu = sao(&depth, &view, &params).unwrap();
+        let (gpu, times) = sao_gpu.run_timed(&ctx, &depth, &view, &params).unwrap();
+        assert!(times.passes <= times.total);
+        let (share, worst) = agreement(&cpu, &gpu);
+        let mean = cpu
+            .iter()
+            .zip(&gpu)
+            .map(|(a, b)| (a - b).abs())
+            .sum::<f32>()
+            / cpu.len() as f32;
+        eprintln!(
+            "blur {} mips {}: {:.3}% within 1/255, mean {mean:e}, worst {worst}",
+            params.blur_radius,
+            params.mip_levels,
+            share * 100.0
+        );
+        // Equal here but for pow's last bits with a contrast; a device
+        // whose sin and cos differ in their last bits may move a tap to
+        // the next pixel now and then.
+        assert!(share >= 0.999, "{:.3}% within 1/255", share * 100.0);
+        assert!(mean < 1e-3, "mean difference {mean}");
+        for (i, (&d, &a)) in depth.iter().zip(&gpu).enumerate() {
+            if !(d.is_finite() && d > 0.0) {
+                assert_eq!(a, 1.0, "sky pixel {i}");
+            }
+            assert!((0.0..=1.0).contains(&a), "pixel {i}: {a}");
+        }
+        // And it is not open everywhere: the scene has creases.
+        let dark = gpu.iter().filter(|&&a| a < 0.9).count();
+        eprintln!("{dark} pixels below 0.9");
+        assert!(dark > cpu.len() / 200, "{dark} pixels below 0.9");
+    }
+    // Errors as on the CPU.
+    let bad = SaoParams {
+        samples: 0,
+        ..SaoParams::default()
+    };
+    assert!(matches!(
+        sao_gpu.run(&ctx, &depth, &view, &bad),
+        Err(GpuError::Scene(SceneError::Parameter { .. }))
+    ));
+    assert!(
+        sao_gpu
+            .run(&ctx, &depth[1..], &view, &SaoParams::default())
+            .is_err()
+    );
+}
