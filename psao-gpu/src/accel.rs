@@ -96,6 +96,69 @@ impl MeshBlas {
     }
 }
 
+/// The order in which a mesh's triangles reach the BLAS builder.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TriangleOrder {
+    /// As the mesh lists them.
+    AsGiven,
+    /// Neighbours together: the order of a median-split tree of the
+    /// triangles' centroids (halve along the longest axis at the median,
+    /// then each half likewise). Some builders (lavapipe's) group
+    /// triangles by their input order, and trace much faster this way.
+    #[default]
+    MedianSplit,
+}
+
+/// `indices` with the triangles in the order of a median-split tree of
+/// their centroids: halve along the longest axis of the centroids' bounds
+/// at the median, then each half likewise, down to single triangles.
+/// lavapipe's BLAS builder keeps neighbours in its input order together:
+/// on the default scene's figure, rays run several times faster with its
+/// triangles in this order than in the file's
+/// (`examples/gpu_mesh_size.rs`). Triangles are whole and each appears
+/// once, so only primitive indices change, and the alpha tables use the
+/// same order.
+fn spatial_order(positions: &[glam::Vec3], indices: &[u32]) -> Vec<u32> {
+    let corner = |i: u32| positions.get(i as usize).copied().unwrap_or_default();
+    let centroids: Vec<glam::Vec3> = indices
+        .chunks_exact(3)
+        .map(|t| (corner(t[0]) + corner(t[1]) + corner(t[2])) / 3.0)
+        .collect();
+    let mut order: Vec<usize> = (0..centroids.len()).collect();
+    let mut stack = vec![(0, order.len())];
+    while let Some((lo, hi)) = stack.pop() {
+        if hi - lo < 2 {
+            continue;
+        }
+        let part = &mut order[lo..hi];
+        let (min, max) = part.iter().fold(
+            (
+                glam::Vec3::splat(f32::INFINITY),
+                glam::Vec3::splat(f32::NEG_INFINITY),
+            ),
+            |(a, b), &t| (a.min(centroids[t]), b.max(centroids[t])),
+        );
+        let extent = max - min;
+        let axis = if extent.x >= extent.y && extent.x >= extent.z {
+            0
+        } else if extent.y >= extent.z {
+            1
+        } else {
+            2
+        };
+        let mid = part.len() / 2;
+        part.select_nth_unstable_by(mid, |&a, &b| {
+            centroids[a][axis].total_cmp(&centroids[b][axis])
+        });
+        stack.push((lo, lo + mid));
+        stack.push((lo + mid, hi));
+    }
+    order
+        .into_iter()
+        .flat_map(|t| indices[3 * t..3 * t + 3].iter().copied())
+        .collect()
+}
+
 /// The layout of a scene that its acceleration structures depend on.
 #[derive(Clone, Debug, PartialEq)]
 struct Shape {
@@ -147,10 +210,21 @@ pub struct GpuScene {
 
 impl GpuScene {
     /// Uploads `scene` and builds its acceleration structures posed at
-    /// time 0. Alpha-masked meshes are not opaque to the rays: the AO pass
-    /// tests each candidate hit against the mask. A scene beyond the
-    /// device's limits is refused ([`GpuError::Limits`]).
+    /// time 0, each mesh's triangles in [`TriangleOrder::MedianSplit`].
+    /// Alpha-masked meshes are not opaque to the rays: the AO pass tests
+    /// each candidate hit against the mask. A scene beyond the device's
+    /// limits is refused ([`GpuError::Limits`]).
     pub fn new(ctx: &GpuContext, scene: &Scene) -> Result<GpuScene, GpuError> {
+        GpuScene::with_order(ctx, scene, TriangleOrder::MedianSplit)
+    }
+
+    /// [`GpuScene::new`] with the triangles handed to the BLAS builder in
+    /// `order` (the AO is the same; the time to trace may not be).
+    pub fn with_order(
+        ctx: &GpuContext,
+        scene: &Scene,
+        order: TriangleOrder,
+    ) -> Result<GpuScene, GpuError> {
         scene.validate()?;
         let limits = ctx.device.limits();
         for m in &scene.meshes {
@@ -194,6 +268,14 @@ impl GpuScene {
             inst.skin.is_some() && scene.meshes[inst.mesh].skin.is_some()
         };
         let pose = scene.pose(0.0);
+        let ordered: Vec<Vec<u32>> = scene
+            .meshes
+            .iter()
+            .map(|m| match order {
+                TriangleOrder::AsGiven => m.indices.clone(),
+                TriangleOrder::MedianSplit => spatial_order(&m.positions, &m.indices),
+            })
+            .collect();
         let (meshes, skinned) = ctx.checked("BLAS creation", || {
             let meshes: Vec<Option<MeshBlas>> = scene
                 .meshes
@@ -206,7 +288,7 @@ impl GpuScene {
                         .enumerate()
                         .any(|(i, inst)| inst.mesh == k && !skinned_instance(i));
                     (used_rigid && m.triangle_count() > 0).then(|| {
-                        MeshBlas::new(ctx, &m.positions, &m.indices, false, m.alpha.is_none())
+                        MeshBlas::new(ctx, &m.positions, &ordered[k], false, m.alpha.is_none())
                     })
                 })
                 .collect();
@@ -215,7 +297,8 @@ impl GpuScene {
                     let m = &scene.meshes[scene.instances[i].mesh];
                     (skinned_instance(i) && m.triangle_count() > 0).then(|| {
                         let (p, _) = scene.skinned(i, &pose);
-                        MeshBlas::new(ctx, &p, &m.indices, true, m.alpha.is_none())
+                        let k = scene.instances[i].mesh;
+                        MeshBlas::new(ctx, &p, &ordered[k], true, m.alpha.is_none())
                     })
                 })
                 .collect();
@@ -239,7 +322,7 @@ impl GpuScene {
             meshes,
             skinned,
             tlas,
-            alpha: AlphaTables::new(ctx, scene)?,
+            alpha: AlphaTables::new(ctx, scene, &ordered)?,
             shape: Shape::of(scene),
             triangles: scene.meshes.iter().map(|m| m.triangle_count()).sum(),
             time: 0.0,

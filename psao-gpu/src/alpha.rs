@@ -60,8 +60,13 @@ pub(crate) struct AlphaTables {
 }
 
 impl AlphaTables {
-    /// The tables of `scene` (every mask's data once per mesh).
-    pub(crate) fn new(ctx: &GpuContext, scene: &Scene) -> Result<AlphaTables, GpuError> {
+    /// The tables of `scene` (every mask's data once per mesh), with each
+    /// mesh's triangles in the order of its BLAS (`indices`, per mesh).
+    pub(crate) fn new(
+        ctx: &GpuContext,
+        scene: &Scene,
+        indices: &[Vec<u32>],
+    ) -> Result<AlphaTables, GpuError> {
         let mut per_mesh = vec![AlphaInfo::default(); scene.meshes.len()];
         let mut data = Vec::<u32>::new();
         let too_big = |len: usize| len as u64 >= u32::MAX as u64;
@@ -72,7 +77,7 @@ impl AlphaTables {
             info.cutoff = mask.cutoff;
             info.factor = mask.factor;
             info.index_offset = data.len() as u32;
-            data.extend_from_slice(&m.indices);
+            data.extend_from_slice(&indices[k]);
             if !mask.vertex_alpha.is_empty() {
                 info.vertex_alpha_offset = data.len() as u32;
                 data.extend(mask.vertex_alpha.iter().map(|a| a.to_bits()));

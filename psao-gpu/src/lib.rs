@@ -35,7 +35,7 @@ mod mirror;
 mod reconstruct;
 mod sao;
 
-pub use accel::GpuScene;
+pub use accel::{GpuScene, TriangleOrder};
 pub use ao::GpuAo;
 pub use backend::GpuBackend;
 pub use context::GpuContext;

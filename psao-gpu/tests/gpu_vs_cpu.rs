@@ -770,3 +770,46 @@ fn gpu_sao_matches_the_cpu_baseline() {
             .is_err()
     );
 }
+
+#[test]
+fn the_triangle_order_changes_no_ao() {
+    let Some(ctx) = context() else { return };
+    // The whole default scene, alpha-masked trellis included (its mask is
+    // looked up by primitive index, which the order changes).
+    let scene = default_scene();
+    let p = Pipeline::new(
+        scene.clone(),
+        PipelineConfig {
+            density: 16.0,
+            ..PipelineConfig::default()
+        },
+    )
+    .unwrap();
+    let (ids, pts, nrm) = points_of(&p);
+    let ao = GpuAo::new(&ctx).unwrap();
+    let params = AoParams {
+        rays: 16,
+        ..AoParams::default()
+    };
+    let trace = |order| {
+        let s = GpuScene::with_order(&ctx, &scene, order).unwrap();
+        ao.trace_ids(&ctx, &s, &ids, &pts, &nrm, &params)
+            .unwrap()
+            .ao
+    };
+    let given = trace(TriangleOrder::AsGiven);
+    let median = trace(TriangleOrder::MedianSplit);
+    let same = given
+        .iter()
+        .zip(&median)
+        .filter(|(a, b)| (*a - *b).abs() <= 1e-6)
+        .count();
+    eprintln!("{same} of {} points equal", given.len());
+    assert!(
+        same * 1000 >= given.len() * 999,
+        "{same} of {}",
+        given.len()
+    );
+    let (share, worst) = agreement(&given, &median);
+    assert_eq!(share, 1.0, "worst {worst}");
+}
