@@ -813,3 +813,44 @@ fn the_triangle_order_changes_no_ao() {
     let (share, worst) = agreement(&given, &median);
     assert_eq!(share, 1.0, "worst {worst}");
 }
+
+#[test]
+fn a_removed_instance_reallocates_and_leaves_its_pixels_open() {
+    let Some(ctx) = context() else { return };
+    let (_server, mut client, scene) = client_side(64.0);
+    let mut gm = GpuMirror::new(&ctx, client.mirror()).unwrap();
+    client.mirror_mut().clear_changes();
+    let generation = gm.generation();
+    // A delta that removes the walker, following what the client holds.
+    let held = client.mirror().sequence().unwrap();
+    let mut enc = psao_codec::Encoder::starting_at(psao_codec::EncoderConfig::default(), held);
+    let mut f = enc.delta();
+    f.remove_instance(WALKER as u32);
+    let frame = f.finish().unwrap().unwrap();
+    client.receive(&frame.bytes).unwrap();
+    assert!(client.mirror().instance(WALKER as u32).is_none());
+    assert!(
+        client
+            .mirror()
+            .changes()
+            .items
+            .iter()
+            .any(|c| matches!(c, psao_codec::Change::Removed(_)))
+    );
+    gm.sync(&ctx, client.mirror_mut()).unwrap();
+    assert!(gm.generation() > generation, "a removal reallocates");
+    assert!(client.mirror().changes().items.is_empty());
+    // The figure's pixels now have no points: open (1), on both sides.
+    let g = gbuffer_at(&scene, 0.0);
+    let figure: Vec<usize> = (0..g.pixels())
+        .filter(|&k| g.instance[k] == WALKER as u32)
+        .collect();
+    assert!(!figure.is_empty(), "the figure is in view");
+    let gpu = GpuReconstruct::new(&ctx)
+        .unwrap()
+        .run(&ctx, &gm, &g)
+        .unwrap();
+    let cpu = psao_image(client.mirror(), &g).unwrap().ao;
+    assert_eq!(agreement(&cpu, &gpu).0, 1.0);
+    assert!(figure.iter().all(|&k| gpu[k] == 1.0));
+}
