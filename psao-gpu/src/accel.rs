@@ -1,7 +1,9 @@
 //! Acceleration structures of a scene: one BLAS per mesh in its local
 //! space (built once), one per skinned instance (rebuilt from its skinned
 //! vertices when the pose changes), and a TLAS of the instances placed by
-//! their transforms, rebuilt for every pose.
+//! their transforms, rebuilt for every pose. Triangles and instances reach
+//! the builder in median-split order ([`TriangleOrder`]): some builders
+//! (lavapipe's) group by input order.
 
 use psao_scene::Scene;
 use wgpu::util::DeviceExt;
@@ -124,7 +126,16 @@ fn spatial_order(positions: &[glam::Vec3], indices: &[u32]) -> Vec<u32> {
         .chunks_exact(3)
         .map(|t| (corner(t[0]) + corner(t[1]) + corner(t[2])) / 3.0)
         .collect();
-    let mut order: Vec<usize> = (0..centroids.len()).collect();
+    median_split_order(&centroids)
+        .into_iter()
+        .flat_map(|t| indices[3 * t..3 * t + 3].iter().copied())
+        .collect()
+}
+
+/// The order of `points` in a median-split tree: halve along the longest
+/// axis of their bounds at the median, then each half likewise.
+fn median_split_order(points: &[glam::Vec3]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..points.len()).collect();
     let mut stack = vec![(0, order.len())];
     while let Some((lo, hi)) = stack.pop() {
         if hi - lo < 2 {
@@ -136,7 +147,7 @@ fn spatial_order(positions: &[glam::Vec3], indices: &[u32]) -> Vec<u32> {
                 glam::Vec3::splat(f32::INFINITY),
                 glam::Vec3::splat(f32::NEG_INFINITY),
             ),
-            |(a, b), &t| (a.min(centroids[t]), b.max(centroids[t])),
+            |(a, b), &t| (a.min(points[t]), b.max(points[t])),
         );
         let extent = max - min;
         let axis = if extent.x >= extent.y && extent.x >= extent.z {
@@ -147,16 +158,11 @@ fn spatial_order(positions: &[glam::Vec3], indices: &[u32]) -> Vec<u32> {
             2
         };
         let mid = part.len() / 2;
-        part.select_nth_unstable_by(mid, |&a, &b| {
-            centroids[a][axis].total_cmp(&centroids[b][axis])
-        });
+        part.select_nth_unstable_by(mid, |&a, &b| points[a][axis].total_cmp(&points[b][axis]));
         stack.push((lo, lo + mid));
         stack.push((lo + mid, hi));
     }
     order
-        .into_iter()
-        .flat_map(|t| indices[3 * t..3 * t + 3].iter().copied())
-        .collect()
 }
 
 /// The layout of a scene that its acceleration structures depend on.
@@ -439,7 +445,21 @@ impl GpuScene {
             return Ok(());
         };
         let mut k = 0;
-        for (i, inst) in scene.instances.iter().enumerate() {
+        // Instances in median-split order of their centres, like the
+        // triangles of a BLAS.
+        let centres: Vec<glam::Vec3> = scene
+            .instances
+            .iter()
+            .enumerate()
+            .map(|(i, inst)| {
+                let c = scene.meshes[inst.mesh]
+                    .bounds()
+                    .map_or(glam::Vec3::ZERO, |(lo, hi)| (lo + hi) * 0.5);
+                transforms[i].transform_point3(c)
+            })
+            .collect();
+        for i in median_split_order(&centres) {
+            let inst = &scene.instances[i];
             let blas = match (&self.skinned[i], &self.meshes[inst.mesh]) {
                 (Some(b), _) => b,
                 (None, Some(b))
