@@ -113,8 +113,11 @@ impl SentPoint {
         if !self.word.is_allocated() {
             return true;
         }
-        let moved = ((self.frac - self.word.frac()) * POSITION_QUANTA as f32).length()
-            > thresholds.position_quanta;
+        // The distance against the threshold, squared (no square root, so
+        // a device can do the same arithmetic).
+        let q = thresholds.position_quanta;
+        let d2 = ((self.frac - self.word.frac()) * POSITION_QUANTA as f32).length_squared();
+        let moved = q < 0.0 || d2 > q * q;
         let turned = self.word.normal().dot(self.normal) < thresholds.normal_cos;
         let shaded = quantize_ao(ao).abs_diff(self.word.fields().ao) > thresholds.ao_steps;
         moved || turned || shaded

@@ -5,7 +5,7 @@
 //! queries) with the triangles as given and in median-split order
 //! ([`TriangleOrder`]), and on the CPU (obvhs), same run, best of 3.
 //!
-//! `cargo run --release -p psao-gpu --example gpu_mesh_size [-- --rays 64]`
+//! `cargo run --release -p psao-gpu --example gpu_mesh_size [-- --rays 64 --density 256]`
 
 use glam::{Affine3A, Vec3};
 use psao_gpu::{GpuAo, GpuContext, GpuScene, TriangleOrder};

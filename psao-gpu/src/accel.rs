@@ -210,6 +210,8 @@ pub struct GpuScene {
     /// per instance (mesh, skinned); `pose` and `place` refuse another
     /// scene.
     shape: Shape,
+    /// Per mesh, the centre of its local bounds (orders the TLAS).
+    centres: Vec<glam::Vec3>,
     triangles: usize,
     time: f32,
 }
@@ -330,6 +332,14 @@ impl GpuScene {
             tlas,
             alpha: AlphaTables::new(ctx, scene, &ordered)?,
             shape: Shape::of(scene),
+            centres: scene
+                .meshes
+                .iter()
+                .map(|m| {
+                    m.bounds()
+                        .map_or(glam::Vec3::ZERO, |(lo, hi)| (lo + hi) * 0.5)
+                })
+                .collect(),
             triangles: scene.meshes.iter().map(|m| m.triangle_count()).sum(),
             time: 0.0,
         };
@@ -451,12 +461,7 @@ impl GpuScene {
             .instances
             .iter()
             .enumerate()
-            .map(|(i, inst)| {
-                let c = scene.meshes[inst.mesh]
-                    .bounds()
-                    .map_or(glam::Vec3::ZERO, |(lo, hi)| (lo + hi) * 0.5);
-                transforms[i].transform_point3(c)
-            })
+            .map(|(i, inst)| transforms[i].transform_point3(self.centres[inst.mesh]))
             .collect();
         for i in median_split_order(&centres) {
             let inst = &scene.instances[i];

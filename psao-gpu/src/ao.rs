@@ -227,8 +227,11 @@ impl GpuAo {
     /// Traces as [`trace_ids`](Self::trace_ids) and compares each point's
     /// new AO, position and normal with what its clients hold (`sent`, one
     /// record per point; [`SentPoint::changed`]) on the GPU. Only the
-    /// changed points and cells are read back: the same
-    /// [`ChangedPoints`] as [`ChangedPoints::compare`] on the CPU's AO.
+    /// changed points and cells are read back: the same [`ChangedPoints`]
+    /// as [`ChangedPoints::compare`] on the AO of
+    /// [`trace_ids`](Self::trace_ids), except where a value lies within
+    /// the rounding of a threshold (a device may fuse or round the
+    /// comparison's arithmetic differently from the host).
     #[allow(clippy::too_many_arguments)]
     pub fn trace_changed(
         &self,
@@ -260,14 +263,18 @@ impl GpuAo {
             };
             return Ok(ChangedPoints::compare(&open, sent, thresholds)?);
         };
-        // One bit per cell that can be listed, kept across the chunks.
-        let cells = sent
+        // The cells the batch names, numbered densely (the caller's
+        // numbers may be sparse and large): one bit per cell, kept across
+        // the chunks.
+        let mut cell_ids: Vec<u32> = sent
             .iter()
             .filter(|s| s.word.is_allocated())
-            .map(|s| s.cell as u64 + 1)
-            .max()
-            .unwrap_or(0);
-        let bitset_bytes = cells.div_ceil(32) * 4;
+            .map(|s| s.cell)
+            .collect();
+        cell_ids.sort_unstable();
+        cell_ids.dedup();
+        let dense = |cell: u32| cell_ids.binary_search(&cell).unwrap_or(0) as u32;
+        let bitset_bytes = (cell_ids.len() as u64).div_ceil(32) * 4;
         let limit = ctx.device.limits().max_storage_buffer_binding_size;
         if bitset_bytes > limit {
             return Err(GpuError::Limits {
@@ -294,7 +301,11 @@ impl GpuAo {
                         frac: s.frac.to_array(),
                         word: s.word.0,
                         normal: s.normal.to_array(),
-                        cell: s.cell,
+                        cell: if s.word.is_allocated() {
+                            dense(s.cell)
+                        } else {
+                            u32::MAX
+                        },
                     }
                 })
                 .collect();
@@ -323,12 +334,27 @@ impl GpuAo {
                 }
                 found.push((batch.order[at], f32::from_bits(bits)));
             }
-            out.cells.extend(listed_cells);
+            for c in listed_cells {
+                let Some(&cell) = cell_ids.get(c as usize) else {
+                    return Err(GpuError::Rejected {
+                        what: "changed cells",
+                        details: format!("cell {c} of {}", cell_ids.len()),
+                    });
+                };
+                out.cells.push(cell);
+            }
         }
         found.sort_unstable_by_key(|x| x.0);
+        if let Some(w) = found.windows(2).find(|w| w[0].0 == w[1].0) {
+            return Err(GpuError::Rejected {
+                what: "changed points",
+                details: format!("point {} listed twice", w[0].0),
+            });
+        }
         out.changed = found.iter().map(|x| x.0 as u32).collect();
         out.ao = found.iter().map(|x| x.1).collect();
         out.cells.sort_unstable();
+        out.cells.dedup();
         Ok(out)
     }
 

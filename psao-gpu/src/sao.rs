@@ -160,7 +160,7 @@ impl GpuSao {
             .into());
         }
         let focal = view.focal_px();
-        if !(focal.is_finite() && focal > 0.0) {
+        if !(focal.is_finite() && focal >= 1e-30) {
             return Err(SceneError::Parameter {
                 name: "focal length",
                 value: focal as f64,

@@ -705,7 +705,13 @@ impl Pipeline {
                     .map(|s| (!s.vertices.is_empty()).then_some(s.vertices.as_slice()))
                     .collect();
                 backend.place(&transforms, &vertices)?;
-                backend.trace_changed(&ids, &pts, &nrm, &sent, &ao, &th)?
+                if force {
+                    // Everything is sent: nothing to compare.
+                    let r = backend.trace_ids(&ids, &pts, &nrm, &ao)?;
+                    ChangedPoints::compare(&r, &sent, &th)?
+                } else {
+                    backend.trace_changed(&ids, &pts, &nrm, &sent, &ao, &th)?
+                }
             }
             (None, Some(tracer)) => {
                 ChangedPoints::compare(&tracer.trace_ids(&ids, &pts, &nrm, &ao)?, &sent, &th)?

@@ -1,9 +1,11 @@
 // The points worth sending, compared where they were traced: each point's
 // new AO (from the AO pass, still on the GPU) against the word its clients
 // hold, with psao-codec's thresholds (SentPoint::changed in
-// psao-codec/src/table.rs, operation for operation), compacted with
-// atomics into a list of changed points and a list of the cells whose
-// held words change (each cell once).
+// psao-codec/src/table.rs, the same operations; a device may still fuse a
+// multiply and an add, so a value within rounding of a threshold can go
+// either way), compacted with atomics into a list of changed points and a
+// list of the cells whose held words change (each cell once, numbered
+// densely by the host).
 
 struct Params {
     // Points in this dispatch.
@@ -52,7 +54,8 @@ const ALLOC: u32 = 0x80000000u;
 // zero (WGSL's round takes halves to even), NaN to 0.
 fn quantize_ao(a: f32) -> u32 {
     var x = 0.0;
-    if (a == a) {
+    // Not NaN, by its bits (a compiler may fold a == a to true).
+    if ((bitcast<u32>(a) & 0x7fffffffu) <= 0x7f800000u) {
         x = clamp(a, 0.0, 1.0) * 255.0;
     }
     let f = floor(x);
@@ -67,7 +70,8 @@ fn is_changed(s: Sent, a: f32) -> bool {
     }
     let q = vec3<f32>(vec3<u32>((w >> 16u) & 31u, (w >> 21u) & 31u, (w >> 26u) & 31u));
     let d = (s.frac - (q + 0.5) / 32.0) * 32.0;
-    let moved = sqrt(d.x * d.x + d.y * d.y + d.z * d.z) > params.position_quanta;
+    let q_pos = params.position_quanta;
+    let moved = q_pos < 0.0 || d.x * d.x + d.y * d.y + d.z * d.z > q_pos * q_pos;
     let n = normal_table[(w >> 8u) & 0xFFu].xyz;
     let turned = n.x * s.normal.x + n.y * s.normal.y + n.z * s.normal.z < params.normal_cos;
     let q_new = quantize_ao(a);
