@@ -6,7 +6,6 @@
 //! (lavapipe's) group by input order.
 
 use psao_scene::Scene;
-use wgpu::util::DeviceExt;
 
 use crate::alpha::AlphaTables;
 use crate::context::GpuContext;
@@ -33,20 +32,12 @@ impl MeshBlas {
     ) -> MeshBlas {
         let flat: Vec<[f32; 3]> = positions.iter().map(|p| p.to_array()).collect();
         let usage = wgpu::BufferUsages::BLAS_INPUT | wgpu::BufferUsages::COPY_DST;
-        let vertices = ctx
-            .device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("psao-gpu vertices"),
-                contents: bytemuck::cast_slice(&flat),
-                usage,
-            });
-        let indices_buf = ctx
-            .device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("psao-gpu indices"),
-                contents: bytemuck::cast_slice(indices),
-                usage: wgpu::BufferUsages::BLAS_INPUT,
-            });
+        let vertices = ctx.buffer_with("psao-gpu vertices", bytemuck::cast_slice(&flat), usage);
+        let indices_buf = ctx.buffer_with(
+            "psao-gpu indices",
+            bytemuck::cast_slice(indices),
+            wgpu::BufferUsages::BLAS_INPUT,
+        );
         let size = wgpu::BlasTriangleGeometrySizeDescriptor {
             vertex_format: wgpu::VertexFormat::Float32x3,
             vertex_count: positions.len() as u32,

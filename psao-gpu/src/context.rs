@@ -1,8 +1,6 @@
 //! The device: a Vulkan adapter with ray queries, opened with the
 //! experimental ray-query feature.
 
-use wgpu::util::DeviceExt;
-
 use crate::error::GpuError;
 
 /// A compute-stage uniform buffer binding.
@@ -154,23 +152,30 @@ impl GpuContext {
     }
 
     /// A buffer holding `bytes` (padded to 16 bytes: wgpu refuses empty
-    /// bindings). Call inside [`checked`](Self::checked).
+    /// bindings, and to a multiple of 4). Call inside
+    /// [`checked`](Self::checked): unlike wgpu's `create_buffer_init`,
+    /// which panics when the buffer cannot be made (out of memory, past a
+    /// limit), this leaves that to the error scope.
     pub(crate) fn buffer_with(
         &self,
         label: &str,
         bytes: &[u8],
         usage: wgpu::BufferUsages,
     ) -> wgpu::Buffer {
-        let mut data = bytes.to_vec();
-        if data.len() < 16 {
-            data.resize(16, 0);
+        let size = (bytes.len() as u64).max(16).next_multiple_of(4);
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage,
+            mapped_at_creation: true,
+        });
+        // No mapping means the buffer was not made: the error scope has
+        // the reason.
+        if let Ok(mut view) = buffer.get_mapped_range_mut(..) {
+            view.slice(..bytes.len()).copy_from_slice(bytes);
         }
-        self.device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents: &data,
-                usage,
-            })
+        buffer.unmap();
+        buffer
     }
 
     /// The compute pipeline of `source`'s `main` with `groups` as its bind
