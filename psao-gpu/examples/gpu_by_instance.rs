@@ -16,14 +16,7 @@ fn main() {
     let most: usize = arg("--most", 1200);
     let ctx = support::open_context();
     let scene = default_scene();
-    let p = Pipeline::new(
-        scene.clone(),
-        PipelineConfig {
-            density,
-            ..PipelineConfig::default()
-        },
-    )
-    .expect("the default scene builds");
+    let p = support::default_pipeline(&scene, density);
     let mut gpu_scene = GpuScene::new(&ctx, &scene).expect("GPU scene");
     let ao = GpuAo::new(&ctx).expect("AO pass");
     let cpu = PosedScene::new(&scene, 0.0).expect("poses").tracer();

@@ -128,14 +128,7 @@ fn main() {
     // (1) The figure of the default scene: in the scene, and a rigid copy
     // of it (its pose-0 vertices as an ordinary mesh) alone.
     let scene = default_scene();
-    let p = Pipeline::new(
-        scene.clone(),
-        PipelineConfig {
-            density,
-            ..PipelineConfig::default()
-        },
-    )
-    .expect("the default scene builds");
+    let p = support::default_pipeline(&scene, density);
     let (pos, n) = p.current_points(WALKER).expect("walker points");
     let tf = p.transform(WALKER).expect("walker transform");
     let nm = tf.matrix3.inverse().transpose();

@@ -20,14 +20,7 @@ fn main() {
     let reps: u32 = arg("--reps", 3).max(1);
     let ctx = support::open_context();
     let scene = default_scene();
-    let p = Pipeline::new(
-        scene.clone(),
-        PipelineConfig {
-            density,
-            ..PipelineConfig::default()
-        },
-    )
-    .expect("the default scene builds");
+    let p = support::default_pipeline(&scene, density);
     let (ids, pts, nrm) = support::world_points(&p);
     let cpu = PosedScene::new(&scene, 0.0).expect("poses").tracer();
     let gpu_scene = GpuScene::new(&ctx, &scene).expect("GPU scene");

@@ -387,11 +387,7 @@ impl GpuAo {
         let (counts, pairs, cells, counts_back) = ctx.checked("compare pass", || {
             let mut enc = ctx.encoder("psao-gpu changed");
             let ao = self.record_ao(ctx, scene, tlas, &mut enc, batch, range, p);
-            let uniform = ctx.buffer_with(
-                "psao-gpu changed params",
-                bytemuck::bytes_of(&params),
-                wgpu::BufferUsages::UNIFORM,
-            );
+            let uniform = ctx.uniform("psao-gpu changed params", &params);
             let sent = ctx.buffer_with(
                 "psao-gpu sent",
                 bytemuck::cast_slice(sent),
@@ -482,11 +478,7 @@ impl GpuAo {
             row: grid.0 * WORKGROUP,
         };
         let s = wgpu::BufferUsages::STORAGE;
-        let uniform = ctx.buffer_with(
-            "psao-gpu ao params",
-            bytemuck::bytes_of(&params),
-            wgpu::BufferUsages::UNIFORM,
-        );
+        let uniform = ctx.uniform("psao-gpu ao params", &params);
         let pb = ctx.buffer_with(
             "psao-gpu points",
             bytemuck::cast_slice(&batch.pts[range.clone()]),

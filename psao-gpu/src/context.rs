@@ -2,6 +2,7 @@
 //! experimental ray-query feature.
 
 use crate::error::GpuError;
+use crate::sao::PassTimes;
 
 /// A compute-stage uniform buffer binding.
 pub(crate) fn uniform_layout(binding: u32) -> wgpu::BindGroupLayoutEntry {
@@ -178,6 +179,16 @@ impl GpuContext {
         buffer
     }
 
+    /// A uniform buffer holding `value`. Call inside
+    /// [`checked`](Self::checked).
+    pub(crate) fn uniform<T: bytemuck::Pod>(&self, label: &str, value: &T) -> wgpu::Buffer {
+        self.buffer_with(
+            label,
+            bytemuck::bytes_of(value),
+            wgpu::BufferUsages::UNIFORM,
+        )
+    }
+
     /// The compute pipeline of `source`'s `main` with `groups` as its bind
     /// group layouts, in order. Call inside [`checked`](Self::checked).
     pub(crate) fn compute_pipeline(
@@ -318,19 +329,22 @@ impl GpuContext {
 
     /// Runs recorded passes alone and times them: first flushes the
     /// uploads made at buffer creation (they go out with the next
-    /// submission), then submits `commands` and waits, then reads `out`
-    /// (f32 values) back. Returns the values and the passes' time.
+    /// submission), then submits `commands` and waits, then reads the
+    /// first `len` f32 values of `out` back. Returns them with the passes'
+    /// time and the time since `start`.
     pub(crate) fn timed_passes(
         &self,
         commands: wgpu::CommandBuffer,
         out: &wgpu::Buffer,
-    ) -> Result<(Vec<f32>, std::time::Duration), GpuError> {
+        len: usize,
+        start: std::time::Instant,
+    ) -> Result<(Vec<f32>, PassTimes), GpuError> {
         self.queue.submit(None);
         self.wait()?;
-        let start = std::time::Instant::now();
+        let submitted = std::time::Instant::now();
         self.queue.submit(Some(commands));
         self.wait()?;
-        let passes = start.elapsed();
+        let passes = submitted.elapsed();
         let readback = self.checked("readback", || {
             let readback = self.readback("psao-gpu readback", out.size());
             let mut enc = self.encoder("psao-gpu readback");
@@ -338,7 +352,15 @@ impl GpuContext {
             self.queue.submit(Some(enc.finish()));
             readback
         })?;
-        Ok((self.read_f32(&readback)?, passes))
+        let mut values = self.read_f32(&readback)?;
+        values.truncate(len);
+        Ok((
+            values,
+            PassTimes {
+                passes,
+                total: start.elapsed(),
+            },
+        ))
     }
 
     /// Waits for submitted work.

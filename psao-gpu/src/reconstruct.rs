@@ -122,11 +122,7 @@ impl GpuReconstruct {
             let pb = ctx.buffer_with("psao-gpu gbuffer position", bytemuck::cast_slice(&pos), s);
             let nb = ctx.buffer_with("psao-gpu gbuffer normal", bytemuck::cast_slice(&nrm), s);
             let ib = ctx.buffer_with("psao-gpu gbuffer instance", bytemuck::cast_slice(&ids), s);
-            let ub = ctx.buffer_with(
-                "psao-gpu pass size",
-                bytemuck::cast_slice(&size),
-                wgpu::BufferUsages::UNIFORM,
-            );
+            let ub = ctx.uniform("psao-gpu pass size", &size);
             let out = ctx.storage_out("psao-gpu ao image", n as u64 * 4);
             let mirror_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("psao-gpu mirror"),
@@ -156,14 +152,6 @@ impl GpuReconstruct {
             );
             (enc.finish(), out)
         })?;
-        let (mut ao, passes) = ctx.timed_passes(commands, &out)?;
-        ao.truncate(n);
-        Ok((
-            ao,
-            PassTimes {
-                passes,
-                total: start.elapsed(),
-            },
-        ))
+        ctx.timed_passes(commands, &out, n, start)
     }
 }

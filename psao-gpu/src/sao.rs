@@ -5,7 +5,7 @@
 
 use std::time::{Duration, Instant};
 
-use psao_scene::{SaoParams, SceneError, View};
+use psao_scene::{SaoParams, View};
 
 use crate::context::{GpuContext, storage_layout, uniform_layout};
 use crate::error::GpuError;
@@ -150,24 +150,7 @@ impl GpuSao {
         params: &SaoParams,
     ) -> Result<(Vec<f32>, PassTimes), GpuError> {
         let start = Instant::now();
-        params.validate()?;
-        if depth.len() != view.pixels() {
-            return Err(SceneError::Parameter {
-                name: "depth length",
-                value: depth.len() as f64,
-                rule: "must equal width * height of the view",
-            }
-            .into());
-        }
-        let focal = view.focal_px();
-        if !(focal.is_finite() && focal >= 1e-30) {
-            return Err(SceneError::Parameter {
-                name: "focal length",
-                value: focal as f64,
-                rule: "finite and positive (field of view in (0, pi))",
-            }
-            .into());
-        }
+        let focal = params.check_input(depth.len(), view)?;
         let n = depth.len();
         if n == 0 {
             return Ok((Vec::new(), PassTimes::default()));
@@ -229,13 +212,7 @@ impl GpuSao {
         // Inputs onto the device, then the passes alone.
         let (commands, out) = ctx.checked("SAO passes", || {
             let s = wgpu::BufferUsages::STORAGE;
-            let uniform = |p: Params| {
-                ctx.buffer_with(
-                    "psao-gpu sao params",
-                    bytemuck::bytes_of(&p),
-                    wgpu::BufferUsages::UNIFORM,
-                )
-            };
+            let uniform = |p: Params| ctx.uniform("psao-gpu sao params", &p);
             let depth_buf = ctx.buffer_with("psao-gpu sao depth", bytemuck::cast_slice(depth), s);
             let gauss_buf = ctx.buffer_with("psao-gpu sao gauss", bytemuck::cast_slice(&gauss), s);
             let unused_in = ctx.buffer_with("psao-gpu sao unused", &[], s);
@@ -332,15 +309,7 @@ impl GpuSao {
             };
             (enc.finish(), last)
         })?;
-        let (mut ao, passes) = ctx.timed_passes(commands, &out)?;
-        ao.truncate(n);
-        Ok((
-            ao,
-            PassTimes {
-                passes,
-                total: start.elapsed(),
-            },
-        ))
+        ctx.timed_passes(commands, &out, n, start)
     }
 }
 

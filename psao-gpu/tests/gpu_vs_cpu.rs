@@ -29,6 +29,19 @@ fn solid_default_scene() -> Scene {
     s
 }
 
+/// A pipeline over `scene` with `density` kept points per m^2, otherwise
+/// the defaults.
+fn pipeline_at(scene: &Scene, density: f32) -> Pipeline {
+    Pipeline::new(
+        scene.clone(),
+        PipelineConfig {
+            density,
+            ..PipelineConfig::default()
+        },
+    )
+    .unwrap()
+}
+
 /// World-space points and normals of a pipeline's instances at its time,
 /// with stable ids.
 fn points_of(p: &Pipeline) -> (Vec<u32>, Vec<Vec3>, Vec<Vec3>) {
@@ -67,14 +80,7 @@ fn gpu_ao_matches_the_cpu_backend_with_both_estimators() {
     let Some(ctx) = context() else { return };
     // The whole default scene: rigid, skinned and alpha-masked instances.
     let scene = default_scene();
-    let p = Pipeline::new(
-        scene.clone(),
-        PipelineConfig {
-            density: 16.0,
-            ..PipelineConfig::default()
-        },
-    )
-    .unwrap();
+    let p = pipeline_at(&scene, 16.0);
     let (ids, pts, nrm) = points_of(&p);
     assert!(pts.len() > 2000, "{} points", pts.len());
     let cpu_tracer = PosedScene::new(&scene, 0.0).unwrap().tracer();
@@ -497,14 +503,7 @@ fn held(p: &Pipeline) -> Vec<psao_codec::SentPoint> {
 fn the_gpu_compares_with_what_clients_hold_and_reads_back_only_changes() {
     let Some(ctx) = context() else { return };
     let scene = default_scene();
-    let p = Pipeline::new(
-        scene.clone(),
-        PipelineConfig {
-            density: 16.0,
-            ..PipelineConfig::default()
-        },
-    )
-    .unwrap();
+    let p = pipeline_at(&scene, 16.0);
     let (ids, pts, nrm) = points_of(&p);
     let mut sent = held(&p);
     // Exercise every threshold: some points moved by 6.4 quanta, some
@@ -632,14 +631,7 @@ fn table_less(normal: Vec3) -> psao_codec::SentPoint {
 fn the_changed_point_lists_span_dispatches_and_list_each_cell_once() {
     let Some(ctx) = context() else { return };
     let scene = solid_default_scene();
-    let p = Pipeline::new(
-        scene.clone(),
-        PipelineConfig {
-            density: 16.0,
-            ..PipelineConfig::default()
-        },
-    )
-    .unwrap();
+    let p = pipeline_at(&scene, 16.0);
     let (ids, pts, nrm) = points_of(&p);
     let sent = held(&p);
     // More points than one dispatch takes (2^18): the batch repeated,
@@ -777,14 +769,7 @@ fn the_triangle_order_changes_no_ao() {
     // The whole default scene, alpha-masked trellis included (its mask is
     // looked up by primitive index, which the order changes).
     let scene = default_scene();
-    let p = Pipeline::new(
-        scene.clone(),
-        PipelineConfig {
-            density: 16.0,
-            ..PipelineConfig::default()
-        },
-    )
-    .unwrap();
+    let p = pipeline_at(&scene, 16.0);
     let (ids, pts, nrm) = points_of(&p);
     let ao = GpuAo::new(&ctx).unwrap();
     let params = AoParams {

@@ -248,6 +248,31 @@ impl SaoParams {
     }
 }
 
+impl SaoParams {
+    /// Checks these constants and a depth buffer of `depth_len` values for
+    /// `view`, as [`sao`] does (its errors), and returns the focal length
+    /// in pixels. For other implementations of the same passes (psao-gpu's).
+    pub fn check_input(&self, depth_len: usize, view: &View) -> Result<f32, SceneError> {
+        self.validate()?;
+        if depth_len != view.pixels() {
+            return Err(SceneError::Parameter {
+                name: "depth length",
+                value: depth_len as f64,
+                rule: "must equal width * height of the view",
+            });
+        }
+        let focal = view.focal_px();
+        check_param(
+            "focal length",
+            focal as f64,
+            1e-30,
+            f32::MAX as f64,
+            "finite and positive (field of view in (0, pi))",
+        )?;
+        Ok(focal)
+    }
+}
+
 /// One level of the z pyramid: for each texel, the full-resolution pixel
 /// the rotated grid picked (its camera-space z is that pixel's).
 struct Level {
@@ -544,22 +569,7 @@ fn blur_pass(src: &[f32], frame: &Frame, p: &SaoParams, horizontal: bool) -> Vec
 /// `depth length`) and for a view whose focal length is not finite and
 /// positive (name `focal length`).
 pub fn sao(depth: &[f32], view: &View, params: &SaoParams) -> Result<Vec<f32>, SceneError> {
-    params.validate()?;
-    if depth.len() != view.pixels() {
-        return Err(SceneError::Parameter {
-            name: "depth length",
-            value: depth.len() as f64,
-            rule: "must equal width * height of the view",
-        });
-    }
-    let focal = view.focal_px();
-    check_param(
-        "focal length",
-        focal as f64,
-        1e-30,
-        f32::MAX as f64,
-        "finite and positive (field of view in (0, pi))",
-    )?;
+    let focal = params.check_input(depth.len(), view)?;
     if depth.is_empty() {
         return Ok(Vec::new());
     }

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use glam::Vec3;
 use psao_gpu::GpuContext;
-use psao_scene::Pipeline;
+use psao_scene::{Pipeline, PipelineConfig, Scene};
 
 /// The value after `name` on the command line, or `default`.
 pub fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
@@ -15,6 +15,20 @@ pub fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
         .and_then(|i| args.get(i + 1))
         .and_then(|v| v.parse().ok())
         .unwrap_or(default)
+}
+
+/// A pipeline over `scene` (the default scene in the examples) with
+/// `density` kept points per m^2, otherwise the defaults.
+#[allow(dead_code)]
+pub fn default_pipeline(scene: &Scene, density: f32) -> Pipeline {
+    Pipeline::new(
+        scene.clone(),
+        PipelineConfig {
+            density,
+            ..PipelineConfig::default()
+        },
+    )
+    .expect("the scene builds")
 }
 
 /// Every point of the pipeline's instances in world space, with ids.
