@@ -839,3 +839,94 @@ fn a_removed_instance_reallocates_and_leaves_its_pixels_open() {
     assert_eq!(agreement(&cpu, &gpu).0, 1.0);
     assert!(figure.iter().all(|&k| gpu[k] == 1.0));
 }
+
+#[test]
+fn gpu_sao_handles_tiny_images_sky_and_extreme_constants() {
+    let Some(ctx) = context() else { return };
+    let sao_gpu = GpuSao::new(&ctx).unwrap();
+    let cam = Camera {
+        eye: Vec3::new(0.0, 1.0, 5.0),
+        target: Vec3::ZERO,
+        fov_y: 1.0,
+    };
+    let extreme = SaoParams {
+        radius: 1e29,
+        intensity: 1e6,
+        epsilon: 1e-30,
+        contrast: 100.0,
+        blur_radius: 64,
+        blur_stride: 64,
+        mip_levels: 15,
+        log_q: 0,
+        ..SaoParams::default()
+    };
+    for (w, h) in [(1, 1), (1, 5), (5, 1), (2, 2), (3, 7)] {
+        let view = View::new(cam, w, h).unwrap();
+        let n = view.pixels();
+        let specials = [
+            f32::NAN,
+            f32::INFINITY,
+            -1.0,
+            0.0,
+            f32::MAX,
+            1e-40,
+            2.0,
+            3.5,
+        ];
+        let depth: Vec<f32> = (0..n).map(|i| specials[i % specials.len()]).collect();
+        for params in [SaoParams::default(), extreme] {
+            let cpu = sao(&depth, &view, &params).unwrap();
+            let gpu = sao_gpu.run(&ctx, &depth, &view, &params).unwrap();
+            assert_eq!(gpu.len(), n);
+            assert!(
+                gpu.iter().all(|a| (0.0..=1.0).contains(a)),
+                "{w}x{h}: {gpu:?}"
+            );
+            let (share, worst) = agreement(&cpu, &gpu);
+            assert_eq!(
+                share, 1.0,
+                "{w}x{h}: worst {worst}, {cpu:?} against {gpu:?}"
+            );
+        }
+        let sky = sao_gpu
+            .run(&ctx, &vec![f32::INFINITY; n], &view, &SaoParams::default())
+            .unwrap();
+        assert!(sky.iter().all(|&a| a == 1.0));
+    }
+}
+
+#[test]
+fn changed_points_of_an_empty_scene_or_batch_are_decided_on_the_host() {
+    let Some(ctx) = context() else { return };
+    let ao = GpuAo::new(&ctx).unwrap();
+    let th = psao_codec::Thresholds::default();
+    let params = AoParams::default();
+    // No triangles: no TLAS, so everything is open and compared on the
+    // host; a held word with AO 0 changes, one with AO 255 does not.
+    let empty = GpuScene::new(&ctx, &Scene::default()).unwrap();
+    let word = |ao: u8| psao_codec::PointWord::encode(Vec3::splat(0.5), Vec3::Y, 0.0).with_ao(ao);
+    let sent = [0u8, 255].map(|a| psao_codec::SentPoint {
+        word: word(a),
+        frac: word(a).frac(),
+        normal: word(a).normal(),
+        cell: 7,
+    });
+    let pts = [Vec3::ZERO, Vec3::X];
+    let nrm = [Vec3::Y, Vec3::Y];
+    let out = ao
+        .trace_changed(&ctx, &empty, &[0, 1], &pts, &nrm, &sent, &params, &th)
+        .unwrap();
+    assert_eq!(out.changed, vec![0]);
+    assert_eq!(out.ao, vec![1.0]);
+    assert_eq!(out.cells, vec![7]);
+    // Nothing to trace, and mismatched inputs.
+    let scene = GpuScene::new(&ctx, &default_scene()).unwrap();
+    let none = ao
+        .trace_changed(&ctx, &scene, &[], &[], &[], &[], &params, &th)
+        .unwrap();
+    assert_eq!(none, ChangedPoints::default());
+    assert!(matches!(
+        ao.trace_changed(&ctx, &scene, &[0, 1], &pts, &nrm, &sent[..1], &params, &th),
+        Err(GpuError::Input(_))
+    ));
+}
