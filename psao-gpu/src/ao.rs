@@ -76,9 +76,25 @@ struct Sorted {
     ids: Vec<u32>,
 }
 
+/// `order` cut into workgroup-sized blocks, each kept whole (coherent
+/// rays within a workgroup), with the blocks spread over the dispatch in
+/// a scrambled order, so that a driver that hands each thread a run of
+/// workgroups (lavapipe) gets a share of every region of the scene, not
+/// one costly region.
+fn spread_blocks(order: &[usize]) -> Vec<usize> {
+    let blocks: Vec<&[usize]> = order.chunks(WORKGROUP as usize).collect();
+    let mut keys: Vec<(u32, usize)> = (0..blocks.len())
+        .map(|b| (psao_scene::hash(b as u32 ^ 0x9e37_79b9), b))
+        .collect();
+    keys.sort_unstable();
+    keys.iter()
+        .flat_map(|&(_, b)| blocks[b].iter().copied())
+        .collect()
+}
+
 impl Sorted {
     fn new(ids: &[u32], points: &[glam::Vec3], normals: &[glam::Vec3]) -> Sorted {
-        let order = morton_order(points);
+        let order = spread_blocks(&morton_order(points));
         Sorted {
             pts: order
                 .iter()
