@@ -525,14 +525,14 @@ fn the_gpu_compares_with_what_clients_hold_and_reads_back_only_changes() {
     let th = psao_codec::Thresholds::default();
     let gpu_scene = GpuScene::new(&ctx, &scene).unwrap();
     let ao = GpuAo::new(&ctx).unwrap();
-    let on_gpu = ao
-        .trace_changed(&ctx, &gpu_scene, &ids, &pts, &nrm, &sent, &params, &th)
-        .unwrap();
     // The same comparison on the host, on the GPU's own AO: identical.
-    let traced = ao
-        .trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params)
-        .unwrap();
-    let on_host = ChangedPoints::compare(&traced, &sent, &th).unwrap();
+    let batch = Batch {
+        ids: &ids,
+        pts: &pts,
+        nrm: &nrm,
+        sent: &sent,
+    };
+    let (on_gpu, on_host) = both_ways(&ctx, &ao, &gpu_scene, &batch, &params, &th);
     assert_eq!(on_gpu.changed, on_host.changed);
     assert_eq!(on_gpu.cells, on_host.cells);
     assert_eq!(on_gpu.rays, on_host.rays);
@@ -617,6 +617,33 @@ fn the_gpu_compares_with_what_clients_hold_and_reads_back_only_changes() {
     }
 }
 
+/// Points to trace and what their clients hold.
+struct Batch<'a> {
+    ids: &'a [u32],
+    pts: &'a [Vec3],
+    nrm: &'a [Vec3],
+    sent: &'a [psao_codec::SentPoint],
+}
+
+/// The changed points of `b` compared on the GPU, and on the host from the
+/// GPU's own AO.
+fn both_ways(
+    ctx: &GpuContext,
+    ao: &GpuAo,
+    scene: &GpuScene,
+    b: &Batch<'_>,
+    params: &AoParams,
+    th: &psao_codec::Thresholds,
+) -> (ChangedPoints, ChangedPoints) {
+    let on_gpu = ao
+        .trace_changed(ctx, scene, b.ids, b.pts, b.nrm, b.sent, params, th)
+        .unwrap();
+    let traced = ao
+        .trace_ids(ctx, scene, b.ids, b.pts, b.nrm, params)
+        .unwrap();
+    (on_gpu, ChangedPoints::compare(&traced, b.sent, th).unwrap())
+}
+
 /// A record of a point its clients do not hold.
 fn table_less(normal: Vec3) -> psao_codec::SentPoint {
     psao_codec::SentPoint {
@@ -664,13 +691,13 @@ fn the_changed_point_lists_span_dispatches_and_list_each_cell_once() {
     };
     let gpu_scene = GpuScene::new(&ctx, &scene).unwrap();
     let ao = GpuAo::new(&ctx).unwrap();
-    let on_gpu = ao
-        .trace_changed(&ctx, &gpu_scene, &ids, &pts, &nrm, &sent, &params, &th)
-        .unwrap();
-    let traced = ao
-        .trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params)
-        .unwrap();
-    let on_host = ChangedPoints::compare(&traced, &sent, &th).unwrap();
+    let batch = Batch {
+        ids: &ids,
+        pts: &pts,
+        nrm: &nrm,
+        sent: &sent,
+    };
+    let (on_gpu, on_host) = both_ways(&ctx, &ao, &gpu_scene, &batch, &params, &th);
     assert_eq!(on_gpu, on_host);
     let mut once = on_gpu.cells.clone();
     once.dedup();
