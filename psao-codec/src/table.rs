@@ -105,6 +105,17 @@ pub struct SentPoint {
 }
 
 impl SentPoint {
+    /// The record of a point its clients do not hold (or that must be sent
+    /// whatever its AO): an empty word, with the new unit normal.
+    pub fn not_held(normal: Vec3) -> SentPoint {
+        SentPoint {
+            word: PointWord::EMPTY,
+            frac: Vec3::ZERO,
+            normal,
+            cell: u32::MAX,
+        }
+    }
+
     /// Whether a point with this position, normal and AO `ao` is worth
     /// sending (the paper's thresholds): its word is empty, it moved by
     /// more than `position_quanta` quanta, its normal turned past
@@ -391,12 +402,7 @@ impl GridTable {
                 cell,
             };
         }
-        SentPoint {
-            word: PointWord::EMPTY,
-            frac: Vec3::ZERO,
-            normal,
-            cell: u32::MAX,
-        }
+        SentPoint::not_held(normal)
     }
 
     /// Sets a point only if it differs from what the client holds by more

@@ -513,7 +513,7 @@ fn the_gpu_compares_with_what_clients_hold_and_reads_back_only_changes() {
         match k % 17 {
             3 => s.frac.x = (s.frac.x + 0.2) % 1.0,
             5 => s.normal = -s.normal,
-            7 => *s = table_less(s.normal),
+            7 => *s = psao_codec::SentPoint::not_held(s.normal),
             _ => {}
         }
     }
@@ -642,16 +642,6 @@ fn both_ways(
         .trace_ids(ctx, scene, b.ids, b.pts, b.nrm, params)
         .unwrap();
     (on_gpu, ChangedPoints::compare(&traced, b.sent, th).unwrap())
-}
-
-/// A record of a point its clients do not hold.
-fn table_less(normal: Vec3) -> psao_codec::SentPoint {
-    psao_codec::SentPoint {
-        word: psao_codec::PointWord::EMPTY,
-        frac: Vec3::ZERO,
-        normal,
-        cell: u32::MAX,
-    }
 }
 
 #[test]

@@ -679,12 +679,7 @@ impl Pipeline {
                 nrm.push((nm * n).normalize_or_zero());
                 owner.push((i, k));
                 sent.push(if force {
-                    SentPoint {
-                        word: psao_codec::PointWord::EMPTY,
-                        frac: Vec3::ZERO,
-                        normal: Vec3::ZERO,
-                        cell: u32::MAX,
-                    }
+                    SentPoint::not_held(Vec3::ZERO)
                 } else {
                     let mut held = s.table.sent(k, p, n);
                     held.cell = held.cell.saturating_add(cell_base);
