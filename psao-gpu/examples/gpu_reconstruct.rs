@@ -22,18 +22,7 @@ fn main() {
     let reps: u32 = arg("--reps", 3).max(1);
     let ctx = support::open_context();
     let scene = default_scene();
-    let mut p = Pipeline::new(
-        scene.clone(),
-        PipelineConfig {
-            density,
-            ao: AoParams {
-                rays: 16,
-                ..AoParams::default()
-            },
-            ..PipelineConfig::default()
-        },
-    )
-    .expect("the default scene builds");
+    let mut p = support::pipeline_with(&scene, density, 16);
     let mut client = Decoder::new(Limits::default());
     client
         .receive(&p.keyframe().expect("keyframe").bytes)

@@ -32,10 +32,19 @@ fn solid_default_scene() -> Scene {
 /// A pipeline over `scene` with `density` kept points per m^2, otherwise
 /// the defaults.
 fn pipeline_at(scene: &Scene, density: f32) -> Pipeline {
+    pipeline_with(scene, density, PipelineConfig::default().ao.rays)
+}
+
+/// [`pipeline_at`] with `rays` AO rays per point.
+fn pipeline_with(scene: &Scene, density: f32, rays: u32) -> Pipeline {
     Pipeline::new(
         scene.clone(),
         PipelineConfig {
             density,
+            ao: AoParams {
+                rays,
+                ..AoParams::default()
+            },
             ..PipelineConfig::default()
         },
     )
@@ -169,14 +178,7 @@ fn rays_pass_through_alpha_mask_holes_on_the_gpu_as_on_the_cpu() {
 fn a_deforming_mesh_updates_its_blas() {
     let Some(ctx) = context() else { return };
     let scene = cesium_man_scene();
-    let mut p = Pipeline::new(
-        scene.clone(),
-        PipelineConfig {
-            density: 64.0,
-            ..PipelineConfig::default()
-        },
-    )
-    .unwrap();
+    let mut p = pipeline_at(&scene, 64.0);
     let mut gpu_scene = GpuScene::new(&ctx, &scene).unwrap();
     let ao = GpuAo::new(&ctx).unwrap();
     let params = AoParams {
@@ -290,18 +292,7 @@ fn the_missing_driver_error_says_what_to_install() {
 /// G-buffer at time 0.
 fn client_side(density: f32) -> (Pipeline, psao_codec::Decoder, Scene) {
     let scene = default_scene();
-    let mut p = Pipeline::new(
-        scene.clone(),
-        PipelineConfig {
-            density,
-            ao: AoParams {
-                rays: 16,
-                ..AoParams::default()
-            },
-            ..PipelineConfig::default()
-        },
-    )
-    .unwrap();
+    let mut p = pipeline_with(&scene, density, 16);
     let mut c = psao_codec::Decoder::new(psao_codec::Limits::default());
     c.receive(&p.keyframe().unwrap().bytes).unwrap();
     (p, c, scene)
@@ -435,18 +426,7 @@ fn a_moved_instance_rewrites_the_instance_table_in_place() {
             (2.0, Vec3::new(2.0, 5.0, 0.0)),
         ],
     ));
-    let mut p = Pipeline::new(
-        scene.clone(),
-        PipelineConfig {
-            density: 32.0,
-            ao: AoParams {
-                rays: 8,
-                ..AoParams::default()
-            },
-            ..PipelineConfig::default()
-        },
-    )
-    .unwrap();
+    let mut p = pipeline_with(&scene, 32.0, 8);
     let mut client = psao_codec::Decoder::new(psao_codec::Limits::default());
     client.receive(&p.keyframe().unwrap().bytes).unwrap();
     let mut gm = GpuMirror::new(&ctx, client.mirror()).unwrap();

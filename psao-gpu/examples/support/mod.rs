@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use glam::Vec3;
 use psao_gpu::GpuContext;
-use psao_scene::{Pipeline, PipelineConfig, Scene};
+use psao_scene::{AoParams, Pipeline, PipelineConfig, Scene};
 
 /// The value after `name` on the command line, or `default`.
 pub fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
@@ -21,10 +21,20 @@ pub fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
 /// `density` kept points per m^2, otherwise the defaults.
 #[allow(dead_code)]
 pub fn default_pipeline(scene: &Scene, density: f32) -> Pipeline {
+    pipeline_with(scene, density, PipelineConfig::default().ao.rays)
+}
+
+/// [`default_pipeline`] with `rays` AO rays per point.
+#[allow(dead_code)]
+pub fn pipeline_with(scene: &Scene, density: f32, rays: u32) -> Pipeline {
     Pipeline::new(
         scene.clone(),
         PipelineConfig {
             density,
+            ao: AoParams {
+                rays,
+                ..AoParams::default()
+            },
             ..PipelineConfig::default()
         },
     )
