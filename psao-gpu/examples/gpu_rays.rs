@@ -4,7 +4,7 @@
 //! estimators. Prints the device,
 //! the rates, their ratio and how far the results differ.
 //!
-//! `cargo run --release -p psao-gpu --example gpu_rays [-- --density 64 --rays 64 --reps 3]`
+//! `cargo run --release -p psao-gpu --example gpu_rays [-- --density 64 --rays 64 --reps 3 --radius 0.6]`
 
 use std::time::Instant;
 
@@ -18,6 +18,7 @@ fn main() {
     let density: f32 = arg("--density", 64.0);
     let rays: u32 = arg("--rays", 64);
     let reps: u32 = arg("--reps", 3).max(1);
+    let radius: f32 = arg("--radius", AoParams::default().radius);
     let ctx = support::open_context();
     let scene = default_scene();
     let p = support::default_pipeline(&scene, density);
@@ -36,6 +37,7 @@ fn main() {
         let params = AoParams {
             rays,
             estimator,
+            radius,
             ..AoParams::default()
         };
         // Warm up (the first dispatch compiles the shader in the driver).

@@ -14,6 +14,9 @@ use crate::error::GpuError;
 /// Threads per workgroup of the AO pass (the shader's `workgroup_size`).
 const WORKGROUP: u32 = 64;
 
+/// Invocations of the AO pass per point (the shader's `LANES`).
+const LANES: u32 = 8;
+
 /// Most points traced in one dispatch (4 MiB of points: within every
 /// device's storage binding limit, and short enough for a watchdog).
 const CHUNK: usize = 1 << 18;
@@ -76,15 +79,15 @@ struct Sorted {
     ids: Vec<u32>,
 }
 
-/// `order` cut into workgroup-sized blocks, each kept whole (coherent
-/// rays within a workgroup), with the blocks spread over the dispatch in
+/// `order` cut into blocks of 64 points (eight workgroups), each kept
+/// whole (coherent rays nearby), with the blocks spread over the dispatch in
 /// a scrambled order, so that a driver that hands each thread a run of
 /// consecutive workgroups gets a share of every region of the scene, not
 /// one costly region. lavapipe behaves so: this scramble, or running it
 /// with more threads than cores, raise its rays per second by a fifth
 /// (BENCHMARKS.md).
 fn spread_blocks(order: &[usize]) -> Vec<usize> {
-    let blocks: Vec<&[usize]> = order.chunks(WORKGROUP as usize).collect();
+    let blocks: Vec<&[usize]> = order.chunks(64).collect();
     let mut keys: Vec<(u32, usize)> = (0..blocks.len())
         .map(|b| (psao_scene::hash(b as u32 ^ 0x9e37_79b9), b))
         .collect();
@@ -481,7 +484,7 @@ impl GpuAo {
         p: &AoParams,
     ) -> wgpu::Buffer {
         let n = range.len();
-        let grid = ctx.grid(n, WORKGROUP);
+        let grid = ctx.grid(n * LANES as usize, WORKGROUP);
         let params = Params {
             radius: p.radius,
             bias: p.bias,
