@@ -121,6 +121,39 @@ fn gpu_ao_matches_the_cpu_backend_with_both_estimators() {
 }
 
 #[test]
+fn ray_counts_that_do_not_fill_the_lanes_match_the_cpu() {
+    // The AO pass splits a point's rays over eight invocations: fewer
+    // rays than lanes, and counts that leave the last round part-filled.
+    let Some(ctx) = context() else { return };
+    let scene = default_scene();
+    let p = pipeline_at(&scene, 16.0);
+    let (ids, pts, nrm) = points_of(&p);
+    let cpu_tracer = PosedScene::new(&scene, 0.0).unwrap().tracer();
+    let gpu_scene = GpuScene::new(&ctx, &scene).unwrap();
+    let ao = GpuAo::new(&ctx).unwrap();
+    for rays in [1, 3, 8, 13] {
+        for estimator in [Estimator::ClosestHit, Estimator::LaineKarras] {
+            let params = AoParams {
+                rays,
+                estimator,
+                ..AoParams::default()
+            };
+            let cpu = cpu_tracer.trace_ids(&ids, &pts, &nrm, &params).unwrap();
+            let gpu = ao
+                .trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params)
+                .unwrap();
+            assert_eq!(cpu.rays, gpu.rays);
+            let (share, worst) = agreement(&cpu.ao, &gpu.ao);
+            assert!(
+                share >= 0.999,
+                "{rays} rays, {estimator:?}: only {:.3}% of points within 1/255 (worst {worst})",
+                share * 100.0
+            );
+        }
+    }
+}
+
+#[test]
 fn rays_pass_through_alpha_mask_holes_on_the_gpu_as_on_the_cpu() {
     let Some(ctx) = context() else { return };
     let scene = default_scene();
