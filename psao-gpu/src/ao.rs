@@ -14,8 +14,17 @@ use crate::error::GpuError;
 /// Threads per workgroup of the AO pass (the shader's `workgroup_size`).
 const WORKGROUP: u32 = 64;
 
-/// Invocations of the AO pass per point (the shader's `LANES`).
-const LANES: u32 = 8;
+/// Invocations of the AO pass per point (the shader's `LANES`): the
+/// interleaved partial sums of the CPU tracer, so both add a point's ray
+/// scores in the same order.
+const LANES: u32 = psao_scene::RAY_SUM_LANES;
+
+// A point's invocations share one workgroup (the shader adds their sums
+// from workgroup memory).
+const _: () = assert!(WORKGROUP.is_multiple_of(LANES));
+
+/// Points per block of [`spread_blocks`].
+const SPREAD_BLOCK: usize = 64;
 
 /// Most points traced in one dispatch (4 MiB of points: within every
 /// device's storage binding limit, and short enough for a watchdog).
@@ -79,15 +88,15 @@ struct Sorted {
     ids: Vec<u32>,
 }
 
-/// `order` cut into blocks of 64 points (eight workgroups), each kept
-/// whole (coherent rays nearby), with the blocks spread over the dispatch in
+/// `order` cut into blocks of [`SPREAD_BLOCK`] points, each kept whole
+/// (coherent rays nearby), with the blocks spread over the dispatch in
 /// a scrambled order, so that a driver that hands each thread a run of
 /// consecutive workgroups gets a share of every region of the scene, not
 /// one costly region. lavapipe behaves so: this scramble, or running it
 /// with more threads than cores, raise its rays per second by a fifth
 /// (BENCHMARKS.md).
 fn spread_blocks(order: &[usize]) -> Vec<usize> {
-    let blocks: Vec<&[usize]> = order.chunks(64).collect();
+    let blocks: Vec<&[usize]> = order.chunks(SPREAD_BLOCK).collect();
     let mut keys: Vec<(u32, usize)> = (0..blocks.len())
         .map(|b| (psao_scene::hash(b as u32 ^ 0x9e37_79b9), b))
         .collect();
@@ -531,5 +540,22 @@ impl GpuAo {
         });
         GpuContext::record_pass(enc, "psao-gpu ao", &self.pipeline, &[&bind], grid);
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_shader_declares_the_hosts_lanes_and_workgroup_size() {
+        let src = include_str!("shaders/ao.wgsl");
+        for decl in [
+            format!("const LANES: u32 = {LANES}u;"),
+            format!("@workgroup_size({WORKGROUP})"),
+            format!("var<workgroup> partial: array<f32, {WORKGROUP}>;"),
+        ] {
+            assert_eq!(src.matches(&decl).count(), 1, "ao.wgsl lacks `{decl}`");
+        }
     }
 }

@@ -122,8 +122,9 @@ fn gpu_ao_matches_the_cpu_backend_with_both_estimators() {
 
 #[test]
 fn ray_counts_that_do_not_fill_the_lanes_match_the_cpu() {
-    // The AO pass splits a point's rays over eight invocations: fewer
-    // rays than lanes, and counts that leave the last round part-filled.
+    // The AO pass splits a point's rays over eight invocations: no rays,
+    // fewer rays than lanes, counts that leave the last round part-filled,
+    // and points that trace nothing beside points that do.
     let Some(ctx) = context() else { return };
     let scene = default_scene();
     let p = pipeline_at(&scene, 16.0);
@@ -131,16 +132,33 @@ fn ray_counts_that_do_not_fill_the_lanes_match_the_cpu() {
     let cpu_tracer = PosedScene::new(&scene, 0.0).unwrap().tracer();
     let gpu_scene = GpuScene::new(&ctx, &scene).unwrap();
     let ao = GpuAo::new(&ctx).unwrap();
-    for rays in [1, 3, 8, 13] {
+    // Every fifth point not finite: such points (AO 1, nothing traced)
+    // share workgroups with traced ones.
+    let mut mixed = pts.clone();
+    for (k, p) in mixed.iter_mut().enumerate().filter(|(k, _)| k % 5 == 0) {
+        *p = if k % 10 == 0 {
+            Vec3::NAN
+        } else {
+            Vec3::new(1.0, f32::INFINITY, 2.0)
+        };
+    }
+    for (rays, pts) in [
+        (0, &pts),
+        (1, &pts),
+        (3, &pts),
+        (8, &pts),
+        (13, &pts),
+        (13, &mixed),
+    ] {
         for estimator in [Estimator::ClosestHit, Estimator::LaineKarras] {
             let params = AoParams {
                 rays,
                 estimator,
                 ..AoParams::default()
             };
-            let cpu = cpu_tracer.trace_ids(&ids, &pts, &nrm, &params).unwrap();
+            let cpu = cpu_tracer.trace_ids(&ids, pts, &nrm, &params).unwrap();
             let gpu = ao
-                .trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params)
+                .trace_ids(&ctx, &gpu_scene, &ids, pts, &nrm, &params)
                 .unwrap();
             assert_eq!(cpu.rays, gpu.rays);
             let (share, worst) = agreement(&cpu.ao, &gpu.ao);
@@ -149,6 +167,11 @@ fn ray_counts_that_do_not_fill_the_lanes_match_the_cpu() {
                 "{rays} rays, {estimator:?}: only {:.3}% of points within 1/255 (worst {worst})",
                 share * 100.0
             );
+            for (k, p) in pts.iter().enumerate() {
+                if rays == 0 || !p.is_finite() {
+                    assert_eq!(gpu.ao[k], 1.0, "{rays} rays: point {k} at {p}");
+                }
+            }
         }
     }
 }

@@ -44,6 +44,12 @@ const GOLDEN: u32 = 0x9E37_79B9;
 /// Most rays per point.
 pub const MAX_RAYS: u32 = 1 << 20;
 
+/// How a point's ray scores are added up: ray `k` goes into partial sum
+/// `k % RAY_SUM_LANES`, and the partial sums are then added in order. A
+/// GPU that traces one point on this many invocations (psao-gpu) adds in
+/// the same order, so the two backends round alike.
+pub const RAY_SUM_LANES: u32 = 8;
+
 /// Which AO estimator to use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Estimator {
@@ -548,8 +554,9 @@ impl AoTracer {
             return 1.0;
         }
         let shift = hash(p.seed as u32 ^ hash(id ^ hash((p.seed >> 32) as u32)));
-        let mut sum = 0.0f32;
+        let mut sums = [0.0f32; RAY_SUM_LANES as usize];
         for k in 0..p.rays {
+            let sum = &mut sums[(k % RAY_SUM_LANES) as usize];
             // Stratified in r1 (one stratum per ray), random within.
             let r1 = (k as f32 + uniform(p.seed, id, 3 * k)) / p.rays as f32;
             let r2 = uniform(p.seed, id, 3 * k + 1);
@@ -566,7 +573,7 @@ impl AoTracer {
                             t = t.min(l.bvh.closest(ray) - RAY_LEAD);
                         }
                     }
-                    sum += t / p.radius;
+                    *sum += t / p.radius;
                 }
                 Estimator::LaineKarras => {
                     // Lengths from a golden-ratio sequence, rotated per
@@ -580,12 +587,12 @@ impl AoTracer {
                         .iter()
                         .all(|l| l.local(origin, dir, len).is_none_or(|r| l.bvh.misses(r)))
                     {
-                        sum += 1.0;
+                        *sum += 1.0;
                     }
                 }
             }
         }
-        sum / p.rays as f32
+        sums.iter().fold(0.0, |total, &s| total + s) / p.rays as f32
     }
 }
 

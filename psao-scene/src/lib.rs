@@ -62,8 +62,8 @@ mod view;
 pub use alpha::{AlphaMask, AlphaTexture};
 pub use animation::{Animation, Channel, Interpolation, Keys};
 pub use ao::{
-    AoParams, AoResult, AoTracer, ChangedPoints, Estimator, Geometry, Layer, MAX_RAYS, TriangleBvh,
-    TriangleMask, morton_order, ray_offset,
+    AoParams, AoResult, AoTracer, ChangedPoints, Estimator, Geometry, Layer, MAX_RAYS,
+    RAY_SUM_LANES, TriangleBvh, TriangleMask, morton_order, ray_offset,
 };
 pub use camera::{Camera, CameraKey, CameraPath, Frustum};
 pub use default_scene::{MOVING_BOX, TRELLIS, WALKER, cesium_man_scene, default_scene};
@@ -85,7 +85,7 @@ pub use precision::{
 };
 pub use random::{hash, uniform};
 pub use sao::{SaoParams, sao};
-pub use scene::{Instance, Mesh, Scene, transformed_bounds};
+pub use scene::{Instance, Mesh, Scene, bounds_of, transformed_bounds};
 pub use skin::{Skin, SkinWeights};
 pub use stage::{FLOOR_MARGIN, ORBIT_SECONDS, stage};
 pub use view::{MAX_IMAGE_SIDE, View};

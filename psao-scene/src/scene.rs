@@ -492,7 +492,7 @@ pub(crate) fn check_transform(
 }
 
 /// The bounds of `points`; `None` without points.
-pub(crate) fn bounds_of(points: &[Vec3]) -> Option<(Vec3, Vec3)> {
+pub fn bounds_of(points: &[Vec3]) -> Option<(Vec3, Vec3)> {
     let first = *points.first()?;
     Some(
         points
