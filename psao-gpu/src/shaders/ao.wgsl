@@ -173,7 +173,9 @@ fn misses(origin: vec3<f32>, dir: vec3<f32>, tmax: f32) -> bool {
 // of a warp on a GPU) start their rays at the same origin and walk the
 // same acceleration-structure nodes around it together. On lavapipe this
 // raised closest-hit rays per second by about a seventh against one point
-// per invocation (BENCHMARKS.md).
+// per invocation (BENCHMARKS.md). The CPU tracer adds its ray scores in
+// the same order (psao_scene::RAY_SUM_LANES, which ao.rs checks this
+// equals, with the workgroup size below).
 const LANES: u32 = 8u;
 
 // Per invocation, the sum over its rays; the point's first invocation adds
