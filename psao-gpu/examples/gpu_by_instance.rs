@@ -1,15 +1,21 @@
 //! Where the GPU backend is slow: the points of each instance of the
 //! default scene traced alone, 64 closest-hit rays each, on the GPU (wgpu
-//! ray queries) and on the CPU (obvhs), same rays, same run, best of 3.
+//! ray queries) and on the CPU (obvhs), same rays, same run, best of `--reps` (5).
 //! Also times posing the GPU scene (skinned BLAS rebuild and TLAS).
 //!
-//! `cargo run --release -p psao-gpu --example gpu_by_instance [-- --density 256 --most 1200]`
+//! `cargo run --release -p psao-gpu --example gpu_by_instance [-- --density 256 --most 1200 --reps 5]`
 
 use psao_gpu::{GpuAo, GpuScene};
 use psao_scene::*;
 
 mod support;
+
 use support::arg;
+
+/// Runs per timing (`--reps`, default 5); the fastest counts.
+fn reps() -> u32 {
+    arg("--reps", 5)
+}
 
 fn main() {
     let density: f32 = arg("--density", 256.0);
@@ -25,7 +31,7 @@ fn main() {
         ..AoParams::default()
     };
     println!("default scene, density {density}, GPU: {}", ctx.describe());
-    let pose_ms = support::best_ms(3, || {
+    let pose_ms = support::best_ms(reps(), || {
         gpu_scene.pose(&ctx, &scene, 0.0).expect("poses");
     });
     println!("posing the GPU scene (skinned BLAS, TLAS): {pose_ms:.2} ms");
@@ -46,11 +52,11 @@ fn main() {
         let ids: Vec<u32> = (0..take as u32).collect();
         // Warm up (the driver compiles the shader on first use).
         let _ = ao.trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params);
-        let g = support::best_ms(3, || {
+        let g = support::best_ms(reps(), || {
             ao.trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params)
                 .expect("gpu");
         });
-        let c = support::best_ms(3, || {
+        let c = support::best_ms(reps(), || {
             cpu.trace_ids(&ids, &pts, &nrm, &params).expect("cpu");
         });
         let kind = if scene.instances[i].skin.is_some() {

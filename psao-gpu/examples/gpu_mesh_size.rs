@@ -3,16 +3,22 @@
 //! (1) the default scene's figure, in the scene and as a rigid copy alone,
 //! and (2) spheres of growing triangle count, on the GPU (wgpu ray
 //! queries) with the triangles as given and in median-split order
-//! ([`TriangleOrder`]), and on the CPU (obvhs), same run, best of 3.
+//! ([`TriangleOrder`]), and on the CPU (obvhs), same run, best of `--reps` (5).
 //!
-//! `cargo run --release -p psao-gpu --example gpu_mesh_size [-- --rays 64 --density 256]`
+//! `cargo run --release -p psao-gpu --example gpu_mesh_size [-- --rays 64 --density 256 --reps 5]`
 
 use glam::{Affine3A, Vec3};
 use psao_gpu::{GpuAo, GpuContext, GpuScene, TriangleOrder};
 use psao_scene::*;
 
 mod support;
+
 use support::arg;
+
+/// Runs per timing (`--reps`, default 5); the fastest counts.
+fn reps() -> u32 {
+    arg("--reps", 5)
+}
 
 /// A UV sphere of radius 0.5 with `2 nu nv` triangles.
 fn sphere(nu: u32, nv: u32) -> Mesh {
@@ -79,7 +85,7 @@ impl Timer<'_> {
                 .expect("gpu")
         };
         let _ = run(); // the driver compiles the shader on first use
-        support::best_ms(3, || {
+        support::best_ms(reps(), || {
             run();
         })
     }
@@ -87,7 +93,7 @@ impl Timer<'_> {
     fn cpu(&self, scene: &Scene, pts: &[Vec3], nrm: &[Vec3]) -> f64 {
         let tracer = PosedScene::new(scene, 0.0).expect("poses").tracer();
         let ids: Vec<u32> = (0..pts.len() as u32).collect();
-        support::best_ms(3, || {
+        support::best_ms(reps(), || {
             tracer.trace_ids(&ids, pts, nrm, &self.params).expect("cpu");
         })
     }
