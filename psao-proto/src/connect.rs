@@ -181,6 +181,32 @@ fn close_of_error(e: quinn::ConnectionError) -> Close {
     }
 }
 
+/// How long a client waits for the server's close once the frame stream
+/// has finished (spec/session.md 5.3): the server closes within about a
+/// second of finishing it, so past this its close was lost.
+const CLOSE_AFTER_FRAMES: Duration = Duration::from_secs(3);
+
+/// How a session that ended with the connection's `reason` (`None`: still
+/// open) reads, when the server had (`frames_done`) or had not finished
+/// the frame stream. After the frame stream finishes the server is
+/// shutting down; its `CONNECTION_CLOSE` can be lost on the way, and QUIC
+/// does not repeat it once the server has gone, so a connection that then
+/// times out or is reset ended by `server_shutdown` (spec/session.md 5.3).
+fn close_after(reason: quinn::ConnectionError, frames_done: bool) -> Close {
+    match reason {
+        quinn::ConnectionError::ApplicationClosed(_) | quinn::ConnectionError::LocallyClosed => {
+            close_of_error(reason)
+        }
+        e if frames_done => Close::new(
+            CloseCode::ServerShutdown,
+            format!(
+                "the server finished its frames, then the connection ended without its close: {e}"
+            ),
+        ),
+        e => close_of_error(e),
+    }
+}
+
 fn close_of(c: &quinn::ApplicationClose) -> Close {
     Close::new(
         CloseCode::from_code(c.error_code.into_inner()),
@@ -199,6 +225,9 @@ async fn run(
     // The server finishes the frame stream when it shuts down; the
     // connection close follows.
     let mut frames_done = false;
+    // Set when the frame stream finishes: past it, the server's close was
+    // lost.
+    let mut close_by: Option<tokio::time::Instant> = None;
     let mut cbuf = vec![0u8; 4096];
     let mut fbuf = vec![0u8; 64 * 1024];
     // Lets the session repeat an unanswered keyframe request even when no
@@ -248,12 +277,18 @@ async fn run(
                                 }
                             }
                         }
-                        Ok(None) => frames_done = true,
+                        Ok(None) => {
+                            frames_done = true;
+                            close_by = Some(tokio::time::Instant::now() + CLOSE_AFTER_FRAMES);
+                        }
                         Err(quinn::ReadError::Reset(_)) => return Err(Close::new(CloseCode::ProtocolViolation, "the server reset the frame stream")),
                         Err(e) => return Err(Close::new(CloseCode::InternalError, e.to_string())),
                     }
                 }
                 _ = timer.tick() => lock(&shared.session).on_timer(std::time::Instant::now()),
+                _ = async { tokio::time::sleep_until(close_by.expect("guarded")).await }, if close_by.is_some() => {
+                    return Err(Close::new(CloseCode::ServerShutdown, "the server finished its frames, and its close did not arrive"));
+                }
                 u = uplink.recv() => {
                     let mut s = lock(&shared.session);
                     match u {
@@ -271,14 +306,21 @@ async fn run(
     // The connection may already be closed (by the server, or lost): its
     // reason wins; otherwise close it with ours.
     let ended = match conn.close_reason() {
-        Some(e) => close_of_error(e),
+        Some(e) => close_after(e, frames_done),
         None => {
             let close = match outcome {
                 Err(c) => c,
                 Ok(()) => Close::new(CloseCode::NoError, "bye"),
             };
+            // A close the server meant but never delivered is ours to
+            // finish, without blaming it on the wire.
+            let code = if close.code == CloseCode::ServerShutdown {
+                CloseCode::NoError
+            } else {
+                close.code
+            };
             conn.close(
-                quinn::VarInt::from_u32(close.code.code()),
+                quinn::VarInt::from_u32(code.code()),
                 close.reason.as_bytes(),
             );
             close
@@ -356,5 +398,29 @@ impl ClientHandle {
         self.conn.close(quinn::VarInt::from_u32(0), b"bye");
         self.task.abort();
         self.endpoint.wait_idle().await;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_lost_close_after_the_frame_stream_finished_is_a_server_shutdown() {
+        let shut = close_after(quinn::ConnectionError::TimedOut, true);
+        assert_eq!(shut.code, CloseCode::ServerShutdown, "{shut}");
+        let reset = close_after(quinn::ConnectionError::Reset, true);
+        assert_eq!(reset.code, CloseCode::ServerShutdown, "{reset}");
+        // Before the frame stream finished, it is what it says.
+        let lost = close_after(quinn::ConnectionError::TimedOut, false);
+        assert_eq!(lost.code, CloseCode::InternalError, "{lost}");
+        // A close that arrived keeps its code either way.
+        let full = quinn::ConnectionError::ApplicationClosed(quinn::ApplicationClose {
+            error_code: quinn::VarInt::from_u32(CloseCode::ServerFull.code()),
+            reason: Bytes::from_static(b"full"),
+        });
+        assert_eq!(close_after(full, true).code, CloseCode::ServerFull);
+        let here = close_after(quinn::ConnectionError::LocallyClosed, true);
+        assert_eq!(here.code, CloseCode::NoError);
     }
 }
