@@ -8,6 +8,12 @@ use glam::Vec3;
 use psao_gpu::*;
 use psao_scene::*;
 
+// The examples' helpers: pipelines with a density and ray count, and their
+// points in world space.
+#[path = "../examples/support/mod.rs"]
+mod support;
+use support::{pipeline_with, world_points};
+
 fn context() -> Option<GpuContext> {
     match GpuContext::new() {
         Ok(c) => Some(c),
@@ -27,45 +33,6 @@ fn solid_default_scene() -> Scene {
         m.alpha = None;
     }
     s
-}
-
-/// A pipeline over `scene` with `density` kept points per m^2, otherwise
-/// the defaults.
-fn pipeline_at(scene: &Scene, density: f32) -> Pipeline {
-    pipeline_with(scene, density, PipelineConfig::default().ao.rays)
-}
-
-/// [`pipeline_at`] with `rays` AO rays per point.
-fn pipeline_with(scene: &Scene, density: f32, rays: u32) -> Pipeline {
-    Pipeline::new(
-        scene.clone(),
-        PipelineConfig {
-            density,
-            ao: AoParams {
-                rays,
-                ..AoParams::default()
-            },
-            ..PipelineConfig::default()
-        },
-    )
-    .unwrap()
-}
-
-/// World-space points and normals of a pipeline's instances at its time,
-/// with stable ids.
-fn points_of(p: &Pipeline) -> (Vec<u32>, Vec<Vec3>, Vec<Vec3>) {
-    let (mut ids, mut pts, mut nrm) = (Vec::new(), Vec::new(), Vec::new());
-    for i in 0..p.instance_count() {
-        let (pos, n) = p.current_points(i).unwrap();
-        let t = p.transform(i).unwrap();
-        let nm = t.matrix3.inverse().transpose();
-        for k in 0..pos.len() {
-            ids.push(ids.len() as u32);
-            pts.push(t.transform_point3(pos[k]));
-            nrm.push((nm * n[k]).normalize());
-        }
-    }
-    (ids, pts, nrm)
 }
 
 /// Share of values that agree within 1/255, and the largest difference.
@@ -89,8 +56,8 @@ fn gpu_ao_matches_the_cpu_backend_with_both_estimators_and_any_ray_count() {
     let Some(ctx) = context() else { return };
     // The whole default scene: rigid, skinned and alpha-masked instances.
     let scene = default_scene();
-    let p = pipeline_at(&scene, 16.0);
-    let (ids, pts, nrm) = points_of(&p);
+    let p = support::default_pipeline(&scene, 16.0);
+    let (ids, pts, nrm) = world_points(&p);
     assert!(pts.len() > 2000, "{} points", pts.len());
     let cpu_tracer = PosedScene::new(&scene, 0.0).unwrap().tracer();
     let gpu_scene = GpuScene::new(&ctx, &scene).unwrap();
@@ -207,14 +174,14 @@ fn rays_pass_through_alpha_mask_holes_on_the_gpu_as_on_the_cpu() {
 fn a_deforming_mesh_updates_its_blas() {
     let Some(ctx) = context() else { return };
     let scene = cesium_man_scene();
-    let mut p = pipeline_at(&scene, 64.0);
+    let mut p = support::default_pipeline(&scene, 64.0);
     let mut gpu_scene = GpuScene::new(&ctx, &scene).unwrap();
     let ao = GpuAo::new(&ctx).unwrap();
     let params = AoParams {
         rays: 32,
         ..AoParams::default()
     };
-    let (ids, pts0, nrm0) = points_of(&p);
+    let (ids, pts0, nrm0) = world_points(&p);
     let at0 = ao
         .trace_ids(&ctx, &gpu_scene, &ids, &pts0, &nrm0, &params)
         .unwrap();
@@ -222,7 +189,7 @@ fn a_deforming_mesh_updates_its_blas() {
     let t = 0.5;
     p.step(t).unwrap();
     gpu_scene.pose(&ctx, &scene, t).unwrap();
-    let (ids, pts, nrm) = points_of(&p);
+    let (ids, pts, nrm) = world_points(&p);
     let cpu = PosedScene::new(&scene, t)
         .unwrap()
         .tracer()
@@ -512,8 +479,8 @@ fn held(p: &Pipeline) -> Vec<psao_codec::SentPoint> {
 fn the_gpu_compares_with_what_clients_hold_and_reads_back_only_changes() {
     let Some(ctx) = context() else { return };
     let scene = default_scene();
-    let p = pipeline_at(&scene, 16.0);
-    let (ids, pts, nrm) = points_of(&p);
+    let p = support::default_pipeline(&scene, 16.0);
+    let (ids, pts, nrm) = world_points(&p);
     let mut sent = held(&p);
     // Exercise every threshold: some points moved by 6.4 quanta, some
     // turned around, some not held at all; the rest differ in AO only
@@ -657,8 +624,8 @@ fn both_ways(
 fn the_changed_point_lists_span_dispatches_and_list_each_cell_once() {
     let Some(ctx) = context() else { return };
     let scene = solid_default_scene();
-    let p = pipeline_at(&scene, 16.0);
-    let (ids, pts, nrm) = points_of(&p);
+    let p = support::default_pipeline(&scene, 16.0);
+    let (ids, pts, nrm) = world_points(&p);
     let sent = held(&p);
     // More points than one dispatch takes (2^18): the batch repeated,
     // every copy held with AO 0 so that every copy changes.
@@ -795,8 +762,8 @@ fn the_triangle_order_changes_no_ao() {
     // The whole default scene, alpha-masked trellis included (its mask is
     // looked up by primitive index, which the order changes).
     let scene = default_scene();
-    let p = pipeline_at(&scene, 16.0);
-    let (ids, pts, nrm) = points_of(&p);
+    let p = support::default_pipeline(&scene, 16.0);
+    let (ids, pts, nrm) = world_points(&p);
     let ao = GpuAo::new(&ctx).unwrap();
     let params = AoParams {
         rays: 16,

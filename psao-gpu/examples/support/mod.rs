@@ -1,5 +1,5 @@
-//! What the psao-gpu examples share: argument reading and the server
-//! points of a pipeline.
+//! What the psao-gpu examples (and `tests/gpu_vs_cpu.rs`) share:
+//! argument reading, pipelines and the server points of a pipeline.
 
 use std::time::Instant;
 
@@ -8,6 +8,7 @@ use psao_gpu::GpuContext;
 use psao_scene::{AoParams, Pipeline, PipelineConfig, Scene};
 
 /// The value after `name` on the command line, or `default`.
+#[allow(dead_code)]
 pub fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
     let args: Vec<String> = std::env::args().collect();
     args.iter()
