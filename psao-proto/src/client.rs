@@ -105,7 +105,7 @@ pub struct ClientSession {
     /// 2 s of frames).
     since_request: u32,
     /// When the outstanding request was first seen by
-    /// [`ClientSession::on_timer`] (a lost request is also repeated after
+    /// [`ClientSession::handle_timeout`] (a lost request is also repeated after
     /// [`REQUEST_RETRY`] of time, for a scene so still that no frames come).
     request_seen: Option<Instant>,
     /// Keyframes in a row that failed to decode.
@@ -120,6 +120,10 @@ pub struct ClientSession {
     events_dropped: u64,
     /// A keyframe request made before `WELCOME`, sent when it comes.
     deferred: Option<Control>,
+    /// The latest time [`ClientSession::handle_timeout`] was given.
+    now: Option<Instant>,
+    /// When the server finished the frame stream (it is shutting down).
+    frames_finished: Option<Instant>,
 }
 
 /// Most events a session queues; older ones are dropped when the caller
@@ -129,6 +133,11 @@ pub const MAX_EVENTS: usize = 1024;
 /// How long a keyframe request may go unanswered before it is sent again
 /// (spec/session.md 3.5: about 2 s).
 pub const REQUEST_RETRY: Duration = Duration::from_secs(2);
+
+/// How long a client waits for the server's close once the frame stream
+/// has finished (spec/session.md 5.3): the server closes within about a
+/// second of finishing it, so past this its close was lost.
+pub const CLOSE_AFTER_FRAMES: Duration = Duration::from_secs(3);
 
 /// Keyframes in a row that may fail to decode before the client closes
 /// with `capability_mismatch` (spec/session.md 3.5).
@@ -174,6 +183,8 @@ impl ClientSession {
             captured: Vec::new(),
             events_dropped: 0,
             deferred: None,
+            now: None,
+            frames_finished: None,
         }
     }
 
@@ -337,11 +348,81 @@ impl ClientSession {
         Ok(())
     }
 
-    /// Lets time pass: an outstanding keyframe request that went
-    /// unanswered for [`REQUEST_RETRY`] is sent again, even when no frames
-    /// arrive to count (a still scene sends none). The I/O layer calls this
-    /// a few times a second.
-    pub fn on_timer(&mut self, now: Instant) {
+    /// The server finished the frame stream at `now`: it is shutting down
+    /// and its close follows (spec/session.md 5.3). If the close has not
+    /// come [`CLOSE_AFTER_FRAMES`] later, [`handle_timeout`] ends the
+    /// session as `server_shutdown`.
+    ///
+    /// [`handle_timeout`]: ClientSession::handle_timeout
+    pub fn on_frames_finished(&mut self, now: Instant) {
+        self.frames_finished.get_or_insert(now);
+    }
+
+    /// Whether the server finished the frame stream.
+    pub fn frames_finished(&self) -> bool {
+        self.frames_finished.is_some()
+    }
+
+    /// How the session reads when the transport ended without a close
+    /// from the server (a timeout, a reset; `why` says which): once the
+    /// frame stream has finished the server was shutting down and its
+    /// close was lost on the way, so `server_shutdown`; before that,
+    /// `internal_error` (spec/session.md 5.3 and 7).
+    pub fn transport_lost(&self, why: &str) -> Close {
+        if self.frames_finished() {
+            Close::new(
+                CloseCode::ServerShutdown,
+                format!(
+                    "the server finished its frames, then the connection ended without its close: {why}"
+                ),
+            )
+        } else {
+            Close::new(CloseCode::InternalError, why.to_string())
+        }
+    }
+
+    /// When [`handle_timeout`](ClientSession::handle_timeout) must next be
+    /// called (`None`: nothing waits on time): to repeat an unanswered
+    /// keyframe request, or to end the session when the server's close
+    /// did not follow its finished frame stream.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        let retry = if self.requested {
+            // A request not yet seen by handle_timeout is stamped at the
+            // next call: as soon as possible.
+            self.request_seen.map(|t| t + REQUEST_RETRY).or(self.now)
+        } else {
+            None
+        };
+        let close = self.frames_finished.map(|t| t + CLOSE_AFTER_FRAMES);
+        match (retry, close) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// Lets time pass (call it at [`poll_timeout`] and after input): an
+    /// outstanding keyframe request that went unanswered for
+    /// [`REQUEST_RETRY`] is sent again, even when no frames arrive to
+    /// count (a still scene sends none); [`CLOSE_AFTER_FRAMES`] after the
+    /// frame stream finished, the session ends with `server_shutdown`
+    /// (the error, for the I/O layer to close with).
+    ///
+    /// [`poll_timeout`]: ClientSession::poll_timeout
+    pub fn handle_timeout(&mut self, now: Instant) -> Result<(), Close> {
+        self.now = Some(self.now.map_or(now, |t| t.max(now)));
+        if let Some(done) = self.frames_finished
+            && now.saturating_duration_since(done) >= CLOSE_AFTER_FRAMES
+        {
+            return Err(Close::new(
+                CloseCode::ServerShutdown,
+                "the server finished its frames, and its close did not arrive",
+            ));
+        }
+        self.retry_request(now);
+        Ok(())
+    }
+
+    fn retry_request(&mut self, now: Instant) {
         if !self.requested {
             self.request_seen = None;
             return;

@@ -181,28 +181,16 @@ fn close_of_error(e: quinn::ConnectionError) -> Close {
     }
 }
 
-/// How long a client waits for the server's close once the frame stream
-/// has finished (spec/session.md 5.3): the server closes within about a
-/// second of finishing it, so past this its close was lost.
-const CLOSE_AFTER_FRAMES: Duration = Duration::from_secs(3);
-
-/// How a session that ended with the connection's `reason` (`None`: still
-/// open) reads, when the server had (`frames_done`) or had not finished
-/// the frame stream. After the frame stream finishes the server is
-/// shutting down; its `CONNECTION_CLOSE` can be lost on the way, and QUIC
-/// does not repeat it once the server has gone, so a connection that then
-/// times out or is reset ended by `server_shutdown` (spec/session.md 5.3).
-fn close_after(reason: quinn::ConnectionError, frames_done: bool) -> Close {
+/// How a session that ended with the connection's `reason` reads: a close
+/// from either side is that close; any other end (a timeout, a reset) is
+/// what [`ClientSession::transport_lost`] says, which knows whether the
+/// server had finished the frame stream (spec/session.md 5.3).
+fn close_after(reason: quinn::ConnectionError, session: &ClientSession) -> Close {
     match reason {
         quinn::ConnectionError::ApplicationClosed(_) | quinn::ConnectionError::LocallyClosed => {
             close_of_error(reason)
         }
-        e if frames_done => Close::new(
-            CloseCode::ServerShutdown,
-            format!(
-                "the server finished its frames, then the connection ended without its close: {e}"
-            ),
-        ),
+        e if session.frames_finished() => session.transport_lost(&e.to_string()),
         e => close_of_error(e),
     }
 }
@@ -225,17 +213,18 @@ async fn run(
     // The server finishes the frame stream when it shuts down; the
     // connection close follows.
     let mut frames_done = false;
-    // Set when the frame stream finishes: past it, the server's close was
-    // lost.
-    let mut close_by: Option<tokio::time::Instant> = None;
     let mut cbuf = vec![0u8; 4096];
     let mut fbuf = vec![0u8; 64 * 1024];
-    // Lets the session repeat an unanswered keyframe request even when no
-    // frames arrive.
-    let mut timer = tokio::time::interval(std::time::Duration::from_millis(250));
-    timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let outcome: Result<(), Close> = async {
         loop {
+            // Time first: the session repeats an unanswered keyframe
+            // request and ends itself when a close never followed the
+            // finished frame stream; it says when it next needs waking.
+            let wake = {
+                let mut s = lock(&shared.session);
+                s.handle_timeout(std::time::Instant::now())?;
+                s.poll_timeout()
+            };
             // Send what the session queued (HELLO first, then ACKs and
             // keyframe requests).
             let out: Option<Bytes> = lock(&shared.session).take_transmit();
@@ -279,16 +268,13 @@ async fn run(
                         }
                         Ok(None) => {
                             frames_done = true;
-                            close_by = Some(tokio::time::Instant::now() + CLOSE_AFTER_FRAMES);
+                            lock(&shared.session).on_frames_finished(std::time::Instant::now());
                         }
                         Err(quinn::ReadError::Reset(_)) => return Err(Close::new(CloseCode::ProtocolViolation, "the server reset the frame stream")),
                         Err(e) => return Err(Close::new(CloseCode::InternalError, e.to_string())),
                     }
                 }
-                _ = timer.tick() => lock(&shared.session).on_timer(std::time::Instant::now()),
-                _ = async { tokio::time::sleep_until(close_by.expect("guarded")).await }, if close_by.is_some() => {
-                    return Err(Close::new(CloseCode::ServerShutdown, "the server finished its frames, and its close did not arrive"));
-                }
+                _ = async { tokio::time::sleep_until(tokio::time::Instant::from_std(wake.expect("guarded"))).await }, if wake.is_some() => {}
                 u = uplink.recv() => {
                     let mut s = lock(&shared.session);
                     match u {
@@ -306,7 +292,7 @@ async fn run(
     // The connection may already be closed (by the server, or lost): its
     // reason wins; otherwise close it with ours.
     let ended = match conn.close_reason() {
-        Some(e) => close_after(e, frames_done),
+        Some(e) => close_after(e, &lock(&shared.session)),
         None => {
             let close = match outcome {
                 Err(c) => c,
@@ -405,22 +391,34 @@ impl ClientHandle {
 mod tests {
     use super::*;
 
+    /// A session whose frame stream finished (`done`) or not.
+    fn session(done: bool) -> ClientSession {
+        let mut s = ClientSession::new(ClientConfig::default());
+        if done {
+            s.on_frames_finished(std::time::Instant::now());
+        }
+        s
+    }
+
     #[test]
     fn a_lost_close_after_the_frame_stream_finished_is_a_server_shutdown() {
-        let shut = close_after(quinn::ConnectionError::TimedOut, true);
+        let shut = close_after(quinn::ConnectionError::TimedOut, &session(true));
         assert_eq!(shut.code, CloseCode::ServerShutdown, "{shut}");
-        let reset = close_after(quinn::ConnectionError::Reset, true);
+        let reset = close_after(quinn::ConnectionError::Reset, &session(true));
         assert_eq!(reset.code, CloseCode::ServerShutdown, "{reset}");
         // Before the frame stream finished, it is what it says.
-        let lost = close_after(quinn::ConnectionError::TimedOut, false);
+        let lost = close_after(quinn::ConnectionError::TimedOut, &session(false));
         assert_eq!(lost.code, CloseCode::InternalError, "{lost}");
         // A close that arrived keeps its code either way.
         let full = quinn::ConnectionError::ApplicationClosed(quinn::ApplicationClose {
             error_code: quinn::VarInt::from_u32(CloseCode::ServerFull.code()),
             reason: Bytes::from_static(b"full"),
         });
-        assert_eq!(close_after(full, true).code, CloseCode::ServerFull);
-        let here = close_after(quinn::ConnectionError::LocallyClosed, true);
+        assert_eq!(
+            close_after(full, &session(true)).code,
+            CloseCode::ServerFull
+        );
+        let here = close_after(quinn::ConnectionError::LocallyClosed, &session(true));
         assert_eq!(here.code, CloseCode::NoError);
     }
 }

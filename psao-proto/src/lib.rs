@@ -1,42 +1,66 @@
 //! # psao-proto
 //!
-//! The PSAO session protocol over QUIC (spec/session.md): a sans-IO core
-//! and the reference server and client on top of it.
+//! The PSAO session protocol (spec/session.md): a sans-IO core, and the
+//! reference QUIC server and client on top of it.
 //!
+//! The sans-IO core (always built; bytes and `now` in, events and bytes
+//! out, no sockets and no clock of its own):
 //! - [`control`]: control messages and their byte layouts;
 //!   [`records`]: frame records on the frame stream;
 //! - [`ServerConn`] (negotiation, handshake deadline, uplink rate) and
 //!   [`Outbox`] (a client's bounded frame queue, falling behind and
-//!   resynchronizing with a keyframe): the server's session logic;
+//!   resynchronizing with a keyframe) and [`Fanout`] (every client's
+//!   outbox, one keyframe per state shared by all who ask, notices,
+//!   views): the server's session logic;
 //! - [`ClientSession`]: the client's session logic around a
 //!   [`psao_codec::Decoder`];
-//! - [`serve()`] and [`connect()`]: the I/O (quinn and tokio), with TLS from
-//!   [`tls`] (certificate files, or a self-signed certificate whose
-//!   fingerprint clients pin);
-//! - [`relay`]: a lossy, reordering UDP relay for testing over loopback;
+//! - [`FrameSource`]: what a server streams (a scene that steps and
+//!   encodes frames);
 //! - [`capture`]: capture files of received frames (spec/capture.md).
 //!
-//! The `psao` binary (`src/bin/psao.rs`) runs the demo, a server and a
-//! viewer.
+//! The I/O (feature `quic`): [`serve()`] and [`connect()`] over quinn and
+//! tokio, with TLS from [`tls`] (certificate files, or a self-signed
+//! certificate whose fingerprint clients pin).
+//!
+//! ## Feature flags
+//! - `quic` (default): the reference QUIC server and client. Without it
+//!   (`default-features = false`) only the sans-IO core builds, on
+//!   psao-codec, bytes, glam and thiserror.
+//! - `scene`: psao-scene's `Pipeline` implements [`FrameSource`], so
+//!   `serve(Pipeline::new(scene, config)?, ...)` streams a scene.
+//!
+//! The `psao` command line is the `psao-cli` crate.
 
 pub mod capture;
 pub mod client;
 pub mod codes;
+#[cfg(feature = "quic")]
 pub mod connect;
 pub mod control;
+pub mod fanout;
 pub mod outbox;
 pub mod records;
-pub mod relay;
+#[cfg(feature = "scene")]
+pub mod scene_source;
+#[cfg(feature = "quic")]
 pub mod server;
 pub mod server_conn;
+pub mod source;
+#[cfg(feature = "quic")]
 pub mod tls;
 
 pub use client::{
-    ClientConfig, ClientEvent, ClientSession, ClientStats, MAX_FAILED_KEYFRAMES, REQUEST_RETRY,
+    CLOSE_AFTER_FRAMES, ClientConfig, ClientEvent, ClientSession, ClientStats,
+    MAX_FAILED_KEYFRAMES, REQUEST_RETRY,
 };
 pub use codes::{Close, CloseCode};
+#[cfg(feature = "quic")]
 pub use connect::{ClientHandle, ConnectError, Ended, connect};
+pub use fanout::{ClientId, Fanout, Transmit};
 pub use outbox::{Outbox, Pushed};
+#[cfg(feature = "quic")]
 pub use server::{ServeError, ServerConfig, ServerHandle, ServerStats, serve};
 pub use server_conn::{Offer, ServerConn, ServerEvent, negotiate};
+pub use source::{ClientViews, FrameSource, SourceError, SourceInfo, StepReport};
+#[cfg(feature = "quic")]
 pub use tls::{Identity, Trust};

@@ -1,14 +1,16 @@
-//! The reference server: one scene, many clients, over QUIC (quinn and
-//! tokio). The session logic is [`ServerConn`] and [`Outbox`]; this module
-//! is the I/O around them.
+//! The reference server: one frame source, many clients, over QUIC (quinn
+//! and tokio). The session logic is sans-IO: [`ServerConn`] per
+//! connection and the [`Fanout`] policy over all of them; this module is
+//! the I/O around them.
 //!
-//! A pipeline thread steps the scene at the frame rate. Each frame is
-//! encoded once; its bytes (shared, not copied) go into every in-sync
-//! client's [`Outbox`]. A writer task per client drains its outbox onto the
-//! client's frame stream. A client that cannot keep up falls behind (its
-//! queued frames are dropped) and gets a keyframe once it has drained, so
-//! a stalled client costs at most `max_queue_bytes` of deltas, one
-//! keyframe, the frame being written, 16 notices and the QUIC send window.
+//! A stepping thread steps the [`FrameSource`] at the frame rate. Each
+//! frame is encoded once; its bytes (shared, not copied) go into every
+//! in-sync client's outbox. A writer task per client drains its outbox
+//! onto the client's frame stream. A client that cannot keep up falls
+//! behind (its queued frames are dropped) and gets a keyframe once it has
+//! drained, so a stalled client costs at most `max_queue_bytes` of deltas,
+//! one keyframe, the frame being written, 16 notices and the QUIC send
+//! window.
 
 use std::collections::{HashMap, VecDeque};
 use std::net::SocketAddr;
@@ -16,19 +18,16 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use bytes::Bytes;
 use glam::Affine3A;
-use psao_scene::{
-    Camera, FrameReport, Pipeline, PipelineConfig, Scene, SceneError, ViewerCull, Views,
-};
 use tokio::sync::Notify;
 use tracing::{debug, info, warn};
 
 use crate::codes::{Close, CloseCode};
-use crate::control::{CameraPose, NoticeCode};
-use crate::outbox::Outbox;
+use crate::control::NoticeCode;
+use crate::fanout::{ClientId, Fanout, Transmit};
 use crate::records::record_prefix;
-use crate::server_conn::{Offer, ServerConn, ServerEvent, notice};
+use crate::server_conn::{Offer, ServerConn, ServerEvent};
+use crate::source::{ClientViews, FrameSource, StepReport};
 use crate::tls::{Identity, TlsError, server_config};
 
 /// Server settings.
@@ -44,8 +43,6 @@ pub struct ServerConfig {
     pub max_queue_bytes: usize,
     /// Whether clients may move instances (`MOVE_INSTANCE`).
     pub allow_events: bool,
-    /// The scene pipeline.
-    pub pipeline: PipelineConfig,
     /// The scene's name, sent in `WELCOME`.
     pub scene_name: String,
     /// A client silent this long (QUIC idle timeout) is dropped.
@@ -60,7 +57,6 @@ impl Default for ServerConfig {
             max_clients: 256,
             max_queue_bytes: 1 << 20,
             allow_events: true,
-            pipeline: PipelineConfig::default(),
             scene_name: "default".into(),
             idle_timeout: Duration::from_secs(10),
         }
@@ -70,9 +66,6 @@ impl Default for ServerConfig {
 /// Errors starting a server.
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
-    /// The scene could not be prepared.
-    #[error("scene: {0}")]
-    Scene(#[from] SceneError),
     /// TLS setup failed.
     #[error(transparent)]
     Tls(#[from] TlsError),
@@ -114,8 +107,8 @@ pub struct ServerStats {
     /// The last frame's sequence.
     pub sequence: u32,
     /// Sum of the per-frame reports.
-    pub report: FrameReport,
-    /// Time spent stepping the pipeline.
+    pub report: StepReport,
+    /// Time spent stepping the source.
     pub step_time: Duration,
     /// Mean of the clients' last frame age (from a frame's send to its
     /// `ACK`), seconds.
@@ -124,41 +117,51 @@ pub struct ServerStats {
     pub max_queued: usize,
 }
 
+/// The I/O side of a client: its writer's wake-up and its frame age.
 struct Slot {
-    outbox: Outbox,
     wake: Arc<Notify>,
-    notices: Vec<Bytes>,
     /// Seconds from a frame's broadcast to the client's `ACK` of it.
     frame_age: f64,
-    /// Whether its `HELLO` said it sends camera poses.
-    viewer: bool,
-    /// Its last `CAMERA`.
-    view: Option<CameraPose>,
 }
 
-#[derive(Default)]
 struct HubState {
-    clients: HashMap<u64, Slot>,
-    next_id: u64,
-    moves: Vec<(u64, u32, Affine3A)>,
+    /// The session policy: outboxes, shared keyframes, notices, views.
+    fanout: Fanout,
+    clients: HashMap<ClientId, Slot>,
+    moves: Vec<(ClientId, u32, Affine3A)>,
     stats: ServerStats,
     /// When recent sequences were broadcast.
     sent_at: VecDeque<(u32, Instant)>,
 }
 
-/// Most notices waiting for one client (the oldest are dropped).
-const MAX_NOTICES: usize = 16;
+impl HubState {
+    /// Wakes every client's writer.
+    fn wake_all(&self) {
+        for c in self.clients.values() {
+            c.wake.notify_one();
+        }
+    }
+
+    /// Queues a notice for `client` and wakes its writer.
+    fn notice(&mut self, client: ClientId, code: NoticeCode, text: &str) {
+        if self.fanout.notice(client, code, text)
+            && let Some(c) = self.clients.get(&client)
+        {
+            c.wake.notify_one();
+        }
+    }
+}
 
 struct Hub {
     state: Mutex<HubState>,
-    /// The pipeline thread stops stepping.
+    /// The stepping thread stops.
     stop: AtomicBool,
     /// Writers finish their frame streams once drained (set after the
-    /// pipeline's last frame was queued).
+    /// source's last frame was queued).
     closing: AtomicBool,
     /// Writer tasks still running.
     writers: std::sync::atomic::AtomicUsize,
-    /// Wakes the pipeline thread when a client needs a keyframe.
+    /// What `WELCOME` offers.
     offer: Offer,
     config: ServerConfig,
 }
@@ -170,28 +173,17 @@ impl Hub {
     }
 }
 
-impl Slot {
-    /// Queues a notice, keeping at most [`MAX_NOTICES`].
-    fn notice(&mut self, n: Bytes) {
-        if self.notices.len() >= MAX_NOTICES {
-            self.notices.remove(0);
-        }
-        self.notices.push(n);
-        self.wake.notify_one();
-    }
-}
-
-/// A running server.
-pub struct ServerHandle {
+/// A running server of a source `S`.
+pub struct ServerHandle<S> {
     hub: Arc<Hub>,
     endpoint: quinn::Endpoint,
     addr: SocketAddr,
     fingerprint: [u8; 32],
-    stepper: Option<std::thread::JoinHandle<Pipeline>>,
+    stepper: Option<std::thread::JoinHandle<S>>,
     acceptor: tokio::task::JoinHandle<()>,
 }
 
-impl std::fmt::Debug for ServerHandle {
+impl<S> std::fmt::Debug for ServerHandle<S> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("ServerHandle")
             .field("addr", &self.addr)
@@ -199,7 +191,7 @@ impl std::fmt::Debug for ServerHandle {
     }
 }
 
-impl ServerHandle {
+impl<S: FrameSource> ServerHandle<S> {
     /// Where it listens.
     pub fn local_addr(&self) -> SocketAddr {
         self.addr
@@ -217,27 +209,20 @@ impl ServerHandle {
         st.clients = s.clients.len();
         let ages: Vec<f64> = s.clients.values().map(|c| c.frame_age).collect();
         st.frame_age = ages.iter().sum::<f64>() / ages.len().max(1) as f64;
-        st.max_queued = s
-            .clients
-            .values()
-            .map(|c| c.outbox.queued_bytes())
-            .max()
-            .unwrap_or(0);
+        st.max_queued = s.fanout.max_queued_bytes();
+        st.falls = s.fanout.falls();
         st
     }
 
     /// Stops stepping, lets writers flush what is queued (at most
     /// `grace`), closes every connection with `server_shutdown` and
-    /// returns the pipeline (its tables are what in-sync clients mirror)
-    /// and the final counters.
-    pub async fn shutdown(
-        mut self,
-        grace: Duration,
-    ) -> Result<(Pipeline, ServerStats), ServeError> {
+    /// returns the source (its state is what in-sync clients mirror) and
+    /// the final counters.
+    pub async fn shutdown(mut self, grace: Duration) -> Result<(S, ServerStats), ServeError> {
         self.acceptor.abort();
         self.hub.stop.store(true, Ordering::SeqCst);
         let stepper = self.stepper.take();
-        let pipeline = tokio::task::spawn_blocking(move || stepper.map(|h| h.join()))
+        let source = tokio::task::spawn_blocking(move || stepper.map(|h| h.join()))
             .await
             .ok()
             .flatten()
@@ -246,9 +231,7 @@ impl ServerHandle {
         // their frame streams and wait (up to 1 s) for the client to
         // acknowledge them.
         self.hub.closing.store(true, Ordering::SeqCst);
-        for c in self.hub.lock().clients.values() {
-            c.wake.notify_one();
-        }
+        self.hub.lock().wake_all();
         let until = Instant::now() + grace;
         while Instant::now() < until && self.hub.writers.load(Ordering::SeqCst) > 0 {
             tokio::time::sleep(Duration::from_millis(5)).await;
@@ -259,13 +242,12 @@ impl ServerHandle {
             b"server shutdown",
         );
         self.endpoint.wait_idle().await;
-        let pipeline =
-            pipeline.ok_or(ServeError::Stopped("the pipeline thread panicked".into()))?;
-        Ok((pipeline, stats))
+        let source = source.ok_or(ServeError::Stopped("the stepping thread panicked".into()))?;
+        Ok((source, stats))
     }
 }
 
-impl Drop for ServerHandle {
+impl<S> Drop for ServerHandle<S> {
     /// A handle dropped without [`shutdown`](ServerHandle::shutdown) still
     /// stops the server: stepping ends, the listener goes and every
     /// connection is closed with `server_shutdown`.
@@ -280,32 +262,27 @@ impl Drop for ServerHandle {
     }
 }
 
-/// Starts a server streaming `scene`.
-pub async fn serve(
-    scene: Scene,
+/// Starts a server streaming `source`'s frames.
+pub async fn serve<S: FrameSource>(
+    source: S,
     config: ServerConfig,
     identity: &Identity,
-) -> Result<ServerHandle, ServeError> {
+) -> Result<ServerHandle<S>, ServeError> {
     if config.frame_rate == 0 || config.frame_rate > 1000 {
         return Err(ServeError::Setting("frame_rate (1..=1000)"));
     }
     if config.max_queue_bytes < 1024 {
         return Err(ServeError::Setting("max_queue_bytes (at least 1024)"));
     }
-    let pipeline = Pipeline::new(scene, config.pipeline.clone())?;
-    let enc = pipeline.config().encoder;
-    let mirror_bytes = (0..pipeline.instance_count())
-        .filter_map(|i| pipeline.table(i))
-        .map(|t| t.def().mirror_bytes() as u64)
-        .sum();
+    let info = source.info();
     let offer = Offer {
-        compression: enc.compression.id(),
-        max_frame_bytes: enc.limits.max_frame_bytes,
-        max_payload_bytes: enc.limits.max_payload_bytes,
-        mirror_bytes,
+        compression: info.compression,
+        max_frame_bytes: info.max_frame_bytes,
+        max_payload_bytes: info.max_payload_bytes,
+        mirror_bytes: info.mirror_bytes,
         frame_rate: config.frame_rate,
         scene: config.scene_name.clone(),
-        culling: config.pipeline.cull.is_some(),
+        culling: info.culls,
     };
     let endpoint =
         quinn::Endpoint::server(server_config(identity, config.idle_timeout)?, config.bind)
@@ -318,7 +295,13 @@ pub async fn serve(
         reason: e.to_string(),
     })?;
     let hub = Arc::new(Hub {
-        state: Mutex::new(HubState::default()),
+        state: Mutex::new(HubState {
+            fanout: Fanout::new(config.max_queue_bytes),
+            clients: HashMap::new(),
+            moves: Vec::new(),
+            stats: ServerStats::default(),
+            sent_at: VecDeque::new(),
+        }),
         stop: AtomicBool::new(false),
         closing: AtomicBool::new(false),
         writers: std::sync::atomic::AtomicUsize::new(0),
@@ -328,11 +311,11 @@ pub async fn serve(
     let stepper = {
         let hub = hub.clone();
         std::thread::Builder::new()
-            .name("psao-pipeline".into())
-            .spawn(move || step_loop(pipeline, &hub))
+            .name("psao-step".into())
+            .spawn(move || step_loop(source, &hub))
             .map_err(|e| ServeError::Bind {
                 addr,
-                reason: format!("cannot start the pipeline thread: {e}"),
+                reason: format!("cannot start the stepping thread: {e}"),
             })?
     };
     let acceptor = {
@@ -360,56 +343,36 @@ pub async fn serve(
     })
 }
 
-/// What a culling server culls to (spec/session.md 3.2): the union of its
-/// clients' views. While a client that does not say what it sees (not a
-/// viewer, or no `CAMERA` yet) is connected, nothing is culled; with no
-/// client, no one looks and every point waits.
-fn views(state: &HubState, cull: &ViewerCull) -> Views {
-    let mut frusta = Vec::with_capacity(state.clients.len());
-    for slot in state.clients.values() {
-        let Some(pose) = slot.view.filter(|_| slot.viewer) else {
-            return Views::All;
-        };
-        let camera = Camera {
-            eye: pose.eye,
-            target: pose.target,
-            fov_y: pose.fov_y,
-        };
-        frusta.push(camera.frustum(pose.aspect, cull.near(), cull.far));
-    }
-    Views::Frusta(frusta)
-}
-
-/// The pipeline thread: step, broadcast, keyframes; returns the pipeline
+/// The stepping thread: step, broadcast, keyframes; returns the source
 /// when told to stop.
-fn step_loop(mut pipeline: Pipeline, hub: &Hub) -> Pipeline {
+fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
     let dt = 1.0 / hub.config.frame_rate as f32;
     let period = Duration::from_secs_f64(1.0 / hub.config.frame_rate as f64);
     let mut next = Instant::now() + period;
-    let mut cached_keyframe: Option<(u32, Bytes)> = None;
-    let mut last_sequence: Option<u32> = None;
     while !hub.stop.load(Ordering::SeqCst) {
         // Scene events first, so the frame carries them.
         let moves = std::mem::take(&mut hub.lock().moves);
         for (client, instance, t) in moves {
-            if let Err(e) = pipeline.place_instance(instance as usize, t) {
-                let n = notice(NoticeCode::EventRefused, &e.to_string());
-                if let Some(c) = hub.lock().clients.get_mut(&client) {
-                    c.notice(n);
-                }
+            if let Err(e) = source.place(instance, t) {
+                hub.lock()
+                    .notice(client, NoticeCode::EventRefused, &e.to_string());
             }
         }
-        if let Some(cull) = hub.config.pipeline.cull {
-            pipeline.set_views(views(&hub.lock(), &cull));
+        if hub.offer.culling {
+            let poses = hub.lock().fanout.views();
+            source.set_views(match &poses {
+                Some(p) => ClientViews::Poses(p),
+                None => ClientViews::All,
+            });
         }
         let t0 = Instant::now();
-        let stepped = pipeline.step(dt);
+        let stepped = source.step(dt);
         let step_time = t0.elapsed();
         let (frame, report) = match stepped {
             Ok(x) => x,
             Err(e) => {
-                warn!("pipeline step failed: {e}");
-                (None, FrameReport::default())
+                warn!("step failed: {e}");
+                (None, StepReport::default())
             }
         };
         let wants_keyframe = {
@@ -418,7 +381,6 @@ fn step_loop(mut pipeline: Pipeline, hub: &Hub) -> Pipeline {
             s.stats.step_time += step_time;
             s.stats.report.accumulate(&report);
             if let Some(f) = &frame {
-                last_sequence = Some(f.sequence);
                 s.stats.sent_frames += 1;
                 s.stats.encoded_bytes += f.bytes.len() as u64;
                 s.stats.sequence = f.sequence;
@@ -426,47 +388,22 @@ fn step_loop(mut pipeline: Pipeline, hub: &Hub) -> Pipeline {
                 if s.sent_at.len() > 512 {
                     s.sent_at.pop_front();
                 }
-                let mut falls = 0;
-                for c in s.clients.values_mut() {
-                    if c.outbox.push_delta(f.bytes.clone()) == crate::outbox::Pushed::FellBehind {
-                        falls += 1;
-                    }
-                    c.wake.notify_one();
-                }
-                s.stats.falls += falls;
+                s.fanout.push_frame(f);
+                s.wake_all();
             }
-            s.clients.values().any(|c| c.outbox.wants_keyframe())
+            let wants = s.fanout.serve_keyframes();
+            s.wake_all();
+            wants
         };
         if wants_keyframe {
-            // One keyframe per state: clients asking at the same sequence
-            // share it, however many ask or how often.
-            let cached = cached_keyframe
-                .as_ref()
-                .filter(|(seq, _)| frame.is_none() && Some(*seq) == last_sequence)
-                .map(|(_, b)| b.clone());
-            let kf = match cached {
-                Some(b) => Ok(b),
-                None => pipeline.keyframe().map(|kf| {
-                    hub.lock().stats.keyframes += 1;
-                    last_sequence = Some(kf.sequence);
-                    cached_keyframe = Some((kf.sequence, kf.bytes.clone()));
-                    kf.bytes
-                }),
-            };
-            match kf {
+            // One keyframe per state, shared by the clients that ask now
+            // and those that ask before the next frame.
+            match source.keyframe() {
                 Ok(kf) => {
                     let mut s = hub.lock();
-                    for c in s.clients.values_mut() {
-                        if c.outbox.wants_keyframe() {
-                            if c.outbox.push_keyframe(kf.clone()) {
-                                c.notice(notice(
-                                    NoticeCode::FellBehind,
-                                    "fell behind; resynchronizing with a keyframe",
-                                ));
-                            }
-                            c.wake.notify_one();
-                        }
-                    }
+                    s.stats.keyframes += 1;
+                    s.fanout.push_keyframe(&kf);
+                    s.wake_all();
                 }
                 Err(e) => warn!("keyframe failed: {e}"),
             }
@@ -480,7 +417,7 @@ fn step_loop(mut pipeline: Pipeline, hub: &Hub) -> Pipeline {
             next = now + period;
         }
     }
-    pipeline
+    source
 }
 
 async fn serve_connection(hub: Arc<Hub>, conn: quinn::Connection) {
@@ -579,18 +516,13 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                         if s.clients.len() >= hub.config.max_clients {
                             break 'read Err(Close::new(CloseCode::ServerFull, "server full"));
                         }
-                        let client = s.next_id;
-                        s.next_id += 1;
+                        let client = s.fanout.add_client(viewer);
                         s.stats.accepted += 1;
                         s.clients.insert(
                             client,
                             Slot {
-                                outbox: Outbox::new(hub.config.max_queue_bytes),
                                 wake: wake.clone(),
-                                notices: Vec::new(),
                                 frame_age: 0.0,
-                                viewer,
-                                view: None,
                             },
                         );
                         client
@@ -628,10 +560,8 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                     }
                 }
                 ServerEvent::KeyframeRequested(_) => {
-                    if let Some(c) = id
-                        && let Some(slot) = hub.lock().clients.get_mut(&c)
-                    {
-                        slot.outbox.request_keyframe();
+                    if let Some(c) = id {
+                        hub.lock().fanout.request_keyframe(c);
                     }
                 }
                 ServerEvent::Move {
@@ -642,18 +572,17 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                     let mut s = hub.lock();
                     if hub.config.allow_events {
                         s.moves.push((c, instance, transform));
-                    } else if let Some(slot) = s.clients.get_mut(&c) {
-                        slot.notice(notice(
+                    } else {
+                        s.notice(
+                            c,
                             NoticeCode::EventRefused,
                             "this server does not accept scene events",
-                        ));
+                        );
                     }
                 }
                 ServerEvent::Camera(pose) => {
-                    if let Some(c) = id
-                        && let Some(slot) = hub.lock().clients.get_mut(&c)
-                    {
-                        slot.view = Some(pose);
+                    if let Some(c) = id {
+                        hub.lock().fanout.set_view(c, pose);
                     }
                 }
             }
@@ -662,6 +591,7 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
     extra.abort();
     if let Some(c) = id {
         let mut s = hub.lock();
+        s.fanout.remove_client(c);
         if let Some(slot) = s.clients.remove(&c) {
             slot.wake.notify_one();
         }
@@ -675,17 +605,13 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
 /// stream finished, to be held until the connection closes).
 async fn write_loop(
     hub: &Hub,
-    client: u64,
+    client: ClientId,
     wake: Arc<Notify>,
     mut control: quinn::SendStream,
     mut frames: quinn::SendStream,
 ) -> Option<(quinn::SendStream, quinn::SendStream)> {
     loop {
-        let (notices, frame) = {
-            let mut s = hub.lock();
-            let slot = s.clients.get_mut(&client)?;
-            (std::mem::take(&mut slot.notices), slot.outbox.pop())
-        };
+        let Transmit { notices, frame } = hub.lock().fanout.poll_transmit(client)?;
         for n in notices {
             control.write_all(&n).await.ok()?;
         }

@@ -486,11 +486,14 @@ fn an_unanswered_request_is_repeated_after_two_seconds_without_frames() {
     c.on_frames(&record(&delta.bytes)).unwrap();
     let first = c.take_transmit().unwrap();
     let t0 = Instant::now();
-    // Then nothing comes (a still scene sends no frames).
-    c.on_timer(t0);
-    c.on_timer(t0 + Duration::from_millis(1900));
+    // Then nothing comes (a still scene sends no frames). The session
+    // says when it needs waking: now, to stamp the request, then when
+    // the retry is due.
+    c.handle_timeout(t0).unwrap();
+    assert_eq!(c.poll_timeout(), Some(t0 + REQUEST_RETRY));
+    c.handle_timeout(t0 + Duration::from_millis(1900)).unwrap();
     assert!(c.take_transmit().is_none(), "not yet");
-    c.on_timer(t0 + REQUEST_RETRY);
+    c.handle_timeout(t0 + REQUEST_RETRY).unwrap();
     let again = c.take_transmit().expect("the request is repeated");
     assert_eq!(again, first, "the same request, same reason");
     assert_eq!(c.stats().requests, 2);
@@ -501,7 +504,35 @@ fn an_unanswered_request_is_repeated_after_two_seconds_without_frames() {
     c.on_frames(&record(&kf.finish().unwrap().unwrap().bytes))
         .unwrap();
     let _ack = c.take_transmit();
-    c.on_timer(t0 + 10 * REQUEST_RETRY);
-    c.on_timer(t0 + 20 * REQUEST_RETRY);
+    assert_eq!(c.poll_timeout(), None, "nothing waits on time");
+    c.handle_timeout(t0 + 10 * REQUEST_RETRY).unwrap();
+    c.handle_timeout(t0 + 20 * REQUEST_RETRY).unwrap();
     assert!(c.take_transmit().is_none());
+}
+
+#[test]
+fn a_close_that_never_follows_the_finished_frame_stream_ends_the_session() {
+    let mut c = welcomed();
+    let t0 = Instant::now();
+    c.handle_timeout(t0).unwrap();
+    assert_eq!(c.poll_timeout(), None);
+    assert_eq!(
+        c.transport_lost("timed out").code,
+        CloseCode::InternalError,
+        "before the frame stream finished, a lost link is an error"
+    );
+    // The server finishes its frames (it is shutting down); its close is
+    // due within about a second (spec/session.md 5.3).
+    c.on_frames_finished(t0);
+    assert!(c.frames_finished());
+    assert_eq!(c.poll_timeout(), Some(t0 + CLOSE_AFTER_FRAMES));
+    assert_eq!(
+        c.transport_lost("timed out").code,
+        CloseCode::ServerShutdown,
+        "after it, a lost close is the shutdown it announced"
+    );
+    c.handle_timeout(t0 + CLOSE_AFTER_FRAMES - Duration::from_millis(1))
+        .unwrap();
+    let e = c.handle_timeout(t0 + CLOSE_AFTER_FRAMES).unwrap_err();
+    assert_eq!(e.code, CloseCode::ServerShutdown, "{e}");
 }

@@ -25,6 +25,7 @@
 //! bit rate come from a window of consecutive ticks at the server rate
 //! after the measured frames.
 
+use anyhow::Context as _;
 use std::time::Instant;
 
 use indicatif::ProgressBar;
@@ -113,41 +114,48 @@ impl Settings {
     }
 
     /// Checks the settings make sense.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> anyhow::Result<()> {
         if self.frames == 0 {
-            return Err("--frames must be at least 1".into());
+            return Err(anyhow::anyhow!("--frames must be at least 1"));
         }
         if self.reference_rays == 0 || self.point_rays == 0 {
-            return Err("--reference-rays and --point-rays must be at least 1".into());
+            return Err(anyhow::anyhow!(
+                "--reference-rays and --point-rays must be at least 1"
+            ));
         }
         if self.densities.is_empty() || self.rates.is_empty() {
-            return Err("--densities and --rates need at least one value".into());
+            return Err(anyhow::anyhow!(
+                "--densities and --rates need at least one value"
+            ));
         }
         if let Some(d) = self
             .densities
             .iter()
             .find(|d| !(d.is_finite() && **d > 0.0))
         {
-            return Err(format!("density {d} is not a positive number"));
+            return Err(anyhow::anyhow!("density {d} is not a positive number"));
         }
         if self.rates.contains(&0) {
-            return Err("a server rate of 0 Hz never ticks".into());
+            return Err(anyhow::anyhow!("a server rate of 0 Hz never ticks"));
         }
         if self.backend == Backend::Gpu && !cfg!(feature = "gpu") {
-            return Err("this psao was built without GPU support: cargo run --release -p psao-proto --features gpu --bin psao -- bench --backend gpu".into());
+            return Err(anyhow::anyhow!(
+                "this psao was built without GPU support: cargo run --release -p psao-cli --features gpu --bin psao -- bench --backend gpu"
+            ));
         }
         if !(self.network_ms.is_finite() && (0.0..=10_000.0).contains(&self.network_ms)) {
-            return Err("--network-ms must lie in [0, 10000]".into());
+            return Err(anyhow::anyhow!("--network-ms must lie in [0, 10000]"));
         }
         let pixels = self.width as u64 * self.height as u64;
         if pixels == 0 || pixels > MAX_PIXELS {
-            return Err(format!(
+            return Err(anyhow::anyhow!(
                 "{}x{} is {pixels} pixels; the bench takes 1 to {MAX_PIXELS}",
-                self.width, self.height
+                self.width,
+                self.height
             ));
         }
         if pixels * self.frames as u64 > MAX_PIXELS * 8 {
-            return Err(format!(
+            return Err(anyhow::anyhow!(
                 "{} frames of {pixels} pixels is more than the bench holds ({} pixels in all)",
                 self.frames,
                 MAX_PIXELS * 8
@@ -334,16 +342,15 @@ struct Errors {
 }
 
 impl Errors {
-    fn add(&mut self, frame: &Frame, test: &[f32]) -> Result<(), String> {
-        let e = rmse(&frame.reference, test).map_err(|e| e.to_string())?;
+    fn add(&mut self, frame: &Frame, test: &[f32]) -> anyhow::Result<()> {
+        let e = rmse(&frame.reference, test)?;
         self.mse += e * e;
         self.ssim += ssim(
             &frame.reference,
             test,
             frame.gbuffer.width as usize,
             frame.gbuffer.height as usize,
-        )
-        .map_err(|e| e.to_string())?;
+        )?;
         self.flip += images::flip_mean(frame, test);
         self.frames += 1;
         let g = &frame.gbuffer;
@@ -440,12 +447,12 @@ pub fn measure_scene(
     scene: Scene,
     s: &Settings,
     bar: &ProgressBar,
-) -> Result<SceneResult, String> {
-    let err = |e: psao_scene::SceneError| format!("{name}: {e}");
+) -> anyhow::Result<SceneResult> {
+    let err = |e: psao_scene::SceneError| anyhow::Error::from(e).context(name.to_string());
     let path = scene
         .camera
         .clone()
-        .ok_or_else(|| format!("{name}: the scene has no camera path"))?;
+        .with_context(|| format!("{name}: the scene has no camera path"))?;
     bar.set_message(format!("{name}: reference"));
     let started = Instant::now();
     let mut frames = Vec::new();
@@ -489,7 +496,7 @@ pub fn measure_scene(
         let method = Method::Psao { density, rate };
         bar.set_message(format!("{name}: {}", method.label()));
         let (row, first) = measure_psao(&scene, &frames, s, density, rate)
-            .map_err(|e| format!("{name}: {}: {e}", method.label()))?;
+            .with_context(|| format!("{name}: {}", method.label()))?;
         if density == focus && rate == first_rate {
             showcase.images.push((method.label(), first));
         }
@@ -568,7 +575,7 @@ fn measure_psao(
     s: &Settings,
     density: f32,
     rate: u16,
-) -> Result<(Row, Vec<f32>), String> {
+) -> anyhow::Result<(Row, Vec<f32>)> {
     let config = PipelineConfig {
         // The pipeline's density counts spawned points; half are kept.
         density: 2.0 * density,
@@ -582,13 +589,10 @@ fn measure_psao(
     let mut pipeline = match s.backend {
         Backend::Cpu => Pipeline::new(scene.clone(), config),
         Backend::Gpu => gpu_pipeline(scene, config)?,
-    }
-    .map_err(|e| e.to_string())?;
+    }?;
     let mut client = Decoder::new(Limits::default());
-    let keyframe = pipeline.keyframe().map_err(|e| e.to_string())?;
-    client
-        .receive(&keyframe.bytes)
-        .map_err(|e| format!("keyframe: {e}"))?;
+    let keyframe = pipeline.keyframe()?;
+    client.receive(&keyframe.bytes).context("keyframe")?;
     let setup_s = started.elapsed().as_secs_f64();
     let points: usize = (0..pipeline.instance_count())
         .filter_map(|i| pipeline.points(i).map(|p| p.len()))
@@ -604,21 +608,19 @@ fn measure_psao(
         let tick = ((ready + 1e-6) / period).floor().max(0.0) * period;
         let dt = tick - pipeline.time() as f64;
         if dt < -1e-6 {
-            return Err(format!(
+            return Err(anyhow::anyhow!(
                 "frame times must not go back (tick {tick:.4} s after {:.4} s)",
                 pipeline.time()
             ));
         }
         if dt > 1e-6 {
-            let (frame, _) = pipeline.step(dt as f32).map_err(|e| e.to_string())?;
+            let (frame, _) = pipeline.step(dt as f32)?;
             if let Some(frame) = frame {
-                client
-                    .receive(&frame.bytes)
-                    .map_err(|e| format!("frame: {e}"))?;
+                client.receive(&frame.bytes).context("frame")?;
             }
         }
         let t = Instant::now();
-        let img = psao_image(client.mirror(), &f.gbuffer).map_err(|e| e.to_string())?;
+        let img = psao_image(client.mirror(), &f.gbuffer)?;
         ms += t.elapsed().as_secs_f64() * 1e3;
         unknown += img.unknown;
         errors.add(f, &img.ao)?;
@@ -631,14 +633,12 @@ fn measure_psao(
     let (mut bytes, mut server_s, mut decode_s) = (0usize, 0.0f64, 0.0f64);
     for _ in 0..ticks {
         let t = Instant::now();
-        let (frame, _) = pipeline.step(period as f32).map_err(|e| e.to_string())?;
+        let (frame, _) = pipeline.step(period as f32)?;
         server_s += t.elapsed().as_secs_f64();
         if let Some(frame) = frame {
             bytes += frame.bytes.len();
             let t = Instant::now();
-            client
-                .receive(&frame.bytes)
-                .map_err(|e| format!("frame: {e}"))?;
+            client.receive(&frame.bytes).context("frame")?;
             decode_s += t.elapsed().as_secs_f64();
         }
     }
@@ -665,8 +665,8 @@ fn measure_psao(
 fn gpu_pipeline(
     scene: &Scene,
     config: PipelineConfig,
-) -> Result<Result<Pipeline, psao_scene::SceneError>, String> {
-    let backend = psao_gpu::GpuBackend::new(scene).map_err(|e| e.to_string())?;
+) -> anyhow::Result<Result<Pipeline, psao_scene::SceneError>> {
+    let backend = psao_gpu::GpuBackend::new(scene)?;
     Ok(Pipeline::with_backend(
         scene.clone(),
         config,
@@ -680,6 +680,8 @@ fn gpu_pipeline(
 fn gpu_pipeline(
     _scene: &Scene,
     _config: PipelineConfig,
-) -> Result<Result<Pipeline, psao_scene::SceneError>, String> {
-    Err("this psao was built without GPU support (--features gpu)".into())
+) -> anyhow::Result<Result<Pipeline, psao_scene::SceneError>> {
+    Err(anyhow::anyhow!(
+        "this psao was built without GPU support (--features gpu)"
+    ))
 }

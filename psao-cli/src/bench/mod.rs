@@ -5,6 +5,7 @@
 //! against a per-pixel ray-traced reference. Writes a CSV, a markdown
 //! table, charts and a side-by-side image of one frame.
 
+use anyhow::Context as _;
 mod charts;
 pub mod images;
 mod measure;
@@ -76,7 +77,7 @@ pub struct BenchArgs {
 }
 
 /// Runs the bench and writes its outputs.
-pub fn run(args: BenchArgs) -> Result<(), String> {
+pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let mut settings = if args.full {
         Settings::full()
     } else {
@@ -116,7 +117,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     for path in &args.gltf {
         let scene = load_gltf(path)
             .and_then(stage)
-            .map_err(|e| format!("{}: {e}", path.display()))?;
+            .with_context(|| path.display().to_string())?;
         let name = path
             .file_stem()
             .map(|n| n.to_string_lossy().into_owned())
@@ -124,15 +125,16 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         scenes.push((name, scene));
     }
     if scenes.is_empty() {
-        return Err("no scene to bench: --only-gltf needs --gltf FILE".into());
+        return Err(anyhow::anyhow!(
+            "no scene to bench: --only-gltf needs --gltf FILE"
+        ));
     }
     std::fs::create_dir_all(&args.out)
-        .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
     let units: u64 = scenes.len() as u64 * settings.units_per_scene();
     let bar = ProgressBar::new(units);
     bar.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} {msg}")
-            .map_err(|e| e.to_string())?
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} {msg}")?
             .progress_chars("=> "),
     );
     eprintln!(
@@ -148,12 +150,12 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     let mut results = Vec::new();
     for (name, scene) in scenes {
         let r = measure::measure_scene(&name, scene, &settings, &bar)?;
-        images::write_scene_images(&args.out, &r).map_err(|e| format!("{name}: {e}"))?;
-        charts::write_charts(&args.out, &r).map_err(|e| format!("{name}: charts: {e}"))?;
+        images::write_scene_images(&args.out, &r).with_context(|| name.to_string())?;
+        charts::write_charts(&args.out, &r).with_context(|| format!("{name}: charts"))?;
         results.push(r);
     }
     bar.finish_and_clear();
-    let files = report::write(&args.out, &settings, &results).map_err(|e| e.to_string())?;
+    let files = report::write(&args.out, &settings, &results)?;
     println!("{}", report::markdown(&settings, &results));
     println!("wrote {}", files.join(", "));
     Ok(())

@@ -1,6 +1,7 @@
 //! Images of `psao bench`: the composited frame FLIP compares, the AO and
 //! G-buffer files of the first frame, and the side-by-side picture.
 
+use anyhow::Context as _;
 use std::path::Path;
 use std::sync::Once;
 
@@ -14,15 +15,15 @@ use super::measure::{Frame, SceneResult};
 
 /// DejaVu Sans (see assets/README.md): text in charts and pictures needs no
 /// system font.
-static FONT: &[u8] = include_bytes!("../../../../assets/DejaVuSans.ttf");
+static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 
 /// Registers the embedded font as plotters' "sans-serif" (once).
-pub fn register_fonts() -> Result<(), String> {
+pub fn register_fonts() -> anyhow::Result<()> {
     static ONCE: Once = Once::new();
     let mut result = Ok(());
     ONCE.call_once(|| {
         result = register_font("sans-serif", FontStyle::Normal, FONT)
-            .map_err(|_| "the embedded font is not a valid TrueType font".to_string());
+            .map_err(|_| anyhow::anyhow!("the embedded font is not a valid TrueType font"));
     });
     result
 }
@@ -68,6 +69,7 @@ fn to_srgb8(v: f32) -> u8 {
 
 /// Mean FLIP between the frame's composited reference and the same
 /// composite with `test` as AO (at FLIP's default 67 pixels per degree).
+#[cfg(feature = "flip")]
 pub fn flip_mean(frame: &Frame, test: &[f32]) -> f64 {
     let (w, h) = (frame.gbuffer.width, frame.gbuffer.height);
     let reference = nv_flip::FlipImageRgb8::with_data(w, h, &frame.composite);
@@ -76,11 +78,17 @@ pub fn flip_mean(frame: &Frame, test: &[f32]) -> f64 {
     nv_flip::FlipPool::from_image(&map).mean() as f64
 }
 
+/// Without the `flip` feature there is no FLIP: NaN, printed as `NaN`.
+#[cfg(not(feature = "flip"))]
+pub fn flip_mean(_frame: &Frame, _test: &[f32]) -> f64 {
+    f64::NAN
+}
+
 /// Writes the first frame's files: the reference and each shown method's
 /// AO as 16-bit PNG, the reference AO as float EXR, the G-buffer as EXR
 /// (position, normal, and depth / instance id / coverage), and the
 /// side-by-side picture.
-pub fn write_scene_images(out: &Path, r: &SceneResult) -> Result<(), String> {
+pub fn write_scene_images(out: &Path, r: &SceneResult) -> anyhow::Result<()> {
     let f = &r.frames[0];
     let (w, h) = (f.gbuffer.width, f.gbuffer.height);
     let name = &r.name;
@@ -88,16 +96,15 @@ pub fn write_scene_images(out: &Path, r: &SceneResult) -> Result<(), String> {
         let file = out.join(format!("{name}-ao-{}.png", slug(label)));
         ao_png16(img, w, h)
             .save(&file)
-            .map_err(|e| format!("{}: {e}", file.display()))?;
+            .with_context(|| file.display().to_string())?;
     }
-    let exr = |file: String, px: &dyn Fn(usize) -> [f32; 3]| -> Result<(), String> {
+    let exr = |file: String, px: &dyn Fn(usize) -> [f32; 3]| -> anyhow::Result<()> {
         let mut img = Rgb32FImage::new(w, h);
         for (k, p) in img.pixels_mut().enumerate() {
             *p = Rgb(px(k));
         }
         let path = out.join(file);
-        img.save(&path)
-            .map_err(|e| format!("{}: {e}", path.display()))
+        img.save(&path).with_context(|| path.display().to_string())
     };
     let g = &f.gbuffer;
     exr(format!("{name}-ao-reference.exr"), &|k| [f.reference[k]; 3])?;
@@ -146,7 +153,7 @@ pub fn ao_png16(ao: &[f32], w: u32, h: u32) -> ImageBuffer<Luma<u16>, Vec<u16>> 
 
 /// The side-by-side picture: the shown methods' AO in the top row, their
 /// absolute error against the reference (x4) in the bottom row, labelled.
-fn side_by_side(path: &Path, r: &SceneResult) -> Result<(), String> {
+fn side_by_side(path: &Path, r: &SceneResult) -> anyhow::Result<()> {
     register_fonts()?;
     let f = &r.frames[0];
     let (w, h) = (f.gbuffer.width as usize, f.gbuffer.height as usize);
@@ -181,22 +188,20 @@ fn side_by_side(path: &Path, r: &SceneResult) -> Result<(), String> {
         let style = ("sans-serif", 15).into_font().color(&BLACK);
         for (c, (label, _)) in shown.iter().enumerate() {
             let x = (c * w + 4) as i32;
-            root.draw_text(label, &style, (x, 4))
-                .map_err(|e| e.to_string())?;
+            root.draw_text(label, &style, (x, 4))?;
             let below = if c == 0 {
                 "reference, composited".to_string()
             } else {
                 format!("error x{ERROR_GAIN}")
             };
-            root.draw_text(&below, &style, (x, (label_h + h + 4) as i32))
-                .map_err(|e| e.to_string())?;
+            root.draw_text(&below, &style, (x, (label_h + h + 4) as i32))?;
         }
-        root.present().map_err(|e| e.to_string())?;
+        root.present()?;
     }
     image::RgbImage::from_raw(cw as u32, ch as u32, buf)
-        .ok_or("picture buffer has the wrong size")?
+        .context("picture buffer has the wrong size")?
         .save(path)
-        .map_err(|e| format!("{}: {e}", path.display()))
+        .with_context(|| path.display().to_string())
 }
 
 /// A black-red-yellow-white ramp for error maps (input clamped to [0, 1]).

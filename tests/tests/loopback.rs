@@ -8,49 +8,34 @@ use std::time::Duration;
 
 use glam::{Affine3A, Vec3};
 use psao_proto::control::{Control, Hello};
-use psao_proto::relay::{Impairment, Relay};
 use psao_proto::tls::client_config;
 use psao_proto::*;
-use psao_scene::{Animation, AoParams, Mesh, Pipeline, PipelineConfig, Scene, Trs};
-
-/// A floor and a box sliding over it: something changes every frame.
-fn small_scene() -> Scene {
-    let mut s = Scene::default();
-    s.add(
-        Mesh::quad(Vec3::new(-3.0, 0.0, -3.0), Vec3::Z * 6.0, Vec3::X * 6.0).subdivided(2),
-        Affine3A::IDENTITY,
-    );
-    let node = s.add_node("box", None, Trs::default());
-    s.add_on_node(Mesh::cuboid(Vec3::splat(-0.3), Vec3::splat(0.3)), node);
-    s.animations.push(Animation::translation(
-        "slide",
-        node,
-        &[
-            (0.0, Vec3::new(-2.0, 0.3, 0.0)),
-            (2.0, Vec3::new(2.0, 0.3, 0.0)),
-            (4.0, Vec3::new(-2.0, 0.3, 0.0)),
-        ],
-    ));
-    s
-}
+use psao_scene::{Pipeline, PipelineConfig, ViewerCull};
+use psao_tests::relay::{Impairment, Relay};
+use psao_tests::scenes::{pipeline_config, sliding_box};
 
 fn config(max_queue_bytes: usize) -> ServerConfig {
     ServerConfig {
         max_queue_bytes,
         idle_timeout: Duration::from_secs(2),
-        pipeline: PipelineConfig {
-            density: 64.0,
-            ao: AoParams {
-                rays: 8,
-                ..AoParams::default()
-            },
-            ..PipelineConfig::default()
-        },
         ..ServerConfig::default()
     }
 }
 
-async fn client(server: &ServerHandle, addr: Option<std::net::SocketAddr>) -> ClientHandle {
+/// The sliding-box scene's pipeline at 64 points per square metre and 8
+/// rays per point, culling as `cull` says.
+fn source(cull: Option<ViewerCull>) -> Pipeline {
+    let config = PipelineConfig {
+        cull,
+        ..pipeline_config(64.0, 8)
+    };
+    Pipeline::new(sliding_box(), config).expect("the pipeline builds")
+}
+
+async fn client(
+    server: &ServerHandle<Pipeline>,
+    addr: Option<std::net::SocketAddr>,
+) -> ClientHandle {
     connect(
         addr.unwrap_or(server.local_addr()),
         &Trust::Fingerprint(server.fingerprint()),
@@ -76,7 +61,7 @@ fn in_sync(c: &ClientHandle, p: &Pipeline) -> bool {
 /// A bare QUIC connection that has sent `HELLO` and read `WELCOME`, for
 /// clients that misbehave. Its streams accept at most 4 KiB unread.
 async fn raw(
-    server: &ServerHandle,
+    server: &ServerHandle<Pipeline>,
 ) -> (
     quinn::Endpoint,
     quinn::Connection,
@@ -128,7 +113,7 @@ async fn close_code(conn: &quinn::Connection) -> CloseCode {
 async fn many_clients_late_slow_vanishing_and_misbehaving() {
     let id = Identity::self_signed().unwrap();
     let queue = 4 * 1024;
-    let server = serve(small_scene(), config(queue), &id).await.unwrap();
+    let server = serve(source(None), config(queue), &id).await.unwrap();
     let mut good = Vec::new();
     for _ in 0..3 {
         good.push(client(&server, None).await);
@@ -196,7 +181,7 @@ async fn many_clients_late_slow_vanishing_and_misbehaving() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_lossy_reordering_link_keeps_the_stream_consistent() {
     let id = Identity::self_signed().unwrap();
-    let server = serve(small_scene(), config(1 << 20), &id).await.unwrap();
+    let server = serve(source(None), config(1 << 20), &id).await.unwrap();
     let relay = Relay::start(
         server.local_addr(),
         Impairment {
@@ -235,7 +220,7 @@ async fn a_lossy_reordering_link_keeps_the_stream_consistent() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn scene_events_move_instances_for_everyone() {
     let id = Identity::self_signed().unwrap();
-    let server = serve(small_scene(), config(1 << 20), &id).await.unwrap();
+    let server = serve(source(None), config(1 << 20), &id).await.unwrap();
     let a = client(&server, None).await;
     let b = client(&server, None).await;
     let to = Affine3A::from_translation(Vec3::new(0.5, 1.0, 0.5));
@@ -272,7 +257,7 @@ async fn scene_events_move_instances_for_everyone() {
 async fn a_full_server_says_so() {
     let id = Identity::self_signed().unwrap();
     let server = serve(
-        small_scene(),
+        source(None),
         ServerConfig {
             max_clients: 1,
             ..config(1 << 20)
@@ -317,7 +302,7 @@ async fn a_full_server_says_so() {
 }
 
 /// Points traced and culled over `wait` of serving.
-async fn traced_and_culled(server: &ServerHandle, wait: Duration) -> (u64, u64, u64) {
+async fn traced_and_culled(server: &ServerHandle<Pipeline>, wait: Duration) -> (u64, u64, u64) {
     let a = server.stats();
     tokio::time::sleep(wait).await;
     let b = server.stats();
@@ -331,13 +316,14 @@ async fn traced_and_culled(server: &ServerHandle, wait: Duration) -> (u64, u64, 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_culling_server_traces_what_its_viewers_see() {
     let id = Identity::self_signed().unwrap();
-    let mut cfg = config(1 << 20);
-    cfg.pipeline.cull = Some(psao_scene::ViewerCull {
+    let cull = ViewerCull {
         aspect: 1.0,
         far: 50.0,
         margin: 0.0,
-    });
-    let server = serve(small_scene(), cfg, &id).await.unwrap();
+    };
+    let server = serve(source(Some(cull)), config(1 << 20), &id)
+        .await
+        .unwrap();
     let viewer = connect(
         server.local_addr(),
         &Trust::Fingerprint(server.fingerprint()),

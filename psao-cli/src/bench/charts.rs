@@ -1,6 +1,7 @@
 //! Charts of `psao bench` (plotters, PNG): PSNR against client time for
 //! every method, and PSNR against bit rate for PSAO.
 
+use anyhow::Context as _;
 use std::path::Path;
 
 use plotters::prelude::*;
@@ -12,7 +13,7 @@ use super::measure::{Method, Row, SceneResult};
 const SIZE: (u32, u32) = (900, 560);
 
 /// Writes `<scene>-time-error.png` and `<scene>-bitrate-error.png`.
-pub fn write_charts(out: &Path, r: &SceneResult) -> Result<(), String> {
+pub fn write_charts(out: &Path, r: &SceneResult) -> anyhow::Result<()> {
     register_fonts()?;
     let finite: Vec<&Row> = r.rows.iter().filter(|row| row.psnr.is_finite()).collect();
     let groups: Vec<(&str, RGBColor, Vec<&Row>)> = vec![
@@ -85,7 +86,7 @@ fn scatter(
     x_label: &str,
     groups: &[(&str, RGBColor, Vec<&Row>)],
     x: impl Fn(&Row) -> Option<f64>,
-) -> Result<(), String> {
+) -> anyhow::Result<()> {
     let points: Vec<(f64, f64)> = groups
         .iter()
         .flat_map(|(_, _, rows)| rows.iter().filter_map(|r| x(r).map(|v| (v, r.psnr))))
@@ -148,12 +149,12 @@ fn scatter(
         root.present().map_err(draw_err)?;
     }
     image::RgbImage::from_raw(SIZE.0, SIZE.1, buf)
-        .ok_or("chart buffer has the wrong size")?
+        .context("chart buffer has the wrong size")?
         .save(path)
-        .map_err(|err| format!("{}: {err}", path.display()))
+        .with_context(|| path.display().to_string())
 }
 
-/// A drawing error as text.
-fn draw_err<E: std::error::Error + Send + Sync>(e: DrawingAreaErrorKind<E>) -> String {
-    e.to_string()
+/// A drawing error, as plotters says it.
+fn draw_err<E: std::error::Error + Send + Sync>(e: DrawingAreaErrorKind<E>) -> anyhow::Error {
+    anyhow::anyhow!("drawing: {e}")
 }

@@ -1,0 +1,116 @@
+//! What several subcommands share: where a client connects and how it
+//! trusts the server, scene loading, the pipeline settings, the live
+//! status line and the process's CPU time.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{Context as _, bail};
+use psao_proto::tls::parse_fingerprint;
+use psao_proto::{ServerStats, Trust};
+use psao_scene::{AoParams, PipelineConfig, Scene, default_scene, load_gltf};
+
+/// Where a client connects and how it trusts the server.
+#[derive(clap::Args)]
+pub struct ServerArgs {
+    /// The server.
+    #[arg(long)]
+    pub connect: SocketAddr,
+    /// SHA-256 fingerprint of the server's certificate (as `psao serve`
+    /// prints it).
+    #[arg(long, conflicts_with = "ca")]
+    pub fingerprint: Option<String>,
+    /// PEM file of certificates to trust instead.
+    #[arg(long)]
+    pub ca: Option<PathBuf>,
+    /// With --ca: the name the server's certificate must carry (default
+    /// localhost).
+    #[arg(long, requires = "ca")]
+    pub name: Option<String>,
+    /// Stop after this many seconds (default: until the server closes).
+    #[arg(long)]
+    pub seconds: Option<f32>,
+}
+
+impl ServerArgs {
+    /// How the client trusts the server: a pinned fingerprint, or roots
+    /// from a PEM file.
+    pub fn trust(&self) -> anyhow::Result<Trust> {
+        match (&self.fingerprint, &self.ca) {
+            (Some(f), _) => Ok(Trust::Fingerprint(parse_fingerprint(f)?)),
+            (None, Some(ca)) => Ok(Trust::Roots {
+                roots: read_roots(ca)?,
+                name: self.name.clone().unwrap_or_else(|| "localhost".into()),
+            }),
+            (None, None) => bail!("give --fingerprint (printed by `psao serve`) or --ca"),
+        }
+    }
+}
+
+/// A duration of `s` seconds, clamped to [0, 10^7] (NaN reads as 0).
+pub fn seconds_of(s: f32) -> Duration {
+    Duration::from_secs_f32(if s.is_nan() { 0.0 } else { s.clamp(0.0, 1e7) })
+}
+
+/// The pipeline settings of `--density` and `--rays`.
+pub fn pipeline_config(density: f32, rays: u32) -> PipelineConfig {
+    PipelineConfig {
+        density,
+        ao: AoParams {
+            rays,
+            ..AoParams::default()
+        },
+        ..PipelineConfig::default()
+    }
+}
+
+/// The scene at `path` (a glTF file) or the embedded default scene, with
+/// the name `WELCOME` gives it.
+pub fn load_scene(path: Option<&Path>) -> anyhow::Result<(Scene, String)> {
+    match path {
+        None => Ok((default_scene(), "default".into())),
+        Some(p) => {
+            let scene = load_gltf(p)?;
+            let name = p
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            Ok((scene, name))
+        }
+    }
+}
+
+/// The certificates in a PEM file.
+fn read_roots(path: &Path) -> anyhow::Result<Vec<rustls::pki_types::CertificateDer<'static>>> {
+    use rustls::pki_types::pem::PemObject;
+    rustls::pki_types::CertificateDer::pem_file_iter(path)
+        .and_then(|it| it.collect::<Result<Vec<_>, _>>())
+        .with_context(|| path.display().to_string())
+}
+
+/// One status line: server rate, bit rate per client, work per frame.
+pub fn status(s: &ServerStats, prev: &ServerStats, dt: f64) -> String {
+    let frames = (s.frames - prev.frames).max(1) as f64;
+    let clients = s.clients.max(1) as f64;
+    format!(
+        "{:5.1} fps | {:6.3} Mbit/s per client | traced {:5.0}/frame | sent {:4.0}/frame | step {:5.2} ms | frame age {:5.1} ms | {} clients",
+        (s.frames - prev.frames) as f64 / dt,
+        (s.written_bytes - prev.written_bytes) as f64 * 8.0 / dt / 1e6 / clients,
+        (s.report.traced - prev.report.traced) as f64 / frames,
+        (s.report.updated - prev.report.updated) as f64 / frames,
+        (s.step_time - prev.step_time).as_secs_f64() * 1e3 / frames,
+        s.frame_age * 1e3,
+        s.clients,
+    )
+}
+
+/// CPU seconds this process has used (user + system), where /proc tells.
+pub fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may hold spaces), from field 3.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}

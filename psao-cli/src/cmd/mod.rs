@@ -1,0 +1,9 @@
+//! The subcommands that talk QUIC or read captures, one module each, and
+//! what they share ([`common`]).
+
+pub mod common;
+pub mod demo;
+pub mod inspect;
+pub mod record;
+pub mod serve;
+pub mod view;

@@ -1,0 +1,241 @@
+//! The server's fan-out policy, sans-IO (spec/session.md 5.2): every frame
+//! is encoded once and its bytes (shared, not copied) go into every
+//! client's [`Outbox`]; one keyframe per state is shared by all who ask,
+//! however many ask or how often; a client that fell behind is told so
+//! with a `NOTICE` when its keyframe is queued; notices wait in a bounded
+//! queue per client.
+//!
+//! The I/O layer (the reference server, or a test's simulated link) adds
+//! and removes clients, hands in the source's frames and the clients'
+//! events, encodes a keyframe when [`Fanout::serve_keyframes`] says one is
+//! wanted, and drains each client with [`Fanout::poll_transmit`].
+
+use std::collections::BTreeMap;
+
+use bytes::Bytes;
+use psao_codec::EncodedFrame;
+
+use crate::control::{CameraPose, NoticeCode};
+use crate::outbox::{Outbox, Pushed};
+use crate::server_conn::notice;
+
+/// Most notices waiting for one client (the oldest are dropped).
+pub const MAX_NOTICES: usize = 16;
+
+/// A client of a [`Fanout`], numbered from 0 in the order they joined.
+pub type ClientId = u64;
+
+/// What to write to one client now: its notices (control stream) first,
+/// then at most one frame (frame stream).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Transmit {
+    /// `NOTICE` messages, encoded.
+    pub notices: Vec<Bytes>,
+    /// The next frame, if one waits.
+    pub frame: Option<Bytes>,
+}
+
+#[derive(Debug)]
+struct Slot {
+    outbox: Outbox,
+    notices: Vec<Bytes>,
+    /// Whether its `HELLO` said it sends camera poses.
+    viewer: bool,
+    /// Its last `CAMERA`.
+    view: Option<CameraPose>,
+}
+
+impl Slot {
+    fn notice(&mut self, n: Bytes) {
+        if self.notices.len() >= MAX_NOTICES {
+            self.notices.remove(0);
+        }
+        self.notices.push(n);
+    }
+}
+
+/// The clients of one stream and the frames waiting for each.
+#[derive(Debug)]
+pub struct Fanout {
+    clients: BTreeMap<ClientId, Slot>,
+    next_id: ClientId,
+    max_queue_bytes: usize,
+    /// The last keyframe encoded, while no frame has been pushed since:
+    /// it is the current state, for every client that asks.
+    shared_keyframe: Option<Bytes>,
+    falls: u64,
+}
+
+impl Fanout {
+    /// No clients yet; each will queue at most `max_queue_bytes` of deltas
+    /// before it falls behind.
+    pub fn new(max_queue_bytes: usize) -> Fanout {
+        Fanout {
+            clients: BTreeMap::new(),
+            next_id: 0,
+            max_queue_bytes,
+            shared_keyframe: None,
+            falls: 0,
+        }
+    }
+
+    /// Adds a client that has been welcomed (`viewer`: its `HELLO` said it
+    /// sends camera poses). It waits for its first keyframe.
+    pub fn add_client(&mut self, viewer: bool) -> ClientId {
+        let id = self.next_id;
+        self.next_id += 1;
+        self.clients.insert(
+            id,
+            Slot {
+                outbox: Outbox::new(self.max_queue_bytes),
+                notices: Vec::new(),
+                viewer,
+                view: None,
+            },
+        );
+        id
+    }
+
+    /// Removes a client; whether it was there.
+    pub fn remove_client(&mut self, id: ClientId) -> bool {
+        self.clients.remove(&id).is_some()
+    }
+
+    /// Clients now.
+    pub fn len(&self) -> usize {
+        self.clients.len()
+    }
+
+    /// Whether there is no client.
+    pub fn is_empty(&self) -> bool {
+        self.clients.is_empty()
+    }
+
+    /// The clients, in the order they joined.
+    pub fn clients(&self) -> impl Iterator<Item = ClientId> + '_ {
+        self.clients.keys().copied()
+    }
+
+    /// Times a client fell behind, over all clients ever.
+    pub fn falls(&self) -> u64 {
+        self.falls
+    }
+
+    /// The most bytes queued for one client now.
+    pub fn max_queued_bytes(&self) -> usize {
+        self.clients
+            .values()
+            .map(|c| c.outbox.queued_bytes())
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// Bytes queued for `id` (0 for an unknown client).
+    pub fn queued_bytes(&self, id: ClientId) -> usize {
+        self.clients.get(&id).map_or(0, |c| c.outbox.queued_bytes())
+    }
+
+    /// Broadcasts a frame the source stepped (encoded once): it goes to
+    /// every client that is in sync; a client it does not fit falls
+    /// behind. Returns how many fell behind now. The shared keyframe is
+    /// no longer the current state.
+    pub fn push_frame(&mut self, frame: &EncodedFrame) -> u64 {
+        self.shared_keyframe = None;
+        let mut falls = 0;
+        for c in self.clients.values_mut() {
+            if c.outbox.push_delta(frame.bytes.clone()) == Pushed::FellBehind {
+                falls += 1;
+            }
+        }
+        self.falls += falls;
+        falls
+    }
+
+    /// Whether some client waits for a keyframe (it just joined, asked for
+    /// one, or fell behind and has drained).
+    pub fn wants_keyframe(&self) -> bool {
+        self.clients.values().any(|c| c.outbox.wants_keyframe())
+    }
+
+    /// Hands the shared keyframe of the current state, if there is one, to
+    /// every client that wants a keyframe; returns whether a keyframe is
+    /// still wanted, to be encoded and given to
+    /// [`push_keyframe`](Fanout::push_keyframe).
+    pub fn serve_keyframes(&mut self) -> bool {
+        if !self.wants_keyframe() {
+            return false;
+        }
+        match self.shared_keyframe.clone() {
+            Some(kf) => {
+                self.queue_keyframe(kf);
+                false
+            }
+            None => true,
+        }
+    }
+
+    /// A keyframe of the current state, just encoded: it is shared with
+    /// every client that wants one now, and with those that ask before the
+    /// next frame.
+    pub fn push_keyframe(&mut self, keyframe: &EncodedFrame) {
+        self.shared_keyframe = Some(keyframe.bytes.clone());
+        self.queue_keyframe(keyframe.bytes.clone());
+    }
+
+    fn queue_keyframe(&mut self, kf: Bytes) {
+        for c in self.clients.values_mut() {
+            if c.outbox.wants_keyframe() && c.outbox.push_keyframe(kf.clone()) {
+                c.notice(notice(
+                    NoticeCode::FellBehind,
+                    "fell behind; resynchronizing with a keyframe",
+                ));
+            }
+        }
+    }
+
+    /// `id` asked for a keyframe (`KEYFRAME_REQUEST`).
+    pub fn request_keyframe(&mut self, id: ClientId) {
+        if let Some(c) = self.clients.get_mut(&id) {
+            c.outbox.request_keyframe();
+        }
+    }
+
+    /// `id` said what it sees (`CAMERA`).
+    pub fn set_view(&mut self, id: ClientId, pose: CameraPose) {
+        if let Some(c) = self.clients.get_mut(&id) {
+            c.view = Some(pose);
+        }
+    }
+
+    /// Queues a notice for `id` (at most [`MAX_NOTICES`] wait; the oldest
+    /// go first). `false` for an unknown client.
+    pub fn notice(&mut self, id: ClientId, code: NoticeCode, text: &str) -> bool {
+        match self.clients.get_mut(&id) {
+            Some(c) => {
+                c.notice(notice(code, text));
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// What a culling server culls to (spec/session.md 3.2): every
+    /// client's last `CAMERA`; `None` (cull nothing) while a client that
+    /// does not say what it sees (not a viewer, or no `CAMERA` yet) is
+    /// connected. With no client the list is empty: no one looks.
+    pub fn views(&self) -> Option<Vec<CameraPose>> {
+        self.clients
+            .values()
+            .map(|c| c.view.filter(|_| c.viewer))
+            .collect()
+    }
+
+    /// What to write to `id` now; `None` for an unknown client.
+    pub fn poll_transmit(&mut self, id: ClientId) -> Option<Transmit> {
+        let c = self.clients.get_mut(&id)?;
+        Some(Transmit {
+            notices: std::mem::take(&mut c.notices),
+            frame: c.outbox.pop(),
+        })
+    }
+}

@@ -1,0 +1,40 @@
+//! Small scenes for tests: a floor and a box sliding over it, so that
+//! something changes every frame, and the pipeline settings tests use.
+
+use glam::{Affine3A, Vec3};
+use psao_scene::{Animation, AoParams, Mesh, PipelineConfig, Scene, Trs};
+
+/// A 6 m floor (subdivided twice) and a 0.6 m box sliding over it from
+/// x = -2 to 2 and back over 4 s.
+pub fn sliding_box() -> Scene {
+    let mut s = Scene::default();
+    s.add(
+        Mesh::quad(Vec3::new(-3.0, 0.0, -3.0), Vec3::Z * 6.0, Vec3::X * 6.0).subdivided(2),
+        Affine3A::IDENTITY,
+    );
+    let node = s.add_node("box", None, Trs::default());
+    s.add_on_node(Mesh::cuboid(Vec3::splat(-0.3), Vec3::splat(0.3)), node);
+    s.animations.push(Animation::translation(
+        "slide",
+        node,
+        &[
+            (0.0, Vec3::new(-2.0, 0.3, 0.0)),
+            (2.0, Vec3::new(2.0, 0.3, 0.0)),
+            (4.0, Vec3::new(-2.0, 0.3, 0.0)),
+        ],
+    ));
+    s
+}
+
+/// A pipeline at `density` points per square metre with `rays` AO rays per
+/// point, the rest default.
+pub fn pipeline_config(density: f32, rays: u32) -> PipelineConfig {
+    PipelineConfig {
+        density,
+        ao: AoParams {
+            rays,
+            ..AoParams::default()
+        },
+        ..PipelineConfig::default()
+    }
+}
