@@ -5,6 +5,7 @@
 //!
 //! `cargo run --release -p psao-gpu --example gpu_by_instance [-- --density 256 --most 1200 --reps 5]`
 
+use psao_eval::*;
 use psao_gpu::{GpuAo, GpuScene};
 use psao_scene::*;
 

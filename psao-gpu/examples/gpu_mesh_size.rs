@@ -8,6 +8,7 @@
 //! `cargo run --release -p psao-gpu --example gpu_mesh_size [-- --rays 64 --density 256 --reps 5]`
 
 use glam::{Affine3A, Vec3};
+use psao_eval::*;
 use psao_gpu::{GpuAo, GpuContext, GpuScene, TriangleOrder};
 use psao_scene::*;
 

@@ -8,6 +8,7 @@
 
 use std::time::Instant;
 
+use psao_eval::*;
 use psao_gpu::{GpuAo, GpuScene};
 use psao_scene::*;
 

@@ -11,6 +11,7 @@
 use std::time::Instant;
 
 use psao_codec::{Decoder, Limits};
+use psao_eval::*;
 use psao_gpu::{GpuMirror, GpuReconstruct, GpuSao, PassTimes};
 use psao_scene::*;
 

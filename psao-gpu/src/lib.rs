@@ -12,7 +12,7 @@
 //! [`GpuReconstruct`]).
 //!
 //! The SAO baseline runs on the same device ([`GpuSao`], the passes of
-//! [`psao_scene::sao`]), so the reconstruction can be timed against it.
+//! [`psao_eval::sao`]), so the reconstruction can be timed against it.
 //!
 //! Without a Vulkan driver with ray queries, [`GpuContext::new`] returns a
 //! [`GpuError`] that says what to install (on a machine without a GPU:

@@ -4,7 +4,7 @@
 
 use std::time::Instant;
 
-use psao_scene::{GBuffer, NO_INSTANCE};
+use psao_eval::{GBuffer, NO_INSTANCE};
 
 use crate::context::{GpuContext, storage_layout, uniform_layout};
 use crate::error::GpuError;

@@ -1,11 +1,11 @@
 //! The SAO baseline on the GPU (`shaders/sao.wgsl`): psao-scene's CPU
-//! passes ([`psao_scene::sao`]) as compute passes with the same constants,
+//! passes ([`psao_eval::sao`]) as compute passes with the same constants,
 //! so that the client's reconstruction ([`crate::GpuReconstruct`]) and SAO
 //! can be timed on one device.
 
 use std::time::{Duration, Instant};
 
-use psao_scene::{SaoParams, View};
+use psao_eval::{SaoParams, View};
 
 use crate::context::{GpuContext, storage_layout, uniform_layout};
 use crate::error::GpuError;
@@ -128,7 +128,7 @@ impl GpuSao {
         })
     }
 
-    /// SAO of a depth buffer, as [`psao_scene::sao`] (same passes, inputs,
+    /// SAO of a depth buffer, as [`psao_eval::sao`] (same passes, inputs,
     /// conventions and errors), on the GPU.
     pub fn run(
         &self,

@@ -5,6 +5,7 @@
 //! run).
 
 use glam::Vec3;
+use psao_eval::*;
 use psao_gpu::*;
 use psao_scene::*;
 

@@ -300,7 +300,7 @@ impl TriangleBvh {
 
     /// The nearest hit along `ray`: the triangle's index (in build order)
     /// and the distance; `None` on a miss.
-    pub(crate) fn closest_triangle(&self, ray: Ray) -> Option<(u32, f32)> {
+    pub fn closest_triangle(&self, ray: Ray) -> Option<(u32, f32)> {
         let mut hit = RayHit::none();
         let (found, order) = match &self.accel {
             None => return None,
@@ -335,8 +335,9 @@ impl TriangleBvh {
     }
 }
 
-/// Barycentric weights of `p` (on the plane of `a b c`).
-pub(crate) fn barycentric(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> [f32; 3] {
+/// Barycentric weights of `p` (on the plane of `a b c`): how a hit on a
+/// triangle interpolates its vertices' attributes.
+pub fn barycentric(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> [f32; 3] {
     let (e0, e1, ep) = (b - a, c - a, p - a);
     let (d00, d01, d11) = (e0.dot(e0), e0.dot(e1), e1.dot(e1));
     let (d20, d21) = (ep.dot(e0), ep.dot(e1));

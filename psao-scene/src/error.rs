@@ -168,8 +168,10 @@ pub enum SceneError {
     },
 }
 
-/// Checks `value` is finite and within `min..=max`.
-pub(crate) fn check_param(
+/// Checks a named setting: `value` must be finite and within
+/// `min..=max`; otherwise a [`SceneError::Parameter`] naming it and what
+/// it must be (`what`).
+pub fn check_param(
     name: &'static str,
     value: f64,
     min: f64,

@@ -1,6 +1,8 @@
 //! # psao-scene
 //!
-//! The server side of PSAO without a GPU:
+//! The start of the data path, on the server without a GPU: scene ->
+//! points -> AO -> dirty set -> frames. (The pixels at the other end, and
+//! the ray-traced truth they are measured against, are `psao-eval`.)
 //! - the scene model ([`Scene`]): meshes ([`Mesh`], optionally skinned with
 //!   [`SkinWeights`] or alpha-masked with [`AlphaMask`]), instances, a node
 //!   hierarchy ([`Node`], [`Trs`]), skins ([`Skin`]), keyframed node
@@ -15,9 +17,11 @@
 //!   the closest-hit and the Laine-Karras estimators, over placed BVH
 //!   [`Layer`]s (static geometry built once, moving instances placed by
 //!   their transform, skinned ones refitted);
-//! - the embedded [`default_scene`] and the server frame [`Pipeline`]:
-//!   animate, skin, choose what motion can reach (and, per viewer, what is
-//!   in view), trace, apply the thresholds, encode.
+//! - the server frame [`Pipeline`]: animate, skin, choose what motion can
+//!   reach (and, per viewer, what is in view), trace (on the CPU, or on any
+//!   [`AoBackend`]), apply the thresholds (the dirty set), encode;
+//! - the embedded [`default_scene`] and [`cesium_man_scene`], and
+//!   [`stage`] (a glTF model on a floor with an orbiting camera).
 //!
 //! ## Numerical limits
 //!
@@ -42,50 +46,40 @@ mod ao;
 mod camera;
 mod default_scene;
 mod error;
-mod gbuffer;
 mod gltf_import;
 mod layout;
-mod metrics;
 mod node;
 mod pipeline;
-mod pixel_ao;
 mod points;
 mod pose;
 mod precision;
 mod random;
-mod sao;
 mod scene;
 mod skin;
 mod stage;
-mod view;
 
 pub use alpha::{AlphaMask, AlphaTexture};
 pub use animation::{Animation, Channel, Interpolation, Keys};
 pub use ao::{
     AoParams, AoResult, AoTracer, ChangedPoints, Estimator, Geometry, Layer, MAX_RAYS,
-    RAY_SUM_LANES, TriangleBvh, TriangleMask, morton_order, ray_offset,
+    RAY_SUM_LANES, TriangleBvh, TriangleMask, barycentric, morton_order, ray_offset,
 };
 pub use camera::{Camera, CameraKey, CameraPath, Frustum};
 pub use default_scene::{MOVING_BOX, TRELLIS, WALKER, cesium_man_scene, default_scene};
-pub use error::SceneError;
-pub use gbuffer::{GBuffer, NO_INSTANCE, PosedScene};
+pub use error::{SceneError, check_param};
 pub use gltf_import::{
     MAX_ACCESSOR_BYTES, MAX_BUFFER_BYTES, MAX_INSTANCES, MAX_SKINNED_VERTICES, load_gltf,
     load_gltf_slice,
 };
 pub use layout::{LayoutParams, layout};
-pub use metrics::{MetricError, error_map, psnr, rmse, ssim};
 pub use node::{Node, Trs, compose};
 pub use pipeline::{AoBackend, FrameReport, Pipeline, PipelineConfig, ViewerCull, Views};
-pub use pixel_ao::{ClientImage, psao_image, ray_traced_ao};
 pub use points::{Anchor, MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
-pub use pose::Pose;
+pub use pose::{Pose, normal_matrix};
 pub use precision::{
     MAX_ULP_PER_AO_RADIUS, MAX_ULP_PER_POINT_SPACING, check_precision, f32_spacing,
 };
 pub use random::{hash, uniform};
-pub use sao::{SaoParams, sao};
 pub use scene::{Instance, Mesh, Scene, bounds_of, transformed_bounds};
 pub use skin::{Skin, SkinWeights};
 pub use stage::{FLOOR_MARGIN, ORBIT_SECONDS, stage};
-pub use view::{MAX_IMAGE_SIDE, View};

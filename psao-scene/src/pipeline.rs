@@ -20,7 +20,7 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use glam::{Affine3A, Mat3A, Vec3};
+use glam::{Affine3A, Vec3};
 use psao_codec::{EncodedFrame, Encoder, EncoderConfig, GridTable, SentPoint, Thresholds};
 
 use crate::alpha::AlphaMask;
@@ -31,7 +31,7 @@ use crate::camera::Frustum;
 use crate::error::{SceneError, check_param};
 use crate::layout::{LayoutParams, layout};
 use crate::points::{PointSet, generate_points};
-use crate::pose::Pose;
+use crate::pose::{Pose, normal_matrix};
 use crate::precision::check_precision;
 use crate::scene::{Scene, check_transform, transformed_bounds};
 
@@ -298,10 +298,6 @@ impl std::fmt::Debug for Pipeline {
 
 fn overlaps(a: (Vec3, Vec3), b: (Vec3, Vec3)) -> bool {
     a.0.cmple(b.1).all() && b.0.cmple(a.1).all()
-}
-
-pub(crate) fn normal_matrix(t: &Affine3A) -> Mat3A {
-    t.matrix3.inverse().transpose()
 }
 
 fn bounds_of(points: &[Vec3]) -> (Vec3, Vec3) {

@@ -105,3 +105,10 @@ impl Scene {
             .fold(0.0, f32::max)
     }
 }
+
+/// The matrix that carries normals through `t`: the inverse transpose of
+/// its linear part (normals stay perpendicular to surfaces under
+/// non-uniform scale).
+pub fn normal_matrix(t: &glam::Affine3A) -> glam::Mat3A {
+    t.matrix3.inverse().transpose()
+}

@@ -9,7 +9,7 @@ use glam::Vec3;
 use image::{ImageBuffer, Luma, Rgb, Rgb32FImage};
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
-use psao_scene::{GBuffer, NO_INSTANCE, error_map};
+use psao_eval::{GBuffer, NO_INSTANCE, error_map};
 
 use super::measure::{Frame, SceneResult};
 

@@ -30,10 +30,10 @@ use std::time::Instant;
 
 use indicatif::ProgressBar;
 use psao_codec::{Decoder, Limits};
-use psao_scene::{
-    AoParams, Camera, Estimator, GBuffer, NO_INSTANCE, Pipeline, PipelineConfig, PosedScene,
-    SaoParams, Scene, View, psao_image, ray_traced_ao, rmse, sao, ssim,
+use psao_eval::{
+    GBuffer, NO_INSTANCE, PosedScene, SaoParams, View, psao_image, ray_traced_ao, rmse, sao, ssim,
 };
+use psao_scene::{AoParams, Camera, Estimator, Pipeline, PipelineConfig, Scene};
 
 use super::Backend;
 use super::images;

@@ -10,14 +10,13 @@ use std::time::{Duration, Instant};
 use anyhow::{Context as _, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use psao_codec::Limits;
+use psao_eval::{PosedScene, View, psao_image};
 use psao_proto::tls::fingerprint_hex;
 use psao_proto::{
     ClientConfig, ClientHandle, Ended, Identity, ServerConfig, ServerHandle, ServerStats, Trust,
     connect, serve,
 };
-use psao_scene::{
-    Pipeline, PipelineConfig, PosedScene, Scene, View, ViewerCull, default_scene, psao_image,
-};
+use psao_scene::{Pipeline, PipelineConfig, Scene, ViewerCull, default_scene};
 
 use super::common::{cpu_seconds, pipeline_config, status};
 use crate::bench::images::{ao_png16, composite};

@@ -9,9 +9,8 @@
 use psao_codec::{Mirror, reconstruct_ao, world_to_local};
 use rayon::prelude::*;
 
-use crate::ao::{AoParams, AoTracer};
-use crate::error::SceneError;
 use crate::gbuffer::{GBuffer, NO_INSTANCE};
+use psao_scene::{AoParams, AoTracer, SceneError};
 
 /// Ray-traced AO at every covered pixel of `g` against `tracer`, with the
 /// same estimator, radius, bias and sampling as the server's points; pixel

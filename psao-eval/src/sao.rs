@@ -41,8 +41,8 @@ use std::f32::consts::TAU;
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::error::{SceneError, check_param};
 use crate::view::View;
+use psao_scene::{SceneError, check_param};
 
 /// Constants of SAO. [`Default`] gives the paper's values where it has
 /// them and documented choices where it leaves them open.
@@ -604,7 +604,7 @@ pub fn sao(depth: &[f32], view: &View, params: &SaoParams) -> Result<Vec<f32>, S
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::Camera;
+    use psao_scene::Camera;
 
     fn view(width: u32, height: u32) -> View {
         View::new(

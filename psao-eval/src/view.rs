@@ -12,8 +12,7 @@
 
 use glam::{Affine3A, Vec3};
 
-use crate::camera::Camera;
-use crate::error::SceneError;
+use psao_scene::{Camera, SceneError};
 
 /// Largest image side accepted, in pixels.
 pub const MAX_IMAGE_SIDE: u32 = 16_384;

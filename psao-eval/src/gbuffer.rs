@@ -11,11 +11,10 @@ use glam::{Affine3A, Vec3, Vec3A};
 use obvhs::ray::Ray;
 use rayon::prelude::*;
 
-use crate::ao::{AoTracer, Geometry, Layer, TriangleBvh, barycentric};
-use crate::error::SceneError;
-use crate::pipeline::normal_matrix;
-use crate::scene::Scene;
 use crate::view::View;
+use psao_scene::{
+    AoTracer, Geometry, Layer, Scene, SceneError, TriangleBvh, barycentric, normal_matrix,
+};
 
 /// The instance id of a pixel where no geometry was hit.
 pub const NO_INSTANCE: u32 = u32::MAX;

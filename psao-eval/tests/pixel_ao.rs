@@ -3,6 +3,7 @@
 
 use glam::{Affine3A, Vec3};
 use psao_codec::{Decoder, Limits, Mirror};
+use psao_eval::*;
 use psao_scene::*;
 
 /// An 8 m x 8 m floor at y = 0 (facing +Y) with a 1 m box on it.

@@ -13,6 +13,7 @@ use glam::{Affine3A, Quat, Vec3};
 use psao_codec::{
     Decoder, DropReason, Event, GridTable, Limits, Placement, reconstruct_ao, world_to_local,
 };
+use psao_eval::*;
 use psao_scene::*;
 
 /// Points per unit area of the room.
