@@ -1,6 +1,6 @@
 //! `psao`: the PSAO command line. `main` parses, sets up logging and
 //! dispatches; each subcommand lives in its own module under [`cmd`] (or
-//! [`bench`]) with its arguments and its `run`.
+//! [`bench`](mod@bench)) with its arguments and its `run`.
 //!
 //! - `psao demo`: server and client in one process over loopback QUIC on
 //!   the embedded default scene, with a live status line and a summary;

@@ -109,6 +109,21 @@ pub struct PipelineConfig {
     pub cull: Option<ViewerCull>,
 }
 
+impl PipelineConfig {
+    /// The defaults with `density` points spawned per square metre and
+    /// `rays` AO rays per point (the two settings most callers choose).
+    pub fn with_density_and_rays(density: f32, rays: u32) -> PipelineConfig {
+        PipelineConfig {
+            density,
+            ao: AoParams {
+                rays,
+                ..AoParams::default()
+            },
+            ..PipelineConfig::default()
+        }
+    }
+}
+
 impl Default for PipelineConfig {
     fn default() -> Self {
         PipelineConfig {

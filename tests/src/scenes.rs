@@ -2,7 +2,7 @@
 //! something changes every frame, and the pipeline settings tests use.
 
 use glam::{Affine3A, Vec3};
-use psao_scene::{Animation, AoParams, Mesh, PipelineConfig, Scene, Trs};
+use psao_scene::{Animation, Mesh, PipelineConfig, Scene, Trs};
 
 /// A 6 m floor (subdivided twice) and a 0.6 m box sliding over it from
 /// x = -2 to 2 and back over 4 s.
@@ -29,12 +29,5 @@ pub fn sliding_box() -> Scene {
 /// A pipeline at `density` points per square metre with `rays` AO rays per
 /// point, the rest default.
 pub fn pipeline_config(density: f32, rays: u32) -> PipelineConfig {
-    PipelineConfig {
-        density,
-        ao: AoParams {
-            rays,
-            ..AoParams::default()
-        },
-        ..PipelineConfig::default()
-    }
+    PipelineConfig::with_density_and_rays(density, rays)
 }

@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::{Context as _, bail};
 use psao_proto::tls::parse_fingerprint;
 use psao_proto::{ServerStats, Trust};
-use psao_scene::{AoParams, PipelineConfig, Scene, default_scene, load_gltf};
+use psao_scene::{PipelineConfig, Scene, default_scene, load_gltf};
 
 /// Where a client connects and how it trusts the server.
 #[derive(clap::Args)]
@@ -55,14 +55,7 @@ pub fn seconds_of(s: f32) -> Duration {
 
 /// The pipeline settings of `--density` and `--rays`.
 pub fn pipeline_config(density: f32, rays: u32) -> PipelineConfig {
-    PipelineConfig {
-        density,
-        ao: AoParams {
-            rays,
-            ..AoParams::default()
-        },
-        ..PipelineConfig::default()
-    }
+    PipelineConfig::with_density_and_rays(density, rays)
 }
 
 /// The scene at `path` (a glTF file) or the embedded default scene, with

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use glam::Vec3;
 use psao_gpu::GpuContext;
-use psao_scene::{AoParams, Pipeline, PipelineConfig, Scene};
+use psao_scene::{Pipeline, PipelineConfig, Scene};
 
 /// The value after `name` on the command line, or `default`.
 #[allow(dead_code)]
@@ -30,14 +30,7 @@ pub fn default_pipeline(scene: &Scene, density: f32) -> Pipeline {
 pub fn pipeline_with(scene: &Scene, density: f32, rays: u32) -> Pipeline {
     Pipeline::new(
         scene.clone(),
-        PipelineConfig {
-            density,
-            ao: AoParams {
-                rays,
-                ..AoParams::default()
-            },
-            ..PipelineConfig::default()
-        },
+        PipelineConfig::with_density_and_rays(density, rays),
     )
     .expect("the scene builds")
 }
