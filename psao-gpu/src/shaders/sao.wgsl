@@ -1,6 +1,6 @@
 // Scalable Ambient Obscurance (McGuire, Mara and Luebke, HPG 2012) as
 // compute passes: the same passes and constants as psao-scene's CPU
-// baseline (psao-scene/src/sao.rs), so that the client's reconstruction
+// baseline (psao-eval/src/sao.rs), so that the client's reconstruction
 // and SAO can be timed on the same device. Entry points, in order:
 // `pyramid` (the rotated-grid z pyramid as source pixels of every texel),
 // `obscurance` (the sample pass), `quad` (the 2 x 2 bilateral box filter),
