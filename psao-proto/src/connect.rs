@@ -210,9 +210,6 @@ async fn run(
     mut uplink: mpsc::UnboundedReceiver<Uplink>,
 ) {
     let mut frames: Option<quinn::RecvStream> = None;
-    // The server finishes the frame stream when it shuts down; the
-    // connection close follows.
-    let mut frames_done = false;
     let mut cbuf = vec![0u8; 4096];
     let mut fbuf = vec![0u8; 64 * 1024];
     let outcome: Result<(), Close> = async {
@@ -220,10 +217,12 @@ async fn run(
             // Time first: the session repeats an unanswered keyframe
             // request and ends itself when a close never followed the
             // finished frame stream; it says when it next needs waking.
-            let wake = {
+            // The server finishes the frame stream when it shuts down; the
+            // connection close follows, and the stream is read no more.
+            let (wake, frames_done) = {
                 let mut s = lock(&shared.session);
                 s.handle_timeout(std::time::Instant::now())?;
-                s.poll_timeout()
+                (s.poll_timeout(), s.frames_finished())
             };
             // Send what the session queued (HELLO first, then ACKs and
             // keyframe requests).
@@ -266,10 +265,7 @@ async fn run(
                                 }
                             }
                         }
-                        Ok(None) => {
-                            frames_done = true;
-                            lock(&shared.session).on_frames_finished(std::time::Instant::now());
-                        }
+                        Ok(None) => lock(&shared.session).on_frames_finished(std::time::Instant::now()),
                         Err(quinn::ReadError::Reset(_)) => return Err(Close::new(CloseCode::ProtocolViolation, "the server reset the frame stream")),
                         Err(e) => return Err(Close::new(CloseCode::InternalError, e.to_string())),
                     }

@@ -22,6 +22,19 @@ use crate::server_conn::notice;
 /// Most notices waiting for one client (the oldest are dropped).
 pub const MAX_NOTICES: usize = 16;
 
+/// What [`Fanout::serve_keyframes`] did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Keyframes {
+    /// No client waits for a keyframe.
+    NotWanted,
+    /// The shared keyframe of the current state was queued for every
+    /// client that wanted one (their writers have something to send).
+    Shared,
+    /// A keyframe is wanted and none of the current state exists: encode
+    /// one and give it to [`Fanout::push_keyframe`].
+    Encode,
+}
+
 /// A client of a [`Fanout`], numbered from 0 in the order they joined.
 pub type ClientId = u64;
 
@@ -158,19 +171,18 @@ impl Fanout {
     }
 
     /// Hands the shared keyframe of the current state, if there is one, to
-    /// every client that wants a keyframe; returns whether a keyframe is
-    /// still wanted, to be encoded and given to
-    /// [`push_keyframe`](Fanout::push_keyframe).
-    pub fn serve_keyframes(&mut self) -> bool {
+    /// every client that wants a keyframe; says whether it did, or whether
+    /// one must be encoded.
+    pub fn serve_keyframes(&mut self) -> Keyframes {
         if !self.wants_keyframe() {
-            return false;
+            return Keyframes::NotWanted;
         }
         match self.shared_keyframe.clone() {
             Some(kf) => {
                 self.queue_keyframe(kf);
-                false
+                Keyframes::Shared
             }
-            None => true,
+            None => Keyframes::Encode,
         }
     }
 

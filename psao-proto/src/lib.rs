@@ -56,7 +56,7 @@ pub use client::{
 pub use codes::{Close, CloseCode};
 #[cfg(feature = "quic")]
 pub use connect::{ClientHandle, ConnectError, Ended, connect};
-pub use fanout::{ClientId, Fanout, Transmit};
+pub use fanout::{ClientId, Fanout, Keyframes, Transmit};
 pub use outbox::{Outbox, Pushed};
 #[cfg(feature = "quic")]
 pub use server::{ServeError, ServerConfig, ServerHandle, ServerStats, serve};

@@ -24,7 +24,7 @@ use tracing::{debug, info, warn};
 
 use crate::codes::{Close, CloseCode};
 use crate::control::NoticeCode;
-use crate::fanout::{ClientId, Fanout, Transmit};
+use crate::fanout::{ClientId, Fanout, Keyframes, Transmit};
 use crate::records::record_prefix;
 use crate::server_conn::{Offer, ServerConn, ServerEvent};
 use crate::source::{ClientViews, FrameSource, StepReport};
@@ -389,11 +389,14 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
                     s.sent_at.pop_front();
                 }
                 s.fanout.push_frame(f);
+            }
+            let keyframes = s.fanout.serve_keyframes();
+            // Writers have something new only after a frame or a shared
+            // keyframe; a still tick wakes no one.
+            if frame.is_some() || keyframes == Keyframes::Shared {
                 s.wake_all();
             }
-            let wants = s.fanout.serve_keyframes();
-            s.wake_all();
-            wants
+            keyframes == Keyframes::Encode
         };
         if wants_keyframe {
             // One keyframe per state, shared by the clients that ask now
@@ -532,21 +535,24 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                     hub.writers.fetch_add(1, Ordering::SeqCst);
                     let (h, conn) = (hub.clone(), conn.clone());
                     tokio::spawn(async move {
-                        let streams = write_loop(&h, client, wake, control, frames).await;
+                        let end = write_loop(&h, client, wake, control, frames).await;
                         h.writers.fetch_sub(1, Ordering::SeqCst);
-                        match streams {
+                        match end {
                             // Shutting down: hold the streams until the
                             // connection closes, so that dropping them
                             // does not finish the control stream first.
-                            Some(streams) => {
+                            WriterEnd::Shutdown(streams) => {
                                 conn.closed().await;
                                 drop(streams);
                             }
                             // A stream was stopped or reset by the client.
-                            None => conn.close(
+                            WriterEnd::Stopped => conn.close(
                                 quinn::VarInt::from_u32(CloseCode::ProtocolViolation.code()),
                                 b"a stream was stopped",
                             ),
+                            // The reader removed the client: it closes the
+                            // connection with its own reason.
+                            WriterEnd::Left => {}
                         }
                     });
                 }
@@ -600,26 +606,42 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
     result
 }
 
-/// Writes a client's notices and frames until it leaves (`None`, also
-/// when a write fails) or the server shuts down (the streams, the frame
-/// stream finished, to be held until the connection closes).
+/// How a client's writer ended.
+enum WriterEnd {
+    /// The client left (the reader removed it and closes the connection
+    /// with its own reason).
+    Left,
+    /// A write failed: the client stopped or reset a stream.
+    Stopped,
+    /// The server shuts down: the streams, the frame stream finished, to
+    /// be held until the connection closes.
+    Shutdown((quinn::SendStream, quinn::SendStream)),
+}
+
+/// Writes a client's notices and frames until it leaves, a write fails or
+/// the server shuts down.
 async fn write_loop(
     hub: &Hub,
     client: ClientId,
     wake: Arc<Notify>,
     mut control: quinn::SendStream,
     mut frames: quinn::SendStream,
-) -> Option<(quinn::SendStream, quinn::SendStream)> {
+) -> WriterEnd {
     loop {
-        let Transmit { notices, frame } = hub.lock().fanout.poll_transmit(client)?;
+        let Some(Transmit { notices, frame }) = hub.lock().fanout.poll_transmit(client) else {
+            return WriterEnd::Left;
+        };
         for n in notices {
-            control.write_all(&n).await.ok()?;
+            if control.write_all(&n).await.is_err() {
+                return WriterEnd::Stopped;
+            }
         }
         match frame {
             Some(f) => {
                 let prefix = record_prefix(&f);
-                frames.write_all(&prefix).await.ok()?;
-                frames.write_all(&f).await.ok()?;
+                if frames.write_all(&prefix).await.is_err() || frames.write_all(&f).await.is_err() {
+                    return WriterEnd::Stopped;
+                }
                 hub.lock().stats.written_bytes += 4 + f.len() as u64;
             }
             None if hub.closing.load(Ordering::SeqCst) => {
@@ -627,7 +649,7 @@ async fn write_loop(
                 // last whole record, and let the client acknowledge it.
                 let _ = frames.finish();
                 let _ = tokio::time::timeout(Duration::from_secs(1), frames.stopped()).await;
-                return Some((control, frames));
+                return WriterEnd::Shutdown((control, frames));
             }
             None => wake.notified().await,
         }

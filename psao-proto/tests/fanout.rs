@@ -8,7 +8,7 @@ use glam::Vec3;
 use psao_codec::{EncodedFrame, FrameStats};
 use psao_proto::control::{CameraPose, Control, ControlReader, NoticeCode};
 use psao_proto::fanout::MAX_NOTICES;
-use psao_proto::{Fanout, Transmit};
+use psao_proto::{Fanout, Keyframes, Transmit};
 
 fn frame(sequence: u32, keyframe: bool, len: usize) -> EncodedFrame {
     EncodedFrame {
@@ -36,10 +36,15 @@ fn one_keyframe_per_state_is_shared_by_all_who_ask() {
     let (a, b) = (f.add_client(false), f.add_client(false));
     // Both just joined: a keyframe is wanted and none is shared yet.
     assert!(f.wants_keyframe());
-    assert!(f.serve_keyframes(), "a keyframe must be encoded");
+    assert_eq!(
+        f.serve_keyframes(),
+        Keyframes::Encode,
+        "a keyframe must be encoded"
+    );
     let kf = frame(1, true, 100);
     f.push_keyframe(&kf);
     assert!(!f.wants_keyframe());
+    assert_eq!(f.serve_keyframes(), Keyframes::NotWanted);
     let (ta, tb) = (f.poll_transmit(a).unwrap(), f.poll_transmit(b).unwrap());
     let (fa, fb) = (ta.frame.unwrap(), tb.frame.unwrap());
     assert_eq!(fa, kf.bytes);
@@ -49,7 +54,11 @@ fn one_keyframe_per_state_is_shared_by_all_who_ask() {
     // new one is encoded.
     let c = f.add_client(false);
     f.request_keyframe(a);
-    assert!(!f.serve_keyframes(), "served from the shared keyframe");
+    assert_eq!(
+        f.serve_keyframes(),
+        Keyframes::Shared,
+        "served from the shared keyframe"
+    );
     assert_eq!(f.poll_transmit(c).unwrap().frame.unwrap(), kf.bytes);
     assert_eq!(f.poll_transmit(a).unwrap().frame.unwrap(), kf.bytes);
     // A frame moves the state on: deltas go to everyone, and the next
@@ -60,14 +69,18 @@ fn one_keyframe_per_state_is_shared_by_all_who_ask() {
         assert_eq!(f.poll_transmit(id).unwrap().frame.unwrap(), d.bytes);
     }
     f.add_client(false);
-    assert!(f.serve_keyframes(), "the shared keyframe is out of date");
+    assert_eq!(
+        f.serve_keyframes(),
+        Keyframes::Encode,
+        "the shared keyframe is out of date"
+    );
 }
 
 #[test]
 fn a_client_that_falls_behind_is_told_and_resynchronized() {
     let mut f = Fanout::new(1024);
     let (fast, slow) = (f.add_client(false), f.add_client(false));
-    assert!(f.serve_keyframes());
+    assert_eq!(f.serve_keyframes(), Keyframes::Encode);
     f.push_keyframe(&frame(1, true, 50));
     f.poll_transmit(fast).unwrap();
     f.poll_transmit(slow).unwrap();
@@ -83,7 +96,7 @@ fn a_client_that_falls_behind_is_told_and_resynchronized() {
     assert!(f.max_queued_bytes() <= 1024);
     // Once it has drained, a keyframe is wanted; queued with a notice.
     while f.poll_transmit(slow).unwrap().frame.is_some() {}
-    assert!(f.serve_keyframes());
+    assert_eq!(f.serve_keyframes(), Keyframes::Encode);
     let kf = frame(9, true, 60);
     f.push_keyframe(&kf);
     let t = f.poll_transmit(slow).unwrap();
@@ -108,7 +121,8 @@ fn notices_are_bounded_and_clients_come_and_go() {
     assert!(!f.remove_client(a));
     assert!(!f.notice(a, NoticeCode::EventRefused, "gone"));
     assert_eq!(f.poll_transmit(a), None);
-    assert!(f.is_empty() && !f.wants_keyframe() && !f.serve_keyframes());
+    assert!(f.is_empty() && !f.wants_keyframe());
+    assert_eq!(f.serve_keyframes(), Keyframes::NotWanted);
     let b = f.add_client(false);
     assert_ne!(a, b, "ids are not reused");
 }

@@ -24,8 +24,8 @@ use psao_eval::{PosedScene, View, psao_image, ray_traced_ao, rmse};
 use psao_proto::control::NoticeCode;
 use psao_proto::records::record_prefix;
 use psao_proto::{
-    ClientConfig, ClientEvent, ClientSession, Fanout, FrameSource, Offer, ServerConn, ServerEvent,
-    Transmit,
+    ClientConfig, ClientEvent, ClientSession, Fanout, FrameSource, Keyframes, Offer, ServerConn,
+    ServerEvent, Transmit,
 };
 use psao_scene::{AoParams, Camera, Pipeline, Scene};
 use psao_tests::scenes::{pipeline_config, sliding_box};
@@ -146,7 +146,7 @@ fn run(seed: u64) -> (Run, Vec<f32>, Pipeline, Scene) {
                 last_sequence = Some(f.sequence);
             }
         }
-        if fanout.serve_keyframes() {
+        if fanout.serve_keyframes() == Keyframes::Encode {
             let kf = pipeline.keyframe().unwrap();
             last_sequence = Some(kf.sequence);
             fanout.push_keyframe(&kf);

@@ -54,31 +54,21 @@ pub struct Args {
 
 /// Runs the demo: streams, prints, writes images, checks the mirrors.
 pub async fn run(args: Args) -> anyhow::Result<()> {
-    let shots = Shots::new(args.images, args.out)?;
-    demo(
-        args.seconds,
-        args.rate,
-        args.clients as usize,
-        args.density,
-        args.rays,
-        shots,
-        args.cull,
-    )
-    .await
-}
-
-async fn demo(
-    seconds: f32,
-    rate: u16,
-    clients: usize,
-    density: f32,
-    rays: u32,
-    mut shots: Shots,
-    cull: bool,
-) -> anyhow::Result<()> {
+    let Args {
+        seconds,
+        rate,
+        clients,
+        density,
+        rays,
+        images,
+        out,
+        cull,
+    } = args;
     if !(seconds > 0.0 && seconds <= 3600.0) {
         bail!("--seconds must be in (0, 3600]");
     }
+    let clients = clients as usize;
+    let mut shots = Shots::new(images, out)?;
     let identity = Identity::self_signed()?;
     let config = ServerConfig {
         frame_rate: rate,
