@@ -1,9 +1,9 @@
 //! Charts of `psao bench` (plotters, PNG): PSNR against client time for
 //! every method, and PSNR against bit rate for PSAO.
 
-use anyhow::Context as _;
 use std::path::Path;
 
+use anyhow::Context as _;
 use plotters::prelude::*;
 
 use super::images::register_fonts;

@@ -1,10 +1,10 @@
 //! Images of `psao bench`: the composited frame FLIP compares, the AO and
 //! G-buffer files of the first frame, and the side-by-side picture.
 
-use anyhow::Context as _;
 use std::path::Path;
 use std::sync::Once;
 
+use anyhow::Context as _;
 use glam::Vec3;
 use image::{ImageBuffer, Luma, Rgb, Rgb32FImage};
 use plotters::prelude::*;

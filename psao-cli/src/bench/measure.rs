@@ -25,9 +25,9 @@
 //! bit rate come from a window of consecutive ticks at the server rate
 //! after the measured frames.
 
-use anyhow::Context as _;
 use std::time::Instant;
 
+use anyhow::Context as _;
 use indicatif::ProgressBar;
 use psao_codec::{Decoder, Limits};
 use psao_eval::{
@@ -116,50 +116,46 @@ impl Settings {
     /// Checks the settings make sense.
     pub fn validate(&self) -> anyhow::Result<()> {
         if self.frames == 0 {
-            return Err(anyhow::anyhow!("--frames must be at least 1"));
+            anyhow::bail!("--frames must be at least 1");
         }
         if self.reference_rays == 0 || self.point_rays == 0 {
-            return Err(anyhow::anyhow!(
-                "--reference-rays and --point-rays must be at least 1"
-            ));
+            anyhow::bail!("--reference-rays and --point-rays must be at least 1");
         }
         if self.densities.is_empty() || self.rates.is_empty() {
-            return Err(anyhow::anyhow!(
-                "--densities and --rates need at least one value"
-            ));
+            anyhow::bail!("--densities and --rates need at least one value");
         }
         if let Some(d) = self
             .densities
             .iter()
             .find(|d| !(d.is_finite() && **d > 0.0))
         {
-            return Err(anyhow::anyhow!("density {d} is not a positive number"));
+            anyhow::bail!("density {d} is not a positive number");
         }
         if self.rates.contains(&0) {
-            return Err(anyhow::anyhow!("a server rate of 0 Hz never ticks"));
+            anyhow::bail!("a server rate of 0 Hz never ticks");
         }
         if self.backend == Backend::Gpu && !cfg!(feature = "gpu") {
-            return Err(anyhow::anyhow!(
+            anyhow::bail!(
                 "this psao was built without GPU support: cargo run --release -p psao-cli --features gpu --bin psao -- bench --backend gpu"
-            ));
+            );
         }
         if !(self.network_ms.is_finite() && (0.0..=10_000.0).contains(&self.network_ms)) {
-            return Err(anyhow::anyhow!("--network-ms must lie in [0, 10000]"));
+            anyhow::bail!("--network-ms must lie in [0, 10000]");
         }
         let pixels = self.width as u64 * self.height as u64;
         if pixels == 0 || pixels > MAX_PIXELS {
-            return Err(anyhow::anyhow!(
+            anyhow::bail!(
                 "{}x{} is {pixels} pixels; the bench takes 1 to {MAX_PIXELS}",
                 self.width,
                 self.height
-            ));
+            );
         }
         if pixels * self.frames as u64 > MAX_PIXELS * 8 {
-            return Err(anyhow::anyhow!(
+            anyhow::bail!(
                 "{} frames of {pixels} pixels is more than the bench holds ({} pixels in all)",
                 self.frames,
                 MAX_PIXELS * 8
-            ));
+            );
         }
         Ok(())
     }
@@ -608,10 +604,10 @@ fn measure_psao(
         let tick = ((ready + 1e-6) / period).floor().max(0.0) * period;
         let dt = tick - pipeline.time() as f64;
         if dt < -1e-6 {
-            return Err(anyhow::anyhow!(
+            anyhow::bail!(
                 "frame times must not go back (tick {tick:.4} s after {:.4} s)",
                 pipeline.time()
-            ));
+            );
         }
         if dt > 1e-6 {
             let (frame, _) = pipeline.step(dt as f32)?;

@@ -5,7 +5,6 @@
 //! against a per-pixel ray-traced reference. Writes a CSV, a markdown
 //! table, charts and a side-by-side image of one frame.
 
-use anyhow::Context as _;
 mod charts;
 pub mod images;
 mod measure;
@@ -13,6 +12,7 @@ mod report;
 
 use std::path::PathBuf;
 
+use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressStyle};
 use psao_scene::{Scene, cesium_man_scene, default_scene, load_gltf, stage};
 
@@ -125,9 +125,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         scenes.push((name, scene));
     }
     if scenes.is_empty() {
-        return Err(anyhow::anyhow!(
-            "no scene to bench: --only-gltf needs --gltf FILE"
-        ));
+        anyhow::bail!("no scene to bench: --only-gltf needs --gltf FILE");
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
