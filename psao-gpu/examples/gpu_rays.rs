@@ -23,7 +23,7 @@ fn main() {
     let ctx = support::open_context();
     let scene = default_scene();
     let p = support::default_pipeline(&scene, density);
-    let (ids, pts, nrm) = support::world_points(&p);
+    let (ids, pts, nrm) = psao_tests::scenes::world_points(&p);
     let cpu = PosedScene::new(&scene, 0.0).expect("poses").tracer();
     let gpu_scene = GpuScene::new(&ctx, &scene).expect("GPU scene");
     let ao = GpuAo::new(&ctx).expect("AO pass");

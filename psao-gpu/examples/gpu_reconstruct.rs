@@ -4,7 +4,7 @@
 //! psao-codec's reconstruction and psao-scene's SAO on the CPU. GPU times
 //! are given for the passes alone (inputs on the device, as in a renderer)
 //! and with uploading the inputs and reading the image back; the upload of
-//! the mirror is timed apart.
+//! the mirror is timed apart. Needs no ray queries (any Vulkan device).
 //!
 //! `cargo run --release -p psao-gpu --example gpu_reconstruct [-- --density 2048 --reps 3]`
 
@@ -21,9 +21,9 @@ use support::arg;
 fn main() {
     let density: f32 = arg("--density", 2048.0);
     let reps: u32 = arg("--reps", 3).max(1);
-    let ctx = support::open_context();
+    let ctx = support::open_client_context();
     let scene = default_scene();
-    let mut p = support::pipeline_with(&scene, density, 16);
+    let mut p = psao_tests::scenes::pipeline(&scene, density, 16);
     let mut client = Decoder::new(Limits::default());
     client
         .receive(&p.keyframe().expect("keyframe").bytes)

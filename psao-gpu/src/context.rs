@@ -1,8 +1,11 @@
-//! The device: a Vulkan adapter with ray queries, opened with the
-//! experimental ray-query feature.
+//! The device: opened here (a Vulkan adapter with ray queries for the
+//! server half, any adapter for the client half) or handed in by a
+//! renderer, and the helpers every pass uses (error scopes, buffers,
+//! pipelines, readback, timing).
+
+use std::time::Duration;
 
 use crate::error::GpuError;
-use crate::sao::PassTimes;
 
 /// A compute-stage uniform buffer binding.
 pub(crate) fn uniform_layout(binding: u32) -> wgpu::BindGroupLayoutEntry {
@@ -32,58 +35,169 @@ pub(crate) fn storage_layout(binding: u32, read_only: bool) -> wgpu::BindGroupLa
     }
 }
 
-/// A wgpu device and queue that can build acceleration structures and run
-/// ray queries.
+/// Wall-clock times of one image pass on the GPU.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PassTimes {
+    /// From submitting the passes, with their inputs already on the
+    /// device, until they finished: what a renderer that keeps its
+    /// G-buffer on the GPU pays.
+    pub passes: Duration,
+    /// Uploading the inputs, the passes and reading the image back.
+    pub total: Duration,
+}
+
+/// A wgpu device and its queue, opened here ([`new`](Self::new) with ray
+/// queries for the server half, [`new_client`](Self::new_client) without)
+/// or handed in by a renderer ([`from_device`](Self::from_device)).
+///
+/// The client half ([`GpuMirror`](crate::GpuMirror),
+/// [`GpuReconstruct`](crate::GpuReconstruct)) and the SAO baseline need
+/// only compute shaders and storage buffers
+/// ([`CLIENT_FEATURES`](Self::CLIENT_FEATURES) within
+/// [`client_limits`](Self::client_limits)); the server half (acceleration
+/// structures, point AO) also needs
+/// [`SERVER_FEATURES`](Self::SERVER_FEATURES) and says so with
+/// [`GpuError::NoRayQuery`] on a device without them.
 #[derive(Debug)]
 pub struct GpuContext {
     /// The device.
     pub device: wgpu::Device,
     /// Its queue.
     pub queue: wgpu::Queue,
-    info: wgpu::AdapterInfo,
+}
+
+/// Adapter types in the order they are preferred: a discrete GPU first,
+/// then an integrated one, then anything else (lavapipe is a CPU device).
+fn rank(t: wgpu::DeviceType) -> u8 {
+    match t {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Cpu => 3,
+        wgpu::DeviceType::Other => 4,
+    }
 }
 
 impl GpuContext {
-    /// Opens a Vulkan adapter with ray queries (a discrete GPU preferred,
-    /// then an integrated one, then a CPU driver such as lavapipe). Without a Vulkan driver, or with one lacking ray queries,
-    /// returns an error that says what to install; never panics.
-    pub fn new() -> Result<GpuContext, GpuError> {
-        pollster::block_on(Self::open())
+    /// The wgpu features the client half and the SAO baseline need: none
+    /// beyond WebGPU's core (compute shaders, storage buffers).
+    pub const CLIENT_FEATURES: wgpu::Features = wgpu::Features::empty();
+
+    /// The wgpu features the server half needs: ray queries and
+    /// acceleration structures (wgpu's experimental ray queries, which
+    /// also need `wgpu::ExperimentalFeatures` enabled when the device is
+    /// requested).
+    pub const SERVER_FEATURES: wgpu::Features = wgpu::Features::EXPERIMENTAL_RAY_QUERY;
+
+    /// The limits the client half and the SAO baseline need: wgpu's
+    /// downlevel defaults (what WebGPU and most mobile GPUs offer) with
+    /// eight storage buffers per shader stage, WebGPU's default (the
+    /// reconstruction pass binds the mirror's four and the G-buffer's
+    /// four). Larger limits let larger mirrors and images fit
+    /// (`max_storage_buffer_binding_size` bounds the bytes of one mirror
+    /// array and of one image).
+    pub fn client_limits() -> wgpu::Limits {
+        wgpu::Limits {
+            max_storage_buffers_per_shader_stage: 8,
+            ..wgpu::Limits::downlevel_defaults()
+        }
     }
 
-    async fn open() -> Result<GpuContext, GpuError> {
+    /// Opens a Vulkan adapter with ray queries, for both halves (a
+    /// discrete GPU preferred, then an integrated one, then a CPU driver
+    /// such as lavapipe). Without a Vulkan driver, or with one lacking ray
+    /// queries, returns an error that says what to install; never panics.
+    pub fn new() -> Result<GpuContext, GpuError> {
+        pollster::block_on(Self::open(true))
+    }
+
+    /// Opens the preferred adapter of any backend compiled into wgpu, ray
+    /// queries or not, for the client half and the SAO baseline only.
+    pub fn new_client() -> Result<GpuContext, GpuError> {
+        pollster::block_on(Self::open(false))
+    }
+
+    /// Wraps a renderer's own device and queue (clones of them: wgpu's
+    /// handles are shared). The client half needs no feature
+    /// ([`CLIENT_FEATURES`](Self::CLIENT_FEATURES)); the server half works
+    /// if the device was requested with
+    /// [`SERVER_FEATURES`](Self::SERVER_FEATURES). Every call of this crate
+    /// runs inside its own error scopes, so none of its errors reach the
+    /// renderer's uncaptured-error handler, which is left as it is.
+    ///
+    /// Fails with [`GpuError::Limits`], naming the first limit, when the
+    /// device's limits are below [`client_limits`](Self::client_limits).
+    pub fn from_device(device: wgpu::Device, queue: wgpu::Queue) -> Result<GpuContext, GpuError> {
+        let mut short = None;
+        Self::client_limits().check_limits_with_fail_fn(
+            &device.limits(),
+            true,
+            |what, needed, limit| {
+                short = Some(GpuError::Limits {
+                    what,
+                    needed,
+                    limit,
+                })
+            },
+        );
+        match short {
+            Some(e) => Err(e),
+            None => Ok(GpuContext { device, queue }),
+        }
+    }
+
+    async fn open(ray_queries: bool) -> Result<GpuContext, GpuError> {
+        let backends = if ray_queries {
+            wgpu::Backends::VULKAN
+        } else {
+            wgpu::Backends::all()
+        };
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
-            backends: wgpu::Backends::VULKAN,
+            backends,
             ..wgpu::InstanceDescriptor::new_without_display_handle()
         });
-        let adapters = instance.enumerate_adapters(wgpu::Backends::VULKAN).await;
+        let adapters = instance.enumerate_adapters(backends).await;
         if adapters.is_empty() {
             return Err(GpuError::NoAdapter {
-                details: "the Vulkan loader found no device".into(),
+                details: if ray_queries {
+                    "the Vulkan loader found no device".into()
+                } else {
+                    format!("wgpu found no device on {backends:?}")
+                },
             });
         }
-        let needed = wgpu::Features::EXPERIMENTAL_RAY_QUERY;
-        // Among adapters with ray queries: a discrete GPU first, then an
-        // integrated one, then anything else (lavapipe is a CPU device).
-        let rank = |t: wgpu::DeviceType| match t {
-            wgpu::DeviceType::DiscreteGpu => 0,
-            wgpu::DeviceType::IntegratedGpu => 1,
-            wgpu::DeviceType::VirtualGpu => 2,
-            wgpu::DeviceType::Cpu => 3,
-            wgpu::DeviceType::Other => 4,
+        let needed = if ray_queries {
+            Self::SERVER_FEATURES
+        } else {
+            Self::CLIENT_FEATURES
         };
-        let Some(adapter) = adapters
-            .iter()
-            .filter(|a| a.features().contains(needed))
-            .min_by_key(|a| rank(a.get_info().device_type))
-        else {
+        let client = Self::client_limits();
+        let usable = |a: &&wgpu::Adapter| {
+            a.features().contains(needed)
+                && a.get_downlevel_capabilities()
+                    .flags
+                    .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS)
+                && client.check_limits(&a.limits())
+        };
+        let Some(adapter) = adapters.iter().filter(usable).min_by_key(|a| {
+            let info = a.get_info();
+            (rank(info.device_type), info.backend == wgpu::Backend::Gl)
+        }) else {
+            if !ray_queries {
+                let info = adapters[0].get_info();
+                return Err(GpuError::NoAdapter {
+                    details: format!(
+                        "`{}` ({:?}) lacks compute shaders or the client limits",
+                        info.name, info.backend
+                    ),
+                });
+            }
             let info = adapters[0].get_info();
             return Err(GpuError::NoRayQuery {
                 adapter: info.name.clone(),
                 driver: format!("{} {}", info.driver, info.driver_info),
             });
         };
-        let info = adapter.get_info();
         // SAFETY: `ExperimentalFeatures::enabled` is `unsafe` because wgpu's
         // experimental APIs (ray queries, acceleration structures) may still
         // hit undefined behaviour through otherwise safe calls when used
@@ -94,9 +208,16 @@ impl GpuContext {
         // `GpuScene::place`), every BLAS lives as long as the `GpuScene`
         // whose TLAS refers to it and none is compacted, and ray queries run
         // only in the compute passes of this crate, whose results the tests
-        // compare with the CPU backend.
-        #[allow(unsafe_code)]
-        let experimental = unsafe { wgpu::ExperimentalFeatures::enabled() };
+        // compare with the CPU backend. Without ray queries nothing
+        // experimental is enabled.
+        let experimental = if ray_queries {
+            #[allow(unsafe_code)]
+            unsafe {
+                wgpu::ExperimentalFeatures::enabled()
+            }
+        } else {
+            wgpu::ExperimentalFeatures::disabled()
+        };
         let (device, queue) = adapter
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("psao-gpu"),
@@ -116,18 +237,38 @@ impl GpuContext {
         device.on_uncaptured_error(std::sync::Arc::new(|e: wgpu::Error| {
             eprintln!("psao-gpu: uncaptured GPU error: {e}");
         }));
-        Ok(GpuContext {
-            device,
-            queue,
-            info,
+        Self::from_device(device, queue)
+    }
+
+    /// Whether the device was opened with ray queries
+    /// ([`SERVER_FEATURES`](Self::SERVER_FEATURES)), which the server half
+    /// needs.
+    pub fn has_ray_queries(&self) -> bool {
+        self.device.features().contains(Self::SERVER_FEATURES)
+    }
+
+    /// [`GpuError::NoRayQuery`] unless the device has ray queries.
+    #[cfg_attr(not(feature = "server"), allow(dead_code))]
+    pub(crate) fn require_ray_queries(&self) -> Result<(), GpuError> {
+        if self.has_ray_queries() {
+            return Ok(());
+        }
+        let info = self.device.adapter_info();
+        Err(GpuError::NoRayQuery {
+            adapter: info.name,
+            driver: format!(
+                "{} {} (device opened without ray queries)",
+                info.driver, info.driver_info
+            ),
         })
     }
 
     /// The adapter's name, backend and driver, for reports.
     pub fn describe(&self) -> String {
+        let info = self.device.adapter_info();
         format!(
             "{} ({:?}, {} {})",
-            self.info.name, self.info.backend, self.info.driver, self.info.driver_info
+            info.name, info.backend, info.driver, info.driver_info
         )
     }
 

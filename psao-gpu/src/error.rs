@@ -4,10 +4,11 @@ use thiserror::Error;
 
 /// What went wrong on the GPU side.
 #[derive(Clone, Debug, Error)]
+#[non_exhaustive]
 pub enum GpuError {
-    /// No Vulkan adapter at all.
+    /// No usable adapter at all.
     #[error(
-        "no Vulkan adapter with ray queries: no Vulkan adapter found ({details}); install a Vulkan driver (on a machine without a GPU: Mesa's lavapipe, package mesa-vulkan-drivers 25 or later, e.g. from Debian bookworm-backports)"
+        "no usable GPU adapter: {details}; install a Vulkan driver (on a machine without a GPU: Mesa's lavapipe, package mesa-vulkan-drivers, 25 or later for ray queries, e.g. from Debian bookworm-backports)"
     )]
     NoAdapter {
         /// What wgpu said.
@@ -53,7 +54,8 @@ pub enum GpuError {
     /// Inputs that do not fit together.
     #[error("bad input: {0}")]
     Input(String),
-    /// A scene error (validation, pose).
+    /// A scene error (validation, pose, SAO inputs).
+    #[cfg(any(feature = "server", feature = "baseline"))]
     #[error(transparent)]
     Scene(#[from] psao_scene::SceneError),
 }

@@ -3,11 +3,11 @@
 //! so that the client's reconstruction ([`crate::GpuReconstruct`]) and SAO
 //! can be timed on one device.
 
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use psao_eval::{SaoParams, View};
 
-use crate::context::{GpuContext, storage_layout, uniform_layout};
+use crate::context::{GpuContext, PassTimes, storage_layout, uniform_layout};
 use crate::error::GpuError;
 
 const WORKGROUP: u32 = 64;
@@ -15,17 +15,6 @@ const WORKGROUP: u32 = 64;
 /// Most pyramid levels the shader's level table holds (`mip_levels` is at
 /// most 15, [`SaoParams::validate`]).
 const LEVELS: usize = 16;
-
-/// Wall-clock times of one image pass on the GPU.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct PassTimes {
-    /// From submitting the passes, with their inputs already on the
-    /// device, until they finished: what a renderer that keeps its
-    /// G-buffer on the GPU pays.
-    pub passes: Duration,
-    /// Uploading the inputs, the passes and reading the image back.
-    pub total: Duration,
-}
 
 /// The shader's `Params`.
 #[repr(C)]

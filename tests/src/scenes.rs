@@ -1,8 +1,9 @@
 //! Small scenes for tests: a floor and a box sliding over it, so that
-//! something changes every frame, and the pipeline settings tests use.
+//! something changes every frame, the pipeline settings tests use, and the
+//! points of a pipeline in world space.
 
 use glam::{Affine3A, Vec3};
-use psao_scene::{Animation, Mesh, PipelineConfig, Scene, Trs};
+use psao_scene::{Animation, Mesh, Pipeline, PipelineConfig, Scene, Trs};
 
 /// A 6 m floor (subdivided twice) and a 0.6 m box sliding over it from
 /// x = -2 to 2 and back over 4 s.
@@ -30,4 +31,31 @@ pub fn sliding_box() -> Scene {
 /// point, the rest default.
 pub fn pipeline_config(density: f32, rays: u32) -> PipelineConfig {
     PipelineConfig::with_density_and_rays(density, rays)
+}
+
+/// A pipeline over `scene` with [`pipeline_config`]`(density, rays)`.
+///
+/// # Panics
+/// If the scene does not build (tests pass scenes that do).
+pub fn pipeline(scene: &Scene, density: f32, rays: u32) -> Pipeline {
+    Pipeline::new(scene.clone(), pipeline_config(density, rays)).expect("the scene builds")
+}
+
+/// Every point of the pipeline's instances in world space (ids numbered
+/// across instances, positions, unit normals), to trace with another
+/// backend.
+pub fn world_points(p: &Pipeline) -> (Vec<u32>, Vec<Vec3>, Vec<Vec3>) {
+    let (mut ids, mut pts, mut nrm) = (Vec::new(), Vec::new(), Vec::new());
+    for i in 0..p.instance_count() {
+        let (Some((pos, n)), Some(t)) = (p.current_points(i), p.transform(i)) else {
+            continue;
+        };
+        let nm = psao_scene::normal_matrix(&t);
+        for k in 0..pos.len() {
+            ids.push(ids.len() as u32);
+            pts.push(t.transform_point3(pos[k]));
+            nrm.push((nm * n[k]).normalize());
+        }
+    }
+    (ids, pts, nrm)
 }

@@ -1,9 +1,9 @@
-//! What the psao-gpu examples (and `tests/gpu_vs_cpu.rs`) share:
-//! argument reading, pipelines and the server points of a pipeline.
+//! What the psao-gpu examples share: argument reading, the device, a
+//! pipeline and timing (pipelines and world points come from the test kit,
+//! `psao_tests::scenes`).
 
 use std::time::Instant;
 
-use glam::Vec3;
 use psao_gpu::GpuContext;
 use psao_scene::{Pipeline, PipelineConfig, Scene};
 
@@ -22,41 +22,25 @@ pub fn arg<T: std::str::FromStr>(name: &str, default: T) -> T {
 /// `density` kept points per m^2, otherwise the defaults.
 #[allow(dead_code)]
 pub fn default_pipeline(scene: &Scene, density: f32) -> Pipeline {
-    pipeline_with(scene, density, PipelineConfig::default().ao.rays)
+    psao_tests::scenes::pipeline(scene, density, PipelineConfig::default().ao.rays)
 }
 
-/// [`default_pipeline`] with `rays` AO rays per point.
-#[allow(dead_code)]
-pub fn pipeline_with(scene: &Scene, density: f32, rays: u32) -> Pipeline {
-    Pipeline::new(
-        scene.clone(),
-        PipelineConfig::with_density_and_rays(density, rays),
-    )
-    .expect("the scene builds")
-}
-
-/// Every point of the pipeline's instances in world space, with ids.
-#[allow(dead_code)]
-pub fn world_points(p: &Pipeline) -> (Vec<u32>, Vec<Vec3>, Vec<Vec3>) {
-    let (mut ids, mut pts, mut nrm) = (Vec::new(), Vec::new(), Vec::new());
-    for i in 0..p.instance_count() {
-        let (Some((pos, n)), Some(t)) = (p.current_points(i), p.transform(i)) else {
-            continue;
-        };
-        let nm = t.matrix3.inverse().transpose();
-        for k in 0..pos.len() {
-            ids.push(ids.len() as u32);
-            pts.push(t.transform_point3(pos[k]));
-            nrm.push((nm * n[k]).normalize());
-        }
-    }
-    (ids, pts, nrm)
-}
-
-/// The device, or exit with status 2 and the error (what to install).
+/// The device with ray queries, or exit with status 2 and the error (what
+/// to install).
 #[allow(dead_code)]
 pub fn open_context() -> GpuContext {
-    GpuContext::new().unwrap_or_else(|e| {
+    exit_on_error(GpuContext::new())
+}
+
+/// A device for the client half and SAO only (ray queries or not), or exit
+/// with status 2 and the error.
+#[allow(dead_code)]
+pub fn open_client_context() -> GpuContext {
+    exit_on_error(GpuContext::new_client())
+}
+
+fn exit_on_error(c: Result<GpuContext, psao_gpu::GpuError>) -> GpuContext {
+    c.unwrap_or_else(|e| {
         eprintln!("error: {e}");
         std::process::exit(2)
     })

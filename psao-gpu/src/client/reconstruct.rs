@@ -1,21 +1,20 @@
 //! The client's reconstruction on the GPU: `reconstruct.wgsl` (which a
 //! renderer can include in its own shaders, [`RECONSTRUCT_WGSL`]) run as a
-//! compute pass over a G-buffer.
+//! compute pass over a G-buffer. Needs no ray queries: compute shaders and
+//! eight storage buffers per stage ([`GpuContext::client_limits`]).
 
 use std::time::Instant;
 
-use psao_eval::{GBuffer, NO_INSTANCE};
-
-use crate::context::{GpuContext, storage_layout, uniform_layout};
+use crate::client::gbuffer::{GBufferSlices, NO_INSTANCE};
+use crate::client::mirror::GpuMirror;
+use crate::context::{GpuContext, PassTimes, storage_layout, uniform_layout};
 use crate::error::GpuError;
-use crate::mirror::GpuMirror;
-use crate::sao::PassTimes;
 
 /// The reconstruction functions and their bindings (group 0, bindings
 /// 0-3: instances, bucket entries, point words, normal table; see
 /// [`GpuMirror::bind_entries`]). Call `psao_ao(instance, world_position,
 /// world_normal)` from any shader stage.
-pub const RECONSTRUCT_WGSL: &str = include_str!("shaders/reconstruct.wgsl");
+pub const RECONSTRUCT_WGSL: &str = include_str!("../shaders/reconstruct.wgsl");
 
 const WORKGROUP: u32 = 64;
 
@@ -33,7 +32,7 @@ impl GpuReconstruct {
         ctx.checked("reconstruction shader compilation", || {
             let source = format!(
                 "{RECONSTRUCT_WGSL}\n{}",
-                include_str!("shaders/reconstruct_pass.wgsl")
+                include_str!("../shaders/reconstruct_pass.wgsl")
             );
             let mirror_layout =
                 ctx.device
@@ -73,24 +72,27 @@ impl GpuReconstruct {
 
     /// AO per pixel of `g` from the mirror on the GPU (1 where nothing was
     /// hit or the instance cannot be sampled), read back to the host.
-    pub fn run(
+    /// `g` is a [`GBufferSlices`] or anything that turns into one
+    /// (psao-eval's `&GBuffer`, with the feature `baseline`).
+    pub fn run<'a>(
         &self,
         ctx: &GpuContext,
         mirror: &GpuMirror,
-        g: &GBuffer,
+        g: impl Into<GBufferSlices<'a>>,
     ) -> Result<Vec<f32>, GpuError> {
         self.run_timed(ctx, mirror, g).map(|r| r.0)
     }
 
     /// [`run`](Self::run), with how long the pass and the whole call took
     /// (the mirror is already on the device).
-    pub fn run_timed(
+    pub fn run_timed<'a>(
         &self,
         ctx: &GpuContext,
         mirror: &GpuMirror,
-        g: &GBuffer,
+        g: impl Into<GBufferSlices<'a>>,
     ) -> Result<(Vec<f32>, PassTimes), GpuError> {
         let start = Instant::now();
+        let g = g.into();
         g.check()?;
         let n = g.pixels();
         if n == 0 {

@@ -6,10 +6,10 @@ use glam::{Affine3A, Vec3};
 use psao_codec::{SentPoint, Thresholds};
 use psao_scene::{AoBackend, AoParams, AoResult, ChangedPoints, Scene, SceneError};
 
-use crate::accel::GpuScene;
-use crate::ao::GpuAo;
 use crate::context::GpuContext;
 use crate::error::GpuError;
+use crate::server::accel::GpuScene;
+use crate::server::ao::GpuAo;
 
 /// Ray-query AO for a server pipeline ([`psao_scene::Pipeline::with_backend`]).
 #[derive(Debug)]

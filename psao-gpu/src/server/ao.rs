@@ -7,9 +7,9 @@
 use psao_codec::{SentPoint, Thresholds, normal_table};
 use psao_scene::{AoParams, AoResult, ChangedPoints, Estimator, morton_order};
 
-use crate::accel::GpuScene;
 use crate::context::{GpuContext, storage_layout, uniform_layout};
 use crate::error::GpuError;
+use crate::server::accel::GpuScene;
 
 /// Threads per workgroup of the AO pass (the shader's `workgroup_size`).
 const WORKGROUP: u32 = 64;
@@ -134,6 +134,7 @@ impl Sorted {
 impl GpuAo {
     /// Compiles the AO pass.
     pub fn new(ctx: &GpuContext) -> Result<GpuAo, GpuError> {
+        ctx.require_ray_queries()?;
         ctx.checked("AO shader compilation", || {
             let layout = ctx
                 .device
@@ -159,7 +160,7 @@ impl GpuAo {
                 });
             let pipeline = ctx.compute_pipeline(
                 "psao-gpu ao.wgsl",
-                include_str!("shaders/ao.wgsl"),
+                include_str!("../shaders/ao.wgsl"),
                 &[&layout],
             );
             let compare_layout =
@@ -179,7 +180,7 @@ impl GpuAo {
                     });
             let compare = ctx.compute_pipeline(
                 "psao-gpu changed.wgsl",
-                include_str!("shaders/changed.wgsl"),
+                include_str!("../shaders/changed.wgsl"),
                 &[&compare_layout],
             );
             let table: Vec<[f32; 4]> = normal_table()
@@ -549,7 +550,7 @@ mod tests {
 
     #[test]
     fn the_shader_declares_the_hosts_lanes_and_workgroup_size() {
-        let src = include_str!("shaders/ao.wgsl");
+        let src = include_str!("../shaders/ao.wgsl");
         for decl in [
             format!("const LANES: u32 = {LANES}u;"),
             format!("@workgroup_size({WORKGROUP})"),

@@ -7,9 +7,9 @@
 
 use psao_scene::Scene;
 
-use crate::alpha::AlphaTables;
 use crate::context::GpuContext;
 use crate::error::GpuError;
+use crate::server::alpha::AlphaTables;
 
 /// One BLAS with its input buffers.
 #[derive(Debug)]
@@ -312,6 +312,7 @@ impl GpuScene {
         scene: &Scene,
         order: TriangleOrder,
     ) -> Result<GpuScene, GpuError> {
+        ctx.require_ray_queries()?;
         scene.validate()?;
         let limits = ctx.device.limits();
         for m in &scene.meshes {
