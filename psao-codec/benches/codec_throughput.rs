@@ -1,5 +1,5 @@
 //! Codec throughput and bit rate on a synthetic update stream
-//! (`examples/support/synthetic.rs`): AO drifting over a 16 m floor and a
+//! (the test kit's `psao_tests::synthetic`): AO drifting over a 16 m floor and a
 //! wall, and a box moving between cells.
 //!
 //! Measured in one run, side by side, as ratios:
@@ -17,10 +17,6 @@
 //!
 //! `cargo bench -p psao-codec --bench codec_throughput`
 
-#[path = "../examples/support/synthetic.rs"]
-#[allow(dead_code)]
-mod synthetic;
-
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
@@ -28,7 +24,7 @@ use psao_codec::{
     Compression, Decoder, DirtySet, EncodedFrame, Encoder, EncoderConfig, Event, GridTable, Limits,
     Thresholds,
 };
-use synthetic::Synthetic;
+use psao_tests::synthetic::Synthetic;
 
 const FRAMES: usize = 120;
 

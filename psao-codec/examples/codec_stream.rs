@@ -1,5 +1,5 @@
 //! The codec end to end, in one process, on the synthetic scene of
-//! `examples/support/synthetic.rs`: 10 s at 60 Hz of a box sliding over a
+//! the test kit (`psao_tests::synthetic`): 10 s at 60 Hz of a box sliding over a
 //! floor with AO drifting. A server table streams deltas (zstd, checksum) to
 //! client A; client B joins late from a keyframe; client A loses a frame,
 //! asks for a keyframe and resyncs. At the end both mirrors must equal the
@@ -8,13 +8,10 @@
 //!
 //! `cargo run --release -p psao-codec --example codec_stream`
 
-#[path = "support/synthetic.rs"]
-mod synthetic;
-
 use std::time::{Duration, Instant};
 
 use psao_codec::{Decoder, Encoder, EncoderConfig, Event, Limits, Thresholds, reconstruct_ao};
-use synthetic::Synthetic;
+use psao_tests::synthetic::Synthetic;
 
 const FRAMES: u32 = 600;
 const HZ: f64 = 60.0;

@@ -13,10 +13,7 @@ use std::path::PathBuf;
 use glam::UVec3;
 use psao_codec::{Decoder, InstanceDef, Limits};
 
-#[path = "../tests/common/raw.rs"]
-mod raw;
-
-use raw::*;
+use psao_tests::raw::*;
 
 // ---- vectors ----
 

@@ -4,9 +4,10 @@
 
 mod common;
 
-use common::{raw, small_def};
+use common::small_def;
 use glam::Vec3;
 use psao_codec::*;
+use psao_tests::raw;
 
 fn synced(limits: Limits) -> Decoder {
     let mut d = Decoder::new(limits);

@@ -47,7 +47,7 @@ fn replay(path: &PathBuf) -> BTreeSet<String> {
                 if let Err(e) = &result {
                     errors.insert(e.code().to_string());
                 }
-                last = Some(common::raw::outcome(&result));
+                last = Some(psao_tests::raw::outcome(&result));
             }
             "expect" => {
                 assert_eq!(last.take().as_deref(), Some(rest), "{name}: outcome");

@@ -3,13 +3,25 @@
 //! The shared test kit of the psao workspace and, in `tests/`, the tests
 //! that cross crates (modelled on rustls's `rustls-test`):
 //!
-//! - [`relay`]: a lossy, reordering UDP relay for QUIC over loopback;
-//! - [`scenes`]: small scenes where something changes every frame;
+//! - [`raw`]: messages and frames built byte by byte from
+//!   spec/wire-format.md, not with psao-codec's writer;
+//! - [`synthetic`]: a synthetic server stream (a floor, a wall, a sliding
+//!   box, drifting AO) for the codec's benches and examples;
 //! - [`sim`]: a simulated link on a virtual clock (latency, jitter, loss,
 //!   bandwidth), seeded, for driving the sans-IO cores without sockets;
+//! - `scenes` (feature `scenes`): small scenes where something changes
+//!   every frame, pipelines over them, their points in world space;
+//! - `relay` (feature `relay`): a lossy, reordering UDP relay for QUIC
+//!   over loopback.
 //!
-//! Nothing here ships in a library crate's public API.
+//! Without default features only psao-codec comes with it, so the codec's
+//! own tests use it without building the rest of the workspace. Nothing
+//! here ships in a library crate's public API.
 
+pub mod raw;
+#[cfg(feature = "relay")]
 pub mod relay;
+#[cfg(feature = "scenes")]
 pub mod scenes;
 pub mod sim;
+pub mod synthetic;

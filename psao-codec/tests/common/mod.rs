@@ -49,5 +49,3 @@ pub fn assert_mirrors(decoder: &Decoder, table: &GridTable) {
     assert_eq!(m.buckets(), table.buckets(), "buckets of {}", table.id());
     assert_eq!(m.words(), table.words(), "words of {}", table.id());
 }
-
-pub mod raw;

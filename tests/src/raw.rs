@@ -1,20 +1,23 @@
 //! Raw builders for messages and frames, written straight from
-//! spec/wire-format.md (not with the crate's writer), shared by the tests
-//! and `examples/gen_vectors.rs`.
-#![allow(dead_code, missing_docs)]
+//! spec/wire-format.md (not with psao-codec's writer), shared by the codec's
+//! tests and psao-codec's `examples/gen_vectors.rs` (the spec's vectors).
+//! Field names and byte orders are the spec's.
 
 use glam::{UVec3, Vec3};
 use psao_codec::point::{PointFields, PointWord};
 use psao_codec::{DecodeError, Event, InstanceDef};
 
+/// Appends `v` as 4 little-endian bytes.
 pub fn u32le(out: &mut Vec<u8>, v: u32) {
     out.extend_from_slice(&v.to_le_bytes());
 }
 
+/// Appends `v` as 4 little-endian bytes (IEEE 754).
 pub fn f32le(out: &mut Vec<u8>, v: f32) {
     out.extend_from_slice(&v.to_le_bytes());
 }
 
+/// Appends `v` as a LEB128 varint.
 pub fn varint(out: &mut Vec<u8>, mut v: u32) {
     while v >= 0x80 {
         out.push(v as u8 | 0x80);
@@ -23,6 +26,7 @@ pub fn varint(out: &mut Vec<u8>, mut v: u32) {
     out.push(v as u8);
 }
 
+/// Appends an index list: count, then first index and gaps as varints.
 pub fn index_list(out: &mut Vec<u8>, idx: &[u32]) {
     let mut next = 0u32;
     for &i in idx {
@@ -31,6 +35,7 @@ pub fn index_list(out: &mut Vec<u8>, idx: &[u32]) {
     }
 }
 
+/// Appends `vals` byte-plane by byte-plane (all low bytes first).
 pub fn planar(out: &mut Vec<u8>, vals: &[u32]) {
     for b in 0..4 {
         out.extend(vals.iter().map(|v| (v >> (8 * b)) as u8));
@@ -80,6 +85,7 @@ pub fn define(id: u32, d: &InstanceDef) -> Vec<u8> {
     o
 }
 
+/// RemoveInstance.
 pub fn remove(id: u32) -> Vec<u8> {
     let mut o = vec![0x02];
     u32le(&mut o, id);
@@ -97,6 +103,7 @@ pub fn transform(id: u32, seq: u32, tx: f32) -> Vec<u8> {
     o
 }
 
+/// BucketEntries: per bucket, its entries as (key, cell).
 pub fn buckets(id: u32, list: &[(u32, &[(u32, u32)])]) -> Vec<u8> {
     let mut o = vec![0x04];
     u32le(&mut o, id);
@@ -110,6 +117,7 @@ pub fn buckets(id: u32, list: &[(u32, &[(u32, u32)])]) -> Vec<u8> {
     o
 }
 
+/// CellWords, full words: per cell, its words.
 pub fn cells_full(id: u32, list: &[(u32, &[u32])]) -> Vec<u8> {
     let mut o = vec![0x05];
     u32le(&mut o, id);
@@ -126,6 +134,7 @@ pub fn cells_full(id: u32, list: &[(u32, &[u32])]) -> Vec<u8> {
     o
 }
 
+/// CellWords, XOR against the held words: per cell, its count and words.
 pub fn cells_xor(id: u32, list: &[(u32, u8, &[u32])]) -> Vec<u8> {
     let mut o = vec![0x06];
     u32le(&mut o, id);
@@ -142,6 +151,7 @@ pub fn cells_xor(id: u32, list: &[(u32, u8, &[u32])]) -> Vec<u8> {
     o
 }
 
+/// CellAo: per cell, its count and AO bytes.
 pub fn cells_ao(id: u32, list: &[(u32, u8, &[u8])]) -> Vec<u8> {
     let mut o = vec![0x07];
     u32le(&mut o, id);
@@ -152,6 +162,7 @@ pub fn cells_ao(id: u32, list: &[(u32, u8, &[u8])]) -> Vec<u8> {
     o
 }
 
+/// FreeCells.
 pub fn free(id: u32, cells: &[u32]) -> Vec<u8> {
     let mut o = vec![0x08];
     u32le(&mut o, id);
@@ -160,8 +171,10 @@ pub fn free(id: u32, cells: &[u32]) -> Vec<u8> {
     o
 }
 
+/// EndOfFrame.
 pub const END: [u8; 1] = [0x00];
 
+/// A packed32 point word from its fields.
 pub fn word(pos: [u32; 3], normal: u8, ao: u8) -> u32 {
     PointWord::pack(PointFields {
         position: UVec3::from(pos),
@@ -171,18 +184,26 @@ pub fn word(pos: [u32; 3], normal: u8, ao: u8) -> u32 {
     .0
 }
 
+/// A frame header and its messages, to be written by [`Frame::bytes`].
 #[derive(Clone)]
 pub struct Frame {
+    /// The header's `keyframe`.
     pub keyframe: bool,
+    /// The header's `checksum`.
     pub checksum: bool,
+    /// The header's `compression`.
     pub compression: u8,
+    /// The header's `seq`.
     pub seq: u32,
+    /// The header's `base`.
     pub base: u32,
+    /// The header's `messages`.
     pub messages: Vec<Vec<u8>>,
     /// Overrides `message_count` (default: number of messages).
     pub count: Option<u32>,
 }
 
+/// An uncompressed keyframe without checksum at `seq`.
 pub fn key(seq: u32, messages: Vec<Vec<u8>>) -> Frame {
     Frame {
         keyframe: true,
@@ -195,6 +216,7 @@ pub fn key(seq: u32, messages: Vec<Vec<u8>>) -> Frame {
     }
 }
 
+/// An uncompressed delta from `base` to `seq` without checksum.
 pub fn delta(seq: u32, base: u32, messages: Vec<Vec<u8>>) -> Frame {
     Frame {
         keyframe: false,
@@ -204,6 +226,7 @@ pub fn delta(seq: u32, base: u32, messages: Vec<Vec<u8>>) -> Frame {
 }
 
 impl Frame {
+    /// The frame on the wire: header, (compressed) payload, checksum.
     pub fn bytes(&self) -> Vec<u8> {
         let payload: Vec<u8> = self.messages.concat();
         let wire = match self.compression {
