@@ -10,7 +10,7 @@ use bytes::{Bytes, BytesMut};
 use glam::Affine3A;
 use psao_codec::{Compression, DecodeError, Decoder, Event, FrameHeader, Limits, Mirror};
 
-use crate::codes::{Close, CloseCode};
+use crate::codes::SessionError;
 use crate::control::{
     CameraPose, Control, ControlReader, Hello, KeyframeReason, NoticeCode, VERSION, Welcome,
 };
@@ -209,7 +209,7 @@ impl ClientSession {
     }
 
     /// Bytes from the control stream.
-    pub fn on_control(&mut self, mut input: &[u8]) -> Result<(), Close> {
+    pub fn on_control(&mut self, mut input: &[u8]) -> Result<(), SessionError> {
         while !input.is_empty() {
             let Some(msg) = self.control.read(&mut input)? else {
                 break;
@@ -221,9 +221,8 @@ impl ClientSession {
                         || w.max_frame_bytes > self.config.limits.max_frame_bytes.max(65_536)
                         || w.max_payload_bytes > self.config.limits.max_payload_bytes.max(65_536)
                     {
-                        return Err(Close::new(
-                            CloseCode::CapabilityMismatch,
-                            "WELCOME chose what HELLO did not offer",
+                        return Err(SessionError::CapabilityMismatch(
+                            "WELCOME chose what HELLO did not offer".into(),
                         ));
                     }
                     self.records.limit(w.max_frame_bytes);
@@ -241,13 +240,10 @@ impl ClientSession {
                     self.push_event(ClientEvent::Notice { code, text });
                 }
                 other => {
-                    return Err(Close::new(
-                        CloseCode::ProtocolViolation,
-                        format!(
-                            "control message 0x{:02x} is not for a client here",
-                            other.kind()
-                        ),
-                    ));
+                    return Err(SessionError::Unexpected {
+                        kind: other.kind(),
+                        rule: "is not for a client here",
+                    });
                 }
             }
         }
@@ -255,7 +251,7 @@ impl ClientSession {
     }
 
     /// Bytes from the frame stream.
-    pub fn on_frames(&mut self, mut input: &[u8]) -> Result<(), Close> {
+    pub fn on_frames(&mut self, mut input: &[u8]) -> Result<(), SessionError> {
         while !input.is_empty() {
             let Some(frame) = self.records.read(&mut input)? else {
                 break;
@@ -275,7 +271,7 @@ impl ClientSession {
     /// mirror as it was and asks for a keyframe; the session must close
     /// (the error says how) when [`MAX_FAILED_KEYFRAMES`] keyframes in a
     /// row failed, since asking again would not help.
-    pub fn apply(&mut self, frame: &[u8]) -> Result<(), Close> {
+    pub fn apply(&mut self, frame: &[u8]) -> Result<(), SessionError> {
         let header = FrameHeader::parse(frame).ok();
         let is_keyframe = header.is_some_and(|h| h.keyframe);
         if let (Some(h), Some(w)) = (header, &self.welcome) {
@@ -331,19 +327,15 @@ impl ClientSession {
     }
 
     /// Counts a failed frame against the keyframes-in-a-row limit.
-    fn keyframe_failed(&mut self, keyframe: bool) -> Result<(), Close> {
+    fn keyframe_failed(&mut self, keyframe: bool) -> Result<(), SessionError> {
         if !keyframe {
             return Ok(());
         }
         self.failed_keyframes += 1;
         if self.failed_keyframes >= MAX_FAILED_KEYFRAMES {
-            return Err(Close::new(
-                CloseCode::CapabilityMismatch,
-                format!(
-                    "{} keyframes in a row failed to decode",
-                    self.failed_keyframes
-                ),
-            ));
+            return Err(SessionError::KeyframesFailed {
+                failed: self.failed_keyframes,
+            });
         }
         Ok(())
     }
@@ -368,16 +360,13 @@ impl ClientSession {
     /// frame stream has finished the server was shutting down and its
     /// close was lost on the way, so `server_shutdown`; before that,
     /// `internal_error` (spec/session.md 5.3 and 7).
-    pub fn transport_lost(&self, why: &str) -> Close {
+    pub fn transport_lost(&self, why: &str) -> SessionError {
         if self.frames_finished() {
-            Close::new(
-                CloseCode::ServerShutdown,
-                format!(
-                    "the server finished its frames, then the connection ended without its close: {why}"
-                ),
-            )
+            SessionError::ServerGone {
+                how: format!("then the connection ended without its close: {why}"),
+            }
         } else {
-            Close::new(CloseCode::InternalError, why.to_string())
+            SessionError::Transport(why.to_string())
         }
     }
 
@@ -408,15 +397,14 @@ impl ClientSession {
     /// (the error, for the I/O layer to close with).
     ///
     /// [`poll_timeout`]: ClientSession::poll_timeout
-    pub fn handle_timeout(&mut self, now: Instant) -> Result<(), Close> {
+    pub fn handle_timeout(&mut self, now: Instant) -> Result<(), SessionError> {
         self.now = Some(self.now.map_or(now, |t| t.max(now)));
         if let Some(done) = self.frames_finished
             && now.saturating_duration_since(done) >= CLOSE_AFTER_FRAMES
         {
-            return Err(Close::new(
-                CloseCode::ServerShutdown,
-                "the server finished its frames, and its close did not arrive",
-            ));
+            return Err(SessionError::ServerGone {
+                how: "and its close did not arrive".into(),
+            });
         }
         self.retry_request(now);
         Ok(())

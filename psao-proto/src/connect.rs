@@ -10,7 +10,7 @@ use bytes::Bytes;
 use tokio::sync::{Notify, mpsc};
 
 use crate::client::{ClientConfig, ClientSession};
-use crate::codes::{Close, CloseCode};
+use crate::codes::{Close, CloseCode, SessionError};
 use crate::control::CameraPose;
 use crate::tls::{TlsError, Trust, client_config};
 
@@ -190,7 +190,7 @@ fn close_after(reason: quinn::ConnectionError, session: &ClientSession) -> Close
         quinn::ConnectionError::ApplicationClosed(_) | quinn::ConnectionError::LocallyClosed => {
             close_of_error(reason)
         }
-        e if session.frames_finished() => session.transport_lost(&e.to_string()),
+        e if session.frames_finished() => session.transport_lost(&e.to_string()).into(),
         e => close_of_error(e),
     }
 }
@@ -212,7 +212,7 @@ async fn run(
     let mut frames: Option<quinn::RecvStream> = None;
     let mut cbuf = vec![0u8; 4096];
     let mut fbuf = vec![0u8; 64 * 1024];
-    let outcome: Result<(), Close> = async {
+    let outcome: Result<(), SessionError> = async {
         loop {
             // Time first: the session repeats an unanswered keyframe
             // request and ends itself when a close never followed the
@@ -230,19 +230,19 @@ async fn run(
             if let Some(b) = out {
                 send.write_all(&b)
                     .await
-                    .map_err(|e| Close::new(CloseCode::NoError, e.to_string()))?;
+                    .map_err(|e| SessionError::Ended(e.to_string().into()))?;
             }
             tokio::select! {
                 r = recv.read(&mut cbuf) => {
                     match r {
                         Ok(Some(n)) => lock(&shared.session).on_control(&cbuf[..n])?,
-                        Ok(None) => return Err(Close::new(CloseCode::ProtocolViolation, "the server finished the control stream")),
-                        Err(quinn::ReadError::Reset(_)) => return Err(Close::new(CloseCode::ProtocolViolation, "the server reset the control stream")),
-                        Err(e) => return Err(Close::new(CloseCode::InternalError, e.to_string())),
+                        Ok(None) => return Err(SessionError::StreamMisused("the server finished the control stream")),
+                        Err(quinn::ReadError::Reset(_)) => return Err(SessionError::StreamMisused("the server reset the control stream")),
+                        Err(e) => return Err(SessionError::Transport(e.to_string())),
                     }
                 }
                 s = conn.accept_uni(), if frames.is_none() => {
-                    frames = Some(s.map_err(|e| Close::new(CloseCode::NoError, e.to_string()))?);
+                    frames = Some(s.map_err(|e| SessionError::Ended(e.to_string().into()))?);
                 }
                 r = async { frames.as_mut().expect("guarded").read(&mut fbuf).await }, if frames.is_some() && !frames_done => {
                     match r {
@@ -266,8 +266,8 @@ async fn run(
                             }
                         }
                         Ok(None) => lock(&shared.session).on_frames_finished(std::time::Instant::now()),
-                        Err(quinn::ReadError::Reset(_)) => return Err(Close::new(CloseCode::ProtocolViolation, "the server reset the frame stream")),
-                        Err(e) => return Err(Close::new(CloseCode::InternalError, e.to_string())),
+                        Err(quinn::ReadError::Reset(_)) => return Err(SessionError::StreamMisused("the server reset the frame stream")),
+                        Err(e) => return Err(SessionError::Transport(e.to_string())),
                     }
                 }
                 _ = async { tokio::time::sleep_until(tokio::time::Instant::from_std(wake.expect("guarded"))).await }, if wake.is_some() => {}
@@ -277,7 +277,7 @@ async fn run(
                         Some(Uplink::Camera(c)) => { s.send_camera(c); }
                         Some(Uplink::Move(i, t)) => s.send_move(i, t),
                         // The handle is gone: end the session.
-                        None => return Err(Close::new(CloseCode::NoError, "client dropped")),
+                        None => return Err(SessionError::Ended("client dropped".into())),
                     }
                 }
             }
@@ -291,7 +291,7 @@ async fn run(
         Some(e) => close_after(e, &lock(&shared.session)),
         None => {
             let close = match outcome {
-                Err(c) => c,
+                Err(e) => Close::from(e),
                 Ok(()) => Close::new(CloseCode::NoError, "bye"),
             };
             // A close the server meant but never delivered is ours to

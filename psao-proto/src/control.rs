@@ -4,7 +4,7 @@
 use bytes::{Buf, BufMut, BytesMut};
 use glam::{Affine3A, Vec3};
 
-use crate::codes::{Close, CloseCode};
+use crate::codes::SessionError;
 
 /// Largest `length` of a control message.
 pub const MAX_CONTROL_LEN: usize = 1024;
@@ -149,10 +149,6 @@ pub enum Control {
     },
 }
 
-fn violation(reason: impl Into<String>) -> Close {
-    Close::new(CloseCode::ProtocolViolation, reason)
-}
-
 /// Truncates `s` to at most [`MAX_TEXT`] bytes on a character boundary.
 pub fn clip_text(s: &str) -> &str {
     let mut end = s.len().min(MAX_TEXT);
@@ -256,15 +252,15 @@ impl Control {
     }
 
     /// Parses the body of a message of type `kind`.
-    pub fn decode(kind: u8, mut b: &[u8]) -> Result<Control, Close> {
-        let want = |n: usize, b: &[u8], name: &str| {
+    pub fn decode(kind: u8, mut b: &[u8]) -> Result<Control, SessionError> {
+        let want = |n: usize, b: &[u8], name: &'static str| {
             if b.len() == n {
                 Ok(())
             } else {
-                Err(violation(format!(
-                    "{name} body is {} bytes, not {n}",
-                    b.len()
-                )))
+                Err(SessionError::malformed(
+                    name,
+                    format!("body is {} bytes, not {n}", b.len()),
+                ))
             }
         };
         match kind {
@@ -272,14 +268,15 @@ impl Control {
                 // Magic and version first: a later version's HELLO may
                 // have another size.
                 if b.len() < 6 || b[..4] != HELLO_MAGIC {
-                    return Err(violation("HELLO magic is not PSAO"));
+                    return Err(SessionError::malformed("HELLO", "magic is not PSAO"));
                 }
                 let version = u16::from_le_bytes([b[4], b[5]]);
                 if version != VERSION {
-                    return Err(Close::new(
-                        CloseCode::VersionMismatch,
-                        format!("version {version} (this server speaks 1)"),
-                    ));
+                    return Err(SessionError::VersionMismatch {
+                        message: "HELLO",
+                        version,
+                        supported: VERSION,
+                    });
                 }
                 want(25, b, "HELLO")?;
                 b.advance(4);
@@ -294,21 +291,26 @@ impl Control {
                 };
                 let flags = b.get_u8();
                 if h.version != VERSION {
-                    return Err(Close::new(
-                        CloseCode::VersionMismatch,
-                        format!("version {} (this server speaks 1)", h.version),
-                    ));
+                    return Err(SessionError::VersionMismatch {
+                        message: "HELLO",
+                        version: h.version,
+                        supported: VERSION,
+                    });
                 }
                 if h.compressions & 0xF8 != 0 || h.point_formats & 0xFE != 0 || flags & 0xFE != 0 {
-                    return Err(violation("HELLO sets a reserved bit"));
+                    return Err(SessionError::malformed("HELLO", "a reserved bit is set"));
                 }
                 if h.compressions & 1 == 0 || h.point_formats & 1 == 0 {
-                    return Err(violation(
-                        "HELLO must accept compression 0 and point format 0",
+                    return Err(SessionError::malformed(
+                        "HELLO",
+                        "must accept compression 0 and point format 0",
                     ));
                 }
                 if h.max_frame_bytes < 65_536 || h.max_payload_bytes < 65_536 {
-                    return Err(violation("HELLO limits below 65,536 bytes"));
+                    return Err(SessionError::malformed(
+                        "HELLO",
+                        "limits below 65,536 bytes",
+                    ));
                 }
                 Ok(Control::Hello(Hello {
                     viewer: flags & 1 == 1,
@@ -319,13 +321,17 @@ impl Control {
                 // The version first: a later version's WELCOME may have
                 // another layout.
                 if b.len() >= 2 && u16::from_le_bytes([b[0], b[1]]) != VERSION {
-                    return Err(Close::new(
-                        CloseCode::VersionMismatch,
-                        format!("version {}", u16::from_le_bytes([b[0], b[1]])),
-                    ));
+                    return Err(SessionError::VersionMismatch {
+                        message: "WELCOME",
+                        version: u16::from_le_bytes([b[0], b[1]]),
+                        supported: VERSION,
+                    });
                 }
                 if b.len() < 16 {
-                    return Err(violation("WELCOME body shorter than 16 bytes"));
+                    return Err(SessionError::malformed(
+                        "WELCOME",
+                        "body shorter than 16 bytes",
+                    ));
                 }
                 let version = b.get_u16_le();
                 let compression = b.get_u8();
@@ -336,22 +342,29 @@ impl Control {
                 let flags = b.get_u8();
                 let n = b.get_u8() as usize;
                 if b.len() != n || n > MAX_TEXT {
-                    return Err(violation("WELCOME scene name length does not add up"));
-                }
-                let scene = std::str::from_utf8(b)
-                    .map_err(|_| violation("WELCOME scene name is not UTF-8"))?
-                    .to_string();
-                if version != VERSION {
-                    return Err(Close::new(
-                        CloseCode::VersionMismatch,
-                        format!("version {version}"),
+                    return Err(SessionError::malformed(
+                        "WELCOME",
+                        "scene name length does not add up",
                     ));
                 }
+                let scene = std::str::from_utf8(b)
+                    .map_err(|_| SessionError::malformed("WELCOME", "scene name is not UTF-8"))?
+                    .to_string();
+                if version != VERSION {
+                    return Err(SessionError::VersionMismatch {
+                        message: "WELCOME",
+                        version,
+                        supported: VERSION,
+                    });
+                }
                 if flags & 0xFE != 0 {
-                    return Err(violation("WELCOME sets a reserved bit"));
+                    return Err(SessionError::malformed("WELCOME", "a reserved bit is set"));
                 }
                 if !(1..=1000).contains(&frame_rate) || compression > 2 || point_format != 0 {
-                    return Err(violation("WELCOME field out of range"));
+                    return Err(SessionError::malformed(
+                        "WELCOME",
+                        "a field is out of range",
+                    ));
                 }
                 Ok(Control::Welcome(Welcome {
                     version,
@@ -379,7 +392,7 @@ impl Control {
                     || !(c.fov_y > 0.0 && c.fov_y < std::f32::consts::PI)
                     || !(0.001..=1000.0).contains(&c.aspect)
                 {
-                    return Err(violation("CAMERA field out of range"));
+                    return Err(SessionError::malformed("CAMERA", "a field is out of range"));
                 }
                 Ok(Control::Camera(c))
             }
@@ -395,7 +408,12 @@ impl Control {
                     1 => KeyframeReason::DecodeError,
                     2 => KeyframeReason::Other,
                     3 => KeyframeReason::NoState,
-                    r => return Err(violation(format!("KEYFRAME_REQUEST reason {r}"))),
+                    r => {
+                        return Err(SessionError::malformed(
+                            "KEYFRAME_REQUEST",
+                            format!("reason {r}"),
+                        ));
+                    }
                 };
                 Ok(Control::KeyframeRequest { sequence, reason })
             }
@@ -410,7 +428,10 @@ impl Control {
             }
             kind::NOTICE => {
                 if b.len() < 2 {
-                    return Err(violation("NOTICE body shorter than 2 bytes"));
+                    return Err(SessionError::malformed(
+                        "NOTICE",
+                        "body shorter than 2 bytes",
+                    ));
                 }
                 let code = match b.get_u8() {
                     1 => NoticeCode::EventRefused,
@@ -419,21 +440,27 @@ impl Control {
                 };
                 let n = b.get_u8() as usize;
                 if b.len() != n || n > MAX_TEXT {
-                    return Err(violation("NOTICE text length does not add up"));
+                    return Err(SessionError::malformed(
+                        "NOTICE",
+                        "text length does not add up",
+                    ));
                 }
                 let text = std::str::from_utf8(b)
-                    .map_err(|_| violation("NOTICE text is not UTF-8"))?
+                    .map_err(|_| SessionError::malformed("NOTICE", "text is not UTF-8"))?
                     .to_string();
                 Ok(Control::Notice { code, text })
             }
-            k => Err(violation(format!("unknown control message type 0x{k:02x}"))),
+            k => Err(SessionError::UnknownMessage { kind: k }),
         }
     }
 }
 
 /// Reads `N` little-endian f32s off `b` (which holds at least `4 N`
 /// bytes); a non-finite one is a violation in message `name`.
-fn finite_f32s<const N: usize>(b: &mut &[u8], name: &str) -> Result<[f32; N], Close> {
+fn finite_f32s<const N: usize>(
+    b: &mut &[u8],
+    name: &'static str,
+) -> Result<[f32; N], SessionError> {
     let mut out = [0f32; N];
     for x in &mut out {
         *x = b.get_f32_le();
@@ -441,7 +468,7 @@ fn finite_f32s<const N: usize>(b: &mut &[u8], name: &str) -> Result<[f32; N], Cl
     if out.iter().all(|x| x.is_finite()) {
         Ok(out)
     } else {
-        Err(violation(format!("{name} holds a non-finite number")))
+        Err(SessionError::malformed(name, "holds a non-finite number"))
     }
 }
 
@@ -463,9 +490,11 @@ impl ControlReader {
     /// returns the next complete message, if any. Call again while it
     /// returns messages and `input` is not empty. After an error the
     /// reader stays failed.
-    pub fn read(&mut self, input: &mut &[u8]) -> Result<Option<Control>, Close> {
+    pub fn read(&mut self, input: &mut &[u8]) -> Result<Option<Control>, SessionError> {
         if self.failed {
-            return Err(violation("control stream already failed"));
+            return Err(SessionError::StreamMisused(
+                "control stream read after it failed",
+            ));
         }
         let r = self.read_inner(input);
         if r.is_err() {
@@ -474,7 +503,7 @@ impl ControlReader {
         r
     }
 
-    fn read_inner(&mut self, input: &mut &[u8]) -> Result<Option<Control>, Close> {
+    fn read_inner(&mut self, input: &mut &[u8]) -> Result<Option<Control>, SessionError> {
         if self.buf.len() < 2 {
             let take = (2 - self.buf.len()).min(input.len());
             self.buf.extend_from_slice(&input[..take]);
@@ -485,10 +514,7 @@ impl ControlReader {
         }
         let length = u16::from_le_bytes([self.buf[0], self.buf[1]]) as usize;
         if length == 0 || length > MAX_CONTROL_LEN {
-            return Err(Close::new(
-                CloseCode::MessageTooLarge,
-                format!("control message length {length} (allowed 1..=1024)"),
-            ));
+            return Err(SessionError::MessageTooLarge { length });
         }
         let need = 2 + length - self.buf.len();
         let take = need.min(input.len());

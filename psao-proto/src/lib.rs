@@ -53,7 +53,7 @@ pub use client::{
     CLOSE_AFTER_FRAMES, ClientConfig, ClientEvent, ClientSession, ClientStats,
     MAX_FAILED_KEYFRAMES, REQUEST_RETRY,
 };
-pub use codes::{Close, CloseCode};
+pub use codes::{Close, CloseCode, SessionError};
 #[cfg(feature = "quic")]
 pub use connect::{ClientHandle, ConnectError, Ended, connect};
 pub use fanout::{ClientId, Fanout, Keyframes, Transmit};

@@ -3,7 +3,7 @@
 
 use bytes::{Buf, Bytes, BytesMut};
 
-use crate::codes::{Close, CloseCode};
+use crate::codes::SessionError;
 
 /// Smallest frame (its header).
 pub const MIN_FRAME: u32 = 32;
@@ -39,7 +39,7 @@ impl RecordReader {
 
     /// Takes bytes off `input` and returns the next whole frame, if any.
     /// Call again while it returns frames and `input` is not empty.
-    pub fn read(&mut self, input: &mut &[u8]) -> Result<Option<Bytes>, Close> {
+    pub fn read(&mut self, input: &mut &[u8]) -> Result<Option<Bytes>, SessionError> {
         let want = match self.want {
             Some(w) => w,
             None => {
@@ -51,13 +51,11 @@ impl RecordReader {
                 }
                 let len = u32::from_le_bytes([self.buf[0], self.buf[1], self.buf[2], self.buf[3]]);
                 if !(MIN_FRAME..=self.max_frame_bytes).contains(&len) {
-                    return Err(Close::new(
-                        CloseCode::ProtocolViolation,
-                        format!(
-                            "frame record of {len} bytes (allowed {MIN_FRAME}..={})",
-                            self.max_frame_bytes
-                        ),
-                    ));
+                    return Err(SessionError::FrameRecordSize {
+                        length: len,
+                        min: MIN_FRAME,
+                        max: self.max_frame_bytes,
+                    });
                 }
                 self.buf.clear();
                 self.buf.reserve(len as usize);

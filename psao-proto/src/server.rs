@@ -22,7 +22,7 @@ use glam::Affine3A;
 use tokio::sync::Notify;
 use tracing::{debug, info, warn};
 
-use crate::codes::{Close, CloseCode};
+use crate::codes::{Close, CloseCode, SessionError};
 use crate::control::NoticeCode;
 use crate::fanout::{ClientId, Fanout, Keyframes, Transmit};
 use crate::records::record_prefix;
@@ -426,7 +426,8 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
 async fn serve_connection(hub: Arc<Hub>, conn: quinn::Connection) {
     let remote = conn.remote_address();
     let result = run_connection(&hub, &conn).await;
-    if let Err(close) = &result {
+    if let Err(e) = result {
+        let close = Close::from(e);
         debug!(%remote, "closing: {close}");
         conn.close(
             quinn::VarInt::from_u32(close.code.code()),
@@ -437,17 +438,17 @@ async fn serve_connection(hub: Arc<Hub>, conn: quinn::Connection) {
 
 /// Reads the control stream; registers the client after `HELLO`; the
 /// writer task sends frames and notices.
-async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), Close> {
+async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), SessionError> {
     let full = hub.lock().clients.len() >= hub.config.max_clients;
     if full {
-        return Err(Close::new(CloseCode::ServerFull, "server full"));
+        return Err(SessionError::ServerFull);
     }
     let mut session = ServerConn::new(hub.offer.clone(), Instant::now());
     let deadline = tokio::time::Instant::from_std(session.deadline().unwrap_or_else(Instant::now));
     let (send, mut recv) = tokio::select! {
-        s = conn.accept_bi() => s.map_err(|e| Close::new(CloseCode::NoError, e.to_string()))?,
+        s = conn.accept_bi() => s.map_err(|e| SessionError::Ended(e.to_string().into()))?,
         _ = tokio::time::sleep_until(deadline) => {
-            return Err(Close::new(CloseCode::HandshakeTimeout, "no control stream within 5 s"));
+            return Err(SessionError::HandshakeTimeout { awaited: "control stream" });
         }
     };
     // Any other stream the client opens is a violation.
@@ -473,7 +474,7 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
             Some(d) => tokio::select! {
                 r = recv.read(&mut buf) => r,
                 _ = tokio::time::sleep_until(tokio::time::Instant::from_std(d)) => {
-                    break Err(Close::new(CloseCode::HandshakeTimeout, "no HELLO within 5 s"));
+                    break Err(SessionError::HandshakeTimeout { awaited: "HELLO" });
                 }
             },
             None => recv.read(&mut buf).await,
@@ -481,14 +482,12 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
         let n = match read {
             Ok(Some(n)) => n,
             Ok(None) => {
-                break Err(Close::new(
-                    CloseCode::ProtocolViolation,
+                break Err(SessionError::StreamMisused(
                     "the client finished its control stream",
                 ));
             }
             Err(quinn::ReadError::Reset(_)) => {
-                break Err(Close::new(
-                    CloseCode::ProtocolViolation,
+                break Err(SessionError::StreamMisused(
                     "the client reset its control stream",
                 ));
             }
@@ -504,7 +503,7 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                         continue;
                     };
                     if hub.lock().clients.len() >= hub.config.max_clients {
-                        break 'read Err(Close::new(CloseCode::ServerFull, "server full"));
+                        break 'read Err(SessionError::ServerFull);
                     }
                     if control.write_all(&bytes).await.is_err() {
                         break 'read Ok(());
@@ -517,7 +516,7 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                     let client = {
                         let mut s = hub.lock();
                         if s.clients.len() >= hub.config.max_clients {
-                            break 'read Err(Close::new(CloseCode::ServerFull, "server full"));
+                            break 'read Err(SessionError::ServerFull);
                         }
                         let client = s.fanout.add_client(viewer);
                         s.stats.accepted += 1;

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use bytes::Bytes;
 use glam::Affine3A;
 
-use crate::codes::{Close, CloseCode};
+use crate::codes::SessionError;
 use crate::control::{
     CameraPose, Control, ControlReader, Hello, KeyframeReason, NoticeCode, VERSION, Welcome,
 };
@@ -41,8 +41,8 @@ pub struct Offer {
 
 /// Checks a client's `HELLO` against the offer; the `WELCOME` to send, or
 /// why the connection must close.
-pub fn negotiate(hello: &Hello, offer: &Offer) -> Result<Welcome, Close> {
-    let mismatch = |why: String| Err(Close::new(CloseCode::CapabilityMismatch, why));
+pub fn negotiate(hello: &Hello, offer: &Offer) -> Result<Welcome, SessionError> {
+    let mismatch = |why: String| Err(SessionError::CapabilityMismatch(why));
     if hello.compressions & (1 << offer.compression) == 0 {
         return mismatch(format!(
             "the stream uses compression {}, which the client does not decode",
@@ -171,12 +171,9 @@ impl ServerConn {
     }
 
     /// Checks the handshake deadline.
-    pub fn on_timer(&self, now: Instant) -> Result<(), Close> {
+    pub fn on_timer(&self, now: Instant) -> Result<(), SessionError> {
         match self.deadline() {
-            Some(d) if now >= d => Err(Close::new(
-                CloseCode::HandshakeTimeout,
-                "no HELLO within 5 s",
-            )),
+            Some(d) if now >= d => Err(SessionError::HandshakeTimeout { awaited: "HELLO" }),
             _ => Ok(()),
         }
     }
@@ -188,17 +185,16 @@ impl ServerConn {
         mut input: &[u8],
         now: Instant,
         events: &mut Vec<ServerEvent>,
-    ) -> Result<(), Close> {
+    ) -> Result<(), SessionError> {
         self.on_timer(now)?;
         while !input.is_empty() {
             let Some(msg) = self.reader.read(&mut input)? else {
                 break;
             };
             if !self.bucket.take(now) {
-                return Err(Close::new(
-                    CloseCode::RateExceeded,
-                    "more than 256 messages a second",
-                ));
+                return Err(SessionError::RateExceeded {
+                    per_second: UPLINK_RATE as u32,
+                });
             }
             let event = match (msg, &self.hello) {
                 (Control::Hello(h), None) => {
@@ -210,10 +206,10 @@ impl ServerConn {
                     }
                 }
                 (m, None) => {
-                    return Err(Close::new(
-                        CloseCode::ProtocolViolation,
-                        format!("message 0x{:02x} before HELLO", m.kind()),
-                    ));
+                    return Err(SessionError::Unexpected {
+                        kind: m.kind(),
+                        rule: "before HELLO",
+                    });
                 }
                 (Control::Camera(c), Some(h)) if h.viewer => ServerEvent::Camera(c),
                 (Control::Ack(s), Some(_)) => ServerEvent::Ack(s),
@@ -231,10 +227,10 @@ impl ServerConn {
                     transform,
                 },
                 (m, Some(_)) => {
-                    return Err(Close::new(
-                        CloseCode::ProtocolViolation,
-                        format!("message 0x{:02x} is not for a server here", m.kind()),
-                    ));
+                    return Err(SessionError::Unexpected {
+                        kind: m.kind(),
+                        rule: "is not for a server here",
+                    });
                 }
             };
             events.push(event);

@@ -5,7 +5,7 @@ use glam::{Affine3A, Vec3};
 use proptest::prelude::*;
 use psao_proto::control::*;
 use psao_proto::records::{RecordReader, record_prefix};
-use psao_proto::{Close, CloseCode};
+use psao_proto::{Close, CloseCode, SessionError};
 
 /// The hex blocks of spec/session.md, by message name.
 fn spec_examples() -> Vec<(String, Vec<u8>)> {
@@ -109,16 +109,52 @@ fn the_spec_examples_match_the_code() {
 }
 
 fn code_of(bytes: &[u8]) -> CloseCode {
+    error_of(bytes).close_code()
+}
+
+fn error_of(bytes: &[u8]) -> SessionError {
     let mut input = bytes;
     let mut r = ControlReader::new();
     loop {
         match r.read(&mut input) {
-            Err(Close { code, .. }) => return code,
+            Err(e) => return e,
             Ok(Some(_)) => {}
             Ok(None) if input.is_empty() => panic!("no error for {bytes:02x?}"),
             Ok(None) => {}
         }
     }
+}
+
+#[test]
+fn session_errors_say_what_was_wrong_and_where() {
+    assert_eq!(
+        error_of(&[0x01, 0x04, 0x11]),
+        SessionError::MessageTooLarge { length: 1025 }
+    );
+    assert_eq!(
+        error_of(&[1, 0, 0x7f]),
+        SessionError::UnknownMessage { kind: 0x7f }
+    );
+    let e = error_of(&[4, 0, 0x11, 1, 2, 3]);
+    assert!(
+        matches!(e, SessionError::Malformed { message: "ACK", .. }),
+        "{e:?}"
+    );
+    assert_eq!(e.to_string(), "malformed ACK: body is 3 bytes, not 4");
+    let mut hello = described("HELLO").to_bytes().to_vec();
+    hello[7] = 2;
+    assert_eq!(
+        error_of(&hello),
+        SessionError::VersionMismatch {
+            message: "HELLO",
+            version: 2,
+            supported: 1
+        }
+    );
+    // The close on the wire carries the code and the error's text.
+    let close = Close::from(error_of(&[0, 0]));
+    assert_eq!(close.code, CloseCode::MessageTooLarge);
+    assert_eq!(close.reason, "control message length 0 (allowed 1..=1024)");
 }
 
 #[test]
@@ -235,9 +271,15 @@ fn readers_hold_at_most_one_message() {
         assert_eq!(out, frames, "chunks of {chunk}");
     }
     let mut r = RecordReader::new(1000);
+    let e = r.read(&mut &1001u32.to_le_bytes()[..]).unwrap_err();
+    assert_eq!(e.close_code(), CloseCode::ProtocolViolation);
     assert_eq!(
-        r.read(&mut &1001u32.to_le_bytes()[..]).unwrap_err().code,
-        CloseCode::ProtocolViolation
+        e,
+        SessionError::FrameRecordSize {
+            length: 1001,
+            min: 32,
+            max: 1000
+        }
     );
     let mut r = RecordReader::new(1000);
     assert!(

@@ -48,7 +48,7 @@ fn negotiation_refuses_what_the_client_cannot_take() {
         (w.compression, w.frame_rate, w.scene.as_str()),
         (2, 60, "test")
     );
-    let code = |h: Hello| negotiate(&h, &offer()).unwrap_err().code;
+    let code = |h: Hello| negotiate(&h, &offer()).unwrap_err().close_code();
     assert_eq!(
         code(Hello {
             compressions: 0b011,
@@ -85,7 +85,7 @@ fn the_server_wants_hello_first_once_and_in_time() {
     let e = s
         .on_control(&bytes(Control::Ack(3)), t0, &mut events)
         .unwrap_err();
-    assert_eq!(e.code, CloseCode::ProtocolViolation);
+    assert_eq!(e.close_code(), CloseCode::ProtocolViolation);
     // HELLO, then WELCOME comes out; a second HELLO is a violation.
     let mut s = ServerConn::new(offer(), t0);
     s.on_control(&bytes(Control::Hello(hello())), t0, &mut events)
@@ -97,7 +97,7 @@ fn the_server_wants_hello_first_once_and_in_time() {
     let e = s
         .on_control(&bytes(Control::Hello(hello())), t0, &mut events)
         .unwrap_err();
-    assert_eq!(e.code, CloseCode::ProtocolViolation);
+    assert_eq!(e.close_code(), CloseCode::ProtocolViolation);
     // A wrong version.
     let mut s = ServerConn::new(offer(), t0);
     let e = s
@@ -110,12 +110,14 @@ fn the_server_wants_hello_first_once_and_in_time() {
             &mut events,
         )
         .unwrap_err();
-    assert_eq!(e.code, CloseCode::VersionMismatch);
+    assert_eq!(e.close_code(), CloseCode::VersionMismatch);
     // Too late.
     let s = ServerConn::new(offer(), t0);
     assert!(s.on_timer(t0 + Duration::from_secs(4)).is_ok());
     assert_eq!(
-        s.on_timer(t0 + Duration::from_secs(5)).unwrap_err().code,
+        s.on_timer(t0 + Duration::from_secs(5))
+            .unwrap_err()
+            .close_code(),
         CloseCode::HandshakeTimeout
     );
     // A camera from a client that did not say it is a viewer.
@@ -132,7 +134,7 @@ fn the_server_wants_hello_first_once_and_in_time() {
     let e = s
         .on_control(&bytes(Control::Camera(cam)), t0, &mut events)
         .unwrap_err();
-    assert_eq!(e.code, CloseCode::ProtocolViolation);
+    assert_eq!(e.close_code(), CloseCode::ProtocolViolation);
 }
 
 #[test]
@@ -155,7 +157,7 @@ fn the_uplink_rate_is_bounded() {
     all.extend_from_slice(&burst);
     all.extend_from_slice(&one);
     let e = again.on_control(&all, t0, &mut events).unwrap_err();
-    assert_eq!(e.code, CloseCode::RateExceeded);
+    assert_eq!(e.close_code(), CloseCode::RateExceeded);
     assert!(
         s.on_control(&one, t0 + Duration::from_millis(10), &mut events)
             .is_ok()
@@ -326,13 +328,15 @@ fn the_client_acks_asks_for_one_keyframe_on_a_gap_and_resyncs() {
         ..ClientConfig::default()
     });
     let e = c.on_frames(&(70_000u32).to_le_bytes()).unwrap_err();
-    assert_eq!(e.code, CloseCode::ProtocolViolation);
+    assert_eq!(e.close_code(), CloseCode::ProtocolViolation);
     // So does a WELCOME that picks what HELLO did not offer, or a second one.
     let mut c = ClientSession::new(ClientConfig::default());
     let mut w = negotiate(&hello_of(&mut c), &offer()).unwrap();
     w.max_frame_bytes = u32::MAX;
     assert_eq!(
-        c.on_control(&bytes(Control::Welcome(w))).unwrap_err().code,
+        c.on_control(&bytes(Control::Welcome(w)))
+            .unwrap_err()
+            .close_code(),
         CloseCode::CapabilityMismatch
     );
 }
@@ -435,7 +439,7 @@ fn a_frame_in_a_compression_welcome_did_not_choose_is_a_decode_failure() {
     );
     // A second keyframe in a row that cannot be decoded ends the session.
     let e = c.on_frames(&record(&kf.bytes)).unwrap_err();
-    assert_eq!(e.code, CloseCode::CapabilityMismatch, "{e:?}");
+    assert_eq!(e.close_code(), CloseCode::CapabilityMismatch, "{e:?}");
 }
 
 #[test]
@@ -465,8 +469,11 @@ fn two_corrupt_keyframes_in_a_row_close_but_one_does_not() {
     c.on_frames(&record(&corrupt(&kf.bytes))).unwrap();
     let kf = keyframe(&mut enc);
     let e = c.on_frames(&record(&corrupt(&kf.bytes))).unwrap_err();
-    assert_eq!(e.code, CloseCode::CapabilityMismatch);
-    assert!(e.reason.contains("2 keyframes"), "{e:?}");
+    assert_eq!(e.close_code(), CloseCode::CapabilityMismatch);
+    assert!(
+        matches!(e, SessionError::KeyframesFailed { failed: 2 }),
+        "{e:?}"
+    );
 }
 
 #[test]
@@ -517,7 +524,7 @@ fn a_close_that_never_follows_the_finished_frame_stream_ends_the_session() {
     c.handle_timeout(t0).unwrap();
     assert_eq!(c.poll_timeout(), None);
     assert_eq!(
-        c.transport_lost("timed out").code,
+        c.transport_lost("timed out").close_code(),
         CloseCode::InternalError,
         "before the frame stream finished, a lost link is an error"
     );
@@ -527,12 +534,12 @@ fn a_close_that_never_follows_the_finished_frame_stream_ends_the_session() {
     assert!(c.frames_finished());
     assert_eq!(c.poll_timeout(), Some(t0 + CLOSE_AFTER_FRAMES));
     assert_eq!(
-        c.transport_lost("timed out").code,
+        c.transport_lost("timed out").close_code(),
         CloseCode::ServerShutdown,
         "after it, a lost close is the shutdown it announced"
     );
     c.handle_timeout(t0 + CLOSE_AFTER_FRAMES - Duration::from_millis(1))
         .unwrap();
     let e = c.handle_timeout(t0 + CLOSE_AFTER_FRAMES).unwrap_err();
-    assert_eq!(e.code, CloseCode::ServerShutdown, "{e}");
+    assert_eq!(e.close_code(), CloseCode::ServerShutdown, "{e}");
 }
