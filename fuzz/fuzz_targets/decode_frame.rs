@@ -3,7 +3,8 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use psao_codec::{Limits, Scratch, decode_frame};
+use psao_codec::Limits;
+use psao_codec::wire::{Scratch, decode_frame};
 
 fuzz_target!(|data: &[u8]| {
     let limits = Limits {

@@ -126,8 +126,8 @@ fn paper_bytes(steps: &[Step]) -> usize {
 
 fn raw_decompress(frames: &[EncodedFrame], out: &mut [u8]) {
     for f in frames {
-        let h = psao_codec::FrameHeader::parse(&f.bytes).expect("header");
-        let payload = &f.bytes[psao_codec::HEADER_LEN..];
+        let h = psao_codec::wire::FrameHeader::parse(&f.bytes).expect("header");
+        let payload = &f.bytes[psao_codec::wire::HEADER_LEN..];
         let n = h.uncompressed_len as usize;
         match h.compression {
             Compression::None => out[..payload.len()].copy_from_slice(payload),
@@ -189,7 +189,7 @@ fn main() {
         );
         let t_compress = time(reps, || {
             for f in &plain {
-                let p = &f.bytes[psao_codec::HEADER_LEN..];
+                let p = &f.bytes[psao_codec::wire::HEADER_LEN..];
                 match compression {
                     Compression::None => {
                         black_box(p.to_vec());

@@ -1,7 +1,7 @@
 //! Measures the worst angle between unit normals and their decoded 8-bit
 //! octahedral code over a dense Fibonacci sphere plus jittered axes.
 use glam::Vec3;
-use psao_codec::point::{decode_normal, encode_normal};
+use psao_codec::wire::point::{decode_normal, encode_normal};
 
 fn main() {
     let n = 4_000_000u32;

@@ -3,7 +3,7 @@
 
 use thiserror::Error;
 
-use crate::compress::Compression;
+use crate::wire::compress::Compression;
 
 /// A rule of an instance definition that was broken.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Error)]

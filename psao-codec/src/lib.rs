@@ -6,6 +6,12 @@
 //! numbered frames, and the client's [`Decoder`] and [`Mirror`], with CPU
 //! reconstruction of AO from the mirror ([`reconstruct_ao`], paper eq. 2-4).
 //!
+//! The modules follow the data path: `server` (grid table, dirty set,
+//! encoder) -> [`wire`] (header, messages, compression, point words) ->
+//! `client` (decoder, mirror, reconstruction); the crate root re-exports
+//! what a server or a client uses, and [`wire`] holds the frame parser and
+//! message layouts for those who read frames themselves.
+//!
 //! Nothing here does I/O or spawns threads: bytes and events in, bytes and
 //! events out. Untrusted bytes never panic, never allocate beyond
 //! [`Limits`], and fail with a typed [`DecodeError`]; a frame is applied to
@@ -42,36 +48,25 @@
 //! assert!((ao - 0.5).abs() <= 1.0 / 255.0);
 //! ```
 
-mod compress;
-mod decoder;
-mod encoder;
+mod client;
 mod error;
-mod frame;
 mod grid;
-mod header;
 mod limits;
-mod message;
-mod mirror;
-pub mod point;
-mod reconstruct;
-pub mod sequence;
-mod table;
+mod server;
+pub mod wire;
 
-pub use compress::Compression;
-pub use decoder::Decoder;
-pub use encoder::{EncodedFrame, Encoder, EncoderConfig, FrameBuilder, FrameStats};
+pub use client::decoder::Decoder;
+pub use client::mirror::{Change, Changes, Event, InstanceMirror, Mirror, Transform};
+pub use client::reconstruct::{WeightParams, base_cell, reconstruct_ao, weight, world_to_local};
 pub use error::{DecodeError, DefError, EncodeError, MessageError};
-pub use frame::{FrameView, Located, Messages, Scratch, decode_frame};
 pub use grid::{
     BucketEntry, EMPTY_KEY, InstanceDef, MAX_BUCKET_CAPACITY, MAX_CELL_CAPACITY, MAX_TABLE_LOG2,
     POINT_FORMAT_PACKED32, key_fits,
 };
-pub use header::{FLAG_CHECKSUM, FLAG_KEYFRAME, FrameHeader, HEADER_LEN, MAGIC, VERSION};
 pub use limits::Limits;
-pub use message::{BucketsMsg, CellsMsg, IndexIter, IndexList, Message, PlanarU32, kind};
-pub use mirror::{Change, Changes, Event, InstanceMirror, Mirror, Transform};
-pub use point::{POSITION_QUANTA, PointWord, normal_table};
-pub use reconstruct::{WeightParams, base_cell, reconstruct_ao, weight, world_to_local};
-pub use table::{
+pub use server::encoder::{EncodedFrame, Encoder, EncoderConfig, FrameBuilder, FrameStats};
+pub use server::table::{
     DirtyCell, DirtySet, DropReason, GridTable, Placement, SentPoint, TableStats, Thresholds,
 };
+pub use wire::compress::Compression;
+pub use wire::point::{POSITION_QUANTA, PointWord, normal_table};

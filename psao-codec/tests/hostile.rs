@@ -6,6 +6,7 @@ mod common;
 
 use common::small_def;
 use glam::Vec3;
+use psao_codec::wire::{FrameHeader, HEADER_LEN};
 use psao_codec::*;
 use psao_tests::raw;
 

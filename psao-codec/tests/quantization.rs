@@ -2,7 +2,7 @@
 
 use glam::{UVec3, Vec3};
 use proptest::prelude::*;
-use psao_codec::point::*;
+use psao_codec::wire::point::*;
 
 fn unit(v: [f32; 3]) -> Option<Vec3> {
     let v = Vec3::from(v);

@@ -6,6 +6,7 @@ mod common;
 use common::*;
 use glam::Vec3;
 use proptest::prelude::*;
+use psao_codec::wire::sequence;
 use psao_codec::*;
 
 #[derive(Clone, Debug)]

@@ -5,6 +5,7 @@ mod common;
 
 use common::*;
 use glam::Vec3;
+use psao_codec::wire::sequence;
 use psao_codec::*;
 
 /// A server with one table that produces a delta per call.

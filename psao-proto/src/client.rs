@@ -8,7 +8,8 @@ use std::time::{Duration, Instant};
 
 use bytes::{Bytes, BytesMut};
 use glam::Affine3A;
-use psao_codec::{Compression, DecodeError, Decoder, Event, FrameHeader, Limits, Mirror};
+use psao_codec::wire::FrameHeader;
+use psao_codec::{Compression, DecodeError, Decoder, Event, Limits, Mirror};
 
 use crate::codes::SessionError;
 use crate::control::{

@@ -4,7 +4,7 @@
 //! Field names and byte orders are the spec's.
 
 use glam::{UVec3, Vec3};
-use psao_codec::point::{PointFields, PointWord};
+use psao_codec::wire::point::{PointFields, PointWord};
 use psao_codec::{DecodeError, Event, InstanceDef};
 
 /// Appends `v` as 4 little-endian bytes.

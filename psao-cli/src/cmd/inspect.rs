@@ -4,7 +4,8 @@
 use std::path::PathBuf;
 
 use anyhow::Context as _;
-use psao_codec::{Decoder, Event, FrameHeader, Limits};
+use psao_codec::wire::FrameHeader;
+use psao_codec::{Decoder, Event, Limits};
 use psao_proto::capture::CaptureReader;
 
 /// Arguments of `psao inspect`.

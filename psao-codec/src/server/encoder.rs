@@ -7,14 +7,14 @@
 
 use bytes::Bytes;
 
-use crate::compress::{Compression, Compressor};
 use crate::error::EncodeError;
 use crate::grid::InstanceDef;
-use crate::header::{FrameHeader, HEADER_LEN, frame_checksum};
 use crate::limits::Limits;
-use crate::message::{kind, write};
-use crate::point::AO_MASK;
-use crate::table::{DirtySet, GridTable};
+use crate::server::table::{DirtySet, GridTable};
+use crate::wire::compress::{Compression, Compressor};
+use crate::wire::header::{FrameHeader, HEADER_LEN, frame_checksum};
+use crate::wire::message::{kind, write};
+use crate::wire::point::AO_MASK;
 
 /// How frames are written.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

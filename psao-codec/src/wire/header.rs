@@ -1,7 +1,7 @@
 //! The 32-byte frame header (spec/wire-format.md, "Frame header").
 
-use crate::compress::Compression;
 use crate::error::DecodeError;
+use crate::wire::compress::Compression;
 
 /// `PSAO` in ASCII.
 pub const MAGIC: [u8; 4] = *b"PSAO";
@@ -94,7 +94,9 @@ impl FrameHeader {
         if header.keyframe && header.base_sequence != header.sequence {
             return Err(DecodeError::HeaderField("base_sequence"));
         }
-        if !header.keyframe && !crate::sequence::is_newer(header.sequence, header.base_sequence) {
+        if !header.keyframe
+            && !crate::wire::sequence::is_newer(header.sequence, header.base_sequence)
+        {
             return Err(DecodeError::HeaderField("base_sequence"));
         }
         if header.message_count == 0 {

@@ -10,13 +10,13 @@ use std::collections::BTreeMap;
 use std::ops::Range;
 
 use crate::error::{DecodeError, MessageError};
-use crate::frame::{FrameView, Located};
 use crate::grid::MAX_CELL_CAPACITY;
 use crate::grid::{BucketEntry, InstanceDef};
 use crate::limits::Limits;
-use crate::message::{BucketsMsg, CellsMsg, Message, Reader};
-use crate::point::PointWord;
-use crate::sequence::is_newer;
+use crate::wire::frame::{FrameView, Located};
+use crate::wire::message::{BucketsMsg, CellsMsg, Message, Reader};
+use crate::wire::point::PointWord;
+use crate::wire::sequence::is_newer;
 
 /// An instance-local to world transform with its own sequence number.
 #[derive(Clone, Copy, Debug, PartialEq)]

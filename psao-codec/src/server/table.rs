@@ -12,7 +12,7 @@ use glam::Vec3;
 
 use crate::error::{DefError, EncodeError};
 use crate::grid::{BucketEntry, InstanceDef, MAX_CELL_CAPACITY};
-use crate::point::{POSITION_QUANTA, PointWord, quantize_ao};
+use crate::wire::point::{POSITION_QUANTA, PointWord, quantize_ao};
 
 /// Where a point id stands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -1,10 +1,10 @@
 //! The client side of the wire: bytes in, events out, a [`Mirror`] kept in
 //! sync. No I/O: the caller hands in each frame as it arrives.
 
+use crate::client::mirror::{Event, Mirror};
 use crate::error::DecodeError;
-use crate::frame::{Scratch, decode_frame};
 use crate::limits::Limits;
-use crate::mirror::{Event, Mirror};
+use crate::wire::frame::{Scratch, decode_frame};
 
 /// Decodes frames into a [`Mirror`], enforcing [`Limits`].
 ///

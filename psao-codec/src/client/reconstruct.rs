@@ -3,9 +3,9 @@
 
 use glam::{Affine3A, IVec3, Vec3};
 
+use crate::client::mirror::InstanceMirror;
 use crate::grid::InstanceDef;
-use crate::mirror::InstanceMirror;
-use crate::point::normal_table;
+use crate::wire::point::normal_table;
 
 /// Parameters of eq. 2-3 for one instance.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -1,11 +1,11 @@
 //! Whole frames: [`decode_frame`] checks a frame against the spec and the
 //! receiver's limits and hands back a [`FrameView`] over its messages.
 
-use crate::compress::Decompressor;
 use crate::error::{DecodeError, MessageError};
-use crate::header::{FrameHeader, HEADER_LEN, frame_checksum};
 use crate::limits::Limits;
-use crate::message::{Message, Reader};
+use crate::wire::compress::Decompressor;
+use crate::wire::header::{FrameHeader, HEADER_LEN, frame_checksum};
+use crate::wire::message::{Message, Reader};
 
 /// A frame whose header, checksum, compression and message syntax are
 /// valid. Only [`decode_frame`] makes one.

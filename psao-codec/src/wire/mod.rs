@@ -1,0 +1,17 @@
+//! The bytes of spec/wire-format.md: the frame header, the message
+//! payload (its types, layouts and index lists), compression, the point
+//! word and sequence arithmetic. Both halves of the codec read and write
+//! through here. Most users need only the crate root (encoder, decoder,
+//! mirror); a fuzzer, a capture inspector or a third-party decoder's tests
+//! parse frames with what is here.
+
+pub(crate) mod compress;
+pub(crate) mod frame;
+pub(crate) mod header;
+pub(crate) mod message;
+pub mod point;
+pub mod sequence;
+
+pub use frame::{FrameView, Located, Messages, Scratch, decode_frame};
+pub use header::{FLAG_CHECKSUM, FLAG_KEYFRAME, FrameHeader, HEADER_LEN, MAGIC, VERSION};
+pub use message::{BucketsMsg, CellsMsg, IndexIter, IndexList, Message, PlanarU32, kind};
