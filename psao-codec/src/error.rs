@@ -7,6 +7,7 @@ use crate::wire::compress::Compression;
 
 /// A rule of an instance definition that was broken.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Error)]
+#[non_exhaustive]
 pub enum DefError {
     /// origin, cell size, radius or thresholds are NaN or infinite.
     #[error("non-finite float in instance definition")]
@@ -39,6 +40,7 @@ pub enum DefError {
 
 /// What was wrong inside one message of a frame.
 #[derive(Clone, Debug, PartialEq, Eq, Error)]
+#[non_exhaustive]
 pub enum MessageError {
     /// The message type byte is not defined by this version.
     #[error("unknown message type 0x{0:02x}")]
@@ -150,6 +152,7 @@ pub enum MessageError {
 
 /// Why a frame was rejected. The mirror is unchanged after any of these.
 #[derive(Clone, Debug, PartialEq, Eq, Error)]
+#[non_exhaustive]
 pub enum DecodeError {
     /// Fewer bytes than the header, or than the header's lengths announce.
     #[error("frame truncated: need {needed} bytes, have {available}")]
@@ -283,6 +286,7 @@ impl MessageError {
 
 /// Errors of the server-side [`GridTable`](crate::GridTable) and [`Encoder`](crate::Encoder).
 #[derive(Clone, Debug, PartialEq, Eq, Error)]
+#[non_exhaustive]
 pub enum EncodeError {
     /// The instance definition breaks a rule of the spec.
     #[error("invalid instance definition: {0}")]

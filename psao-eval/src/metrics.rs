@@ -11,6 +11,7 @@ use thiserror::Error;
 
 /// Why two images could not be compared.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Error)]
+#[non_exhaustive]
 pub enum MetricError {
     /// The two images differ in length.
     #[error("reference has {reference} pixels but test has {test}")]

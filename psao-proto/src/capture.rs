@@ -13,6 +13,7 @@ pub const CAPTURE_HEADER_LEN: usize = 16;
 
 /// What was wrong with a capture file.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum CaptureError {
     /// Shorter than the header, or not starting with `PSAOCAP1`.
     #[error("magic: not a PSAO capture file")]

@@ -16,6 +16,7 @@ use crate::tls::{TlsError, Trust, client_config};
 
 /// Errors connecting.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum ConnectError {
     /// TLS setup failed.
     #[error(transparent)]

@@ -65,6 +65,7 @@ impl Default for ServerConfig {
 
 /// Errors starting a server.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum ServeError {
     /// TLS setup failed.
     #[error(transparent)]

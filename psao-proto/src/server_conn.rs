@@ -112,6 +112,7 @@ impl TokenBucket {
 
 /// What a client asked for.
 #[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum ServerEvent {
     /// The handshake is done: send these bytes (`WELCOME`), then a
     /// keyframe on the frame stream.

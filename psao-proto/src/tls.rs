@@ -21,6 +21,7 @@ pub const ALPN: &[u8] = b"psao/1";
 
 /// Errors setting up TLS.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum TlsError {
     /// A certificate or key file could not be read or parsed.
     #[error("{path}: {reason}")]

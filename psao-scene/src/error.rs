@@ -4,6 +4,7 @@ use thiserror::Error;
 
 /// What was wrong with a scene, mesh or parameter.
 #[derive(Clone, Debug, PartialEq, Error)]
+#[non_exhaustive]
 pub enum SceneError {
     /// A mesh's index count is not a multiple of 3.
     #[error("mesh {mesh}: {len} indices is not a multiple of 3")]

@@ -134,7 +134,7 @@ fn run(seed: u64) -> (Run, Vec<f32>, Pipeline, Scene) {
                 ServerEvent::KeyframeRequested(_) => {
                     fanout.request_keyframe(id.expect("welcomed first"));
                 }
-                ServerEvent::Ack(_) | ServerEvent::Camera(_) | ServerEvent::Move { .. } => {}
+                _ => {}
             }
         }
         // The server ticks: step while streaming, then hold still; share

@@ -43,6 +43,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Ok(Event::NeedKeyframe { have, .. }) => {
                 format!("needs a keyframe (mirror at {have:?})")
             }
+            Ok(other) => format!("{other:?}"),
             Err(e) => {
                 failed += 1;
                 format!("error: {e}")

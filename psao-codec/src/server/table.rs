@@ -32,6 +32,7 @@ pub enum Placement {
 
 /// Why a point is not stored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum DropReason {
     /// Its position is outside the grid (or not finite).
     OutOfGrid,

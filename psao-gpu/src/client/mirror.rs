@@ -93,7 +93,14 @@ impl GpuMirror {
             || changes
                 .items
                 .iter()
-                .any(|c| matches!(c, Change::Defined(_) | Change::Removed(_)));
+                // A change that is not a range or a transform (a new or
+                // removed instance, or one this version does not know).
+                .any(|c| {
+                    !matches!(
+                        c,
+                        Change::Buckets(..) | Change::Words(..) | Change::Transform(_)
+                    )
+                });
         if self.needs_full || layout_changed || self.layout_differs(mirror) {
             // The change list is kept until the upload succeeded.
             self.needs_full = true;
@@ -132,7 +139,8 @@ impl GpuMirror {
                         }
                     }
                     Change::Transform(_) => transforms = true,
-                    Change::Defined(_) | Change::Removed(_) => {}
+                    // Layout changes went the full-upload way above.
+                    _ => {}
                 }
             }
             if transforms {
