@@ -3,25 +3,34 @@
 //! The start of the data path, on the server without a GPU: scene ->
 //! points -> AO -> dirty set -> frames. (The pixels at the other end, and
 //! the ray-traced truth they are measured against, are `psao-eval`.)
-//! - the scene model ([`Scene`]): meshes ([`Mesh`], optionally skinned with
-//!   [`SkinWeights`] or alpha-masked with [`AlphaMask`]), instances, a node
-//!   hierarchy ([`Node`], [`Trs`]), skins ([`Skin`]), keyframed node
-//!   animations ([`Animation`]: step, linear with slerp, cubic spline) and a
-//!   camera path ([`CameraPath`]); [`Scene::pose`] evaluates it at a time;
-//! - glTF 2.0 import ([`load_gltf`]) of meshes, nodes, skins, animations and
-//!   alpha-mask materials;
-//! - point generation with weighted sample elimination ([`generate_points`],
-//!   paper 3.1), each point anchored to its triangle so skinning carries it;
-//! - grid layout ([`layout`], paper 3.2);
-//! - CPU ray-traced AO for points with obvhs ([`AoTracer`], paper 3.3), with
-//!   the closest-hit and the Laine-Karras estimators, over placed BVH
-//!   [`Layer`]s (static geometry built once, moving instances placed by
-//!   their transform, skinned ones refitted);
-//! - the server frame [`Pipeline`]: animate, skin, choose what motion can
-//!   reach (and, per viewer, what is in view), trace (on the CPU, or on any
-//!   [`AoBackend`]), apply the thresholds (the dirty set), encode;
-//! - the embedded [`default_scene`] and [`cesium_man_scene`], and
-//!   [`stage`] (a glTF model on a floor with an orbiting camera).
+//!
+//! The crate's folders follow that path:
+//! - `model/`, the scene model ([`Scene`]): meshes ([`Mesh`], optionally
+//!   skinned with [`SkinWeights`] or alpha-masked with [`AlphaMask`]),
+//!   instances, a node hierarchy ([`Node`], [`Trs`]), skins ([`Skin`]),
+//!   keyframed node animations ([`Animation`]: step, linear with slerp,
+//!   cubic spline) and a camera path ([`CameraPath`]); [`Scene::pose`]
+//!   evaluates it at a time;
+//! - `import/`, glTF 2.0 import ([`load_gltf`]) of meshes, nodes, skins,
+//!   animations and alpha-mask materials into that model;
+//! - `points/`, point generation with weighted sample elimination
+//!   ([`generate_points`], paper 3.1), each point anchored to its triangle
+//!   so skinning carries it, and grid layout ([`layout`], paper 3.2);
+//! - `trace/`, CPU ray-traced AO for points with obvhs ([`AoTracer`], paper
+//!   3.3), with the closest-hit and the Laine-Karras estimators, over
+//!   placed BVH [`Layer`]s (static geometry built once, moving instances
+//!   placed by their transform, skinned ones refitted), and the points
+//!   whose AO changed enough to send ([`ChangedPoints`]);
+//! - `pipeline/`, the server frame [`Pipeline`]: animate, skin, choose what
+//!   motion can reach (and, per viewer, what is in view), trace (on the
+//!   CPU, or on any [`AoBackend`]), apply the thresholds (the dirty set),
+//!   encode the frame;
+//! - `scenes/`, the embedded [`default_scene`] and [`cesium_man_scene`],
+//!   and [`stage`] (a glTF model on a floor with an orbiting camera).
+//!
+//! Shared by the stages: errors ([`SceneError`], `error.rs`), the f32
+//! precision checks ([`check_precision`], `precision.rs`) and counter-based
+//! random numbers ([`uniform`], `random.rs`).
 //!
 //! ## Numerical limits
 //!
@@ -40,46 +49,43 @@
 //! behind their origin so that the BVH's absolute 1e-4 box clamp loses no
 //! hit in a scene millimetres across.
 
-mod alpha;
-mod animation;
-mod ao;
-mod camera;
-mod default_scene;
 mod error;
-mod gltf_import;
-mod layout;
-mod node;
+mod import;
+mod model;
 mod pipeline;
 mod points;
-mod pose;
 mod precision;
 mod random;
-mod scene;
-mod skin;
-mod stage;
+mod scenes;
+mod trace;
 
-pub use alpha::{AlphaMask, AlphaTexture};
-pub use animation::{Animation, Channel, Interpolation, Keys};
-pub use ao::{
-    AoParams, AoResult, AoTracer, ChangedPoints, Estimator, Geometry, Layer, MAX_RAYS,
-    RAY_SUM_LANES, TriangleBvh, TriangleMask, barycentric, morton_order, ray_offset,
-};
-pub use camera::{Camera, CameraKey, CameraPath, Frustum};
-pub use default_scene::{MOVING_BOX, TRELLIS, WALKER, cesium_man_scene, default_scene};
 pub use error::{SceneError, check_param};
-pub use gltf_import::{
+pub use import::{
     MAX_ACCESSOR_BYTES, MAX_BUFFER_BYTES, MAX_INSTANCES, MAX_SKINNED_VERTICES, load_gltf,
     load_gltf_slice,
 };
-pub use layout::{LayoutParams, layout};
-pub use node::{Node, Trs, compose};
-pub use pipeline::{AoBackend, FrameReport, Pipeline, PipelineConfig, ViewerCull, Views};
-pub use points::{Anchor, MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
-pub use pose::{Pose, normal_matrix};
+pub use model::alpha::{AlphaMask, AlphaTexture};
+pub use model::animation::{Animation, Channel, Interpolation, Keys};
+pub use model::camera::{Camera, CameraKey, CameraPath, Frustum};
+pub use model::mesh::{Mesh, bounds_of, transformed_bounds};
+pub use model::node::{Node, Trs, compose};
+pub use model::pose::{Pose, normal_matrix};
+pub use model::scene::{Instance, Scene};
+pub use model::skin::{Skin, SkinWeights};
+pub use pipeline::Pipeline;
+pub use pipeline::backend::AoBackend;
+pub use pipeline::config::{PipelineConfig, ViewerCull, Views};
+pub use pipeline::report::FrameReport;
+pub use points::generate::{Anchor, MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
+pub use points::layout::{LayoutParams, layout};
 pub use precision::{
     MAX_ULP_PER_AO_RADIUS, MAX_ULP_PER_POINT_SPACING, check_precision, f32_spacing,
 };
 pub use random::{hash, uniform};
-pub use scene::{Instance, Mesh, Scene, bounds_of, transformed_bounds};
-pub use skin::{Skin, SkinWeights};
-pub use stage::{FLOOR_MARGIN, ORBIT_SECONDS, stage};
+pub use scenes::default_scene::{MOVING_BOX, TRELLIS, WALKER, cesium_man_scene, default_scene};
+pub use scenes::stage::{FLOOR_MARGIN, ORBIT_SECONDS, stage};
+pub use trace::ao::{
+    AoParams, AoResult, AoTracer, ChangedPoints, Estimator, MAX_RAYS, RAY_SUM_LANES, morton_order,
+    ray_offset,
+};
+pub use trace::geometry::{Geometry, Layer, TriangleBvh, TriangleMask, barycentric};

@@ -4,7 +4,7 @@
 use glam::{Affine3A, Mat3A, Vec3};
 
 use crate::error::SceneError;
-use crate::scene::transformed_bounds;
+use crate::model::mesh::transformed_bounds;
 
 /// Largest f32 spacing at a world coordinate, as a fraction of the AO
 /// radius R. Rays start 4 to 8 spacings off their surface

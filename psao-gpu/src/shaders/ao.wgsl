@@ -1,6 +1,6 @@
 // AO of points with ray queries: the same sampling, estimators, radius and
-// ray offset as psao-scene's CPU tracer (psao-scene/src/ao.rs and
-// random.rs), so that with the same seed both trace the same rays.
+// ray offset as psao-scene's CPU tracer (psao-scene/src/trace/ao.rs and
+// src/random.rs), so that with the same seed both trace the same rays.
 enable wgpu_ray_query;
 
 struct Params {

@@ -4,9 +4,10 @@
 
 use glam::{Affine3A, Vec3};
 
-use crate::camera::{CameraKey, CameraPath};
 use crate::error::SceneError;
-use crate::scene::{Mesh, Scene, bounds_of};
+use crate::model::camera::{CameraKey, CameraPath};
+use crate::model::mesh::{Mesh, bounds_of};
+use crate::model::scene::Scene;
 
 /// Margin around the model's bounds covered by the floor, in scene units.
 pub const FLOOR_MARGIN: f32 = 2.0;

@@ -14,12 +14,13 @@ use std::f32::consts::FRAC_PI_2;
 
 use glam::{Affine3A, Quat, Vec2, Vec3};
 
-use crate::alpha::{AlphaMask, AlphaTexture};
-use crate::animation::{Animation, Channel, Interpolation, Keys};
-use crate::camera::{CameraKey, CameraPath};
-use crate::gltf_import::load_gltf_slice;
-use crate::node::Trs;
-use crate::scene::{Mesh, Scene};
+use crate::import::load_gltf_slice;
+use crate::model::alpha::{AlphaMask, AlphaTexture};
+use crate::model::animation::{Animation, Channel, Interpolation, Keys};
+use crate::model::camera::{CameraKey, CameraPath};
+use crate::model::mesh::Mesh;
+use crate::model::node::Trs;
+use crate::model::scene::Scene;
 
 /// Index of the sliding box among the default scene's instances.
 pub const MOVING_BOX: usize = 14;
@@ -31,7 +32,7 @@ pub const TRELLIS: usize = 15;
 pub const WALKER: usize = 16;
 
 /// CesiumMan (CC-BY 4.0, Cesium; see `assets/README.md`).
-const CESIUM_MAN: &[u8] = include_bytes!("../assets/CesiumMan.glb");
+const CESIUM_MAN: &[u8] = include_bytes!("../../assets/CesiumMan.glb");
 
 /// The default scene.
 pub fn default_scene() -> Scene {
@@ -62,7 +63,7 @@ pub fn default_scene() -> Scene {
 pub fn cesium_man_scene() -> Scene {
     let man = load_gltf_slice(CESIUM_MAN, "CesiumMan.glb", None)
         .expect("the embedded CesiumMan model loads");
-    crate::stage::stage(man).expect("the embedded CesiumMan model stages")
+    crate::scenes::stage::stage(man).expect("the embedded CesiumMan model stages")
 }
 
 /// The static part: floor, walls, columns, steps, table, bench, railing.

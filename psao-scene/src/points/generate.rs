@@ -6,8 +6,8 @@ use std::collections::{BinaryHeap, HashMap};
 use glam::{IVec3, Vec3};
 
 use crate::error::{SceneError, check_param};
+use crate::model::mesh::Mesh;
 use crate::random::uniform;
-use crate::scene::Mesh;
 
 /// Where a point sits on its mesh: a triangle, barycentric weights and a
 /// side. A deformed (skinned) mesh carries its points along through it.

@@ -9,7 +9,7 @@
 use glam::{Quat, Vec3};
 
 use crate::error::SceneError;
-use crate::node::{Trs, normalize_quat};
+use crate::model::node::{Trs, normalize_quat};
 
 /// How values between two keys are found.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -5,8 +5,8 @@ use std::borrow::Cow;
 
 use glam::{Affine3A, Vec3};
 
-use crate::node::{Trs, compose};
-use crate::scene::Scene;
+use crate::model::node::{Trs, compose};
+use crate::model::scene::Scene;
 
 /// A scene at one moment.
 #[derive(Clone, Debug, Default, PartialEq)]

@@ -1,0 +1,118 @@
+//! Pipeline settings: what to generate, trace and send
+//! ([`PipelineConfig`]), and per-viewer culling ([`ViewerCull`], and the
+//! [`Views`] it culls to).
+
+use psao_codec::{EncoderConfig, Thresholds};
+
+use crate::model::camera::Frustum;
+use crate::points::layout::LayoutParams;
+use crate::trace::ao::AoParams;
+
+/// Per-viewer culling: the server traces only points near what is seen,
+/// by default the view of the scene's camera path, or the union of the
+/// views given with [`Pipeline::set_views`](crate::Pipeline::set_views) (a
+/// server's clients).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ViewerCull {
+    /// Width over height of the viewer's image.
+    pub aspect: f32,
+    /// Far plane distance.
+    pub far: f32,
+    /// How far beyond the frustum (on top of the AO radius) points still
+    /// count as in view: room for the camera to move before the next frame.
+    pub margin: f32,
+}
+
+impl ViewerCull {
+    /// The near plane distance culling uses: 5 cm, or half the far plane
+    /// when that is nearer.
+    pub fn near(&self) -> f32 {
+        0.05f32.min(self.far * 0.5)
+    }
+}
+
+impl Default for ViewerCull {
+    fn default() -> Self {
+        ViewerCull {
+            aspect: 16.0 / 9.0,
+            far: 100.0,
+            margin: 0.5,
+        }
+    }
+}
+
+/// What culling culls to (with [`PipelineConfig::cull`] set).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub enum Views {
+    /// The scene's camera path at the pipeline's time (nothing is culled
+    /// when the scene has none).
+    #[default]
+    CameraPath,
+    /// The union of these frusta (a server's viewers). An empty list: no
+    /// one looks, every point waits.
+    Frusta(Vec<Frustum>),
+    /// Everything: nothing is culled (a client that does not say what it
+    /// sees is connected).
+    All,
+}
+
+/// Pipeline settings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PipelineConfig {
+    /// Points spawned per unit area (half are kept).
+    pub density: f32,
+    /// Seed of point generation.
+    pub seed: u64,
+    /// AO tracing.
+    pub ao: AoParams,
+    /// When a point is sent again.
+    pub thresholds: Thresholds,
+    /// Grid layout.
+    pub layout: LayoutParams,
+    /// Frame encoding.
+    pub encoder: EncoderConfig,
+    /// Re-trace only what motion can reach (true), or every point every
+    /// frame (false: the baseline the skipping is measured against).
+    pub skip: bool,
+    /// Keep static geometry in a BVH built once and rebuild only the
+    /// moving part (true), or rebuild one BVH over everything whenever
+    /// something moves (false: the baseline).
+    pub split_bvh: bool,
+    /// Trace only near one viewer's frustum (needs a scene camera path);
+    /// `None` when one stream serves many viewers.
+    pub cull: Option<ViewerCull>,
+}
+
+impl PipelineConfig {
+    /// The defaults with `density` points spawned per square metre and
+    /// `rays` AO rays per point (the two settings most callers choose).
+    pub fn with_density_and_rays(density: f32, rays: u32) -> PipelineConfig {
+        PipelineConfig {
+            density,
+            ao: AoParams {
+                rays,
+                ..AoParams::default()
+            },
+            ..PipelineConfig::default()
+        }
+    }
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        PipelineConfig {
+            density: 64.0,
+            seed: 1,
+            ao: AoParams {
+                rays: 64,
+                ..AoParams::default()
+            },
+            thresholds: Thresholds::default(),
+            layout: LayoutParams::default(),
+            encoder: EncoderConfig::default(),
+            skip: true,
+            split_bvh: true,
+            cull: None,
+        }
+    }
+}

@@ -1,0 +1,419 @@
+//! The server frame pipeline (paper 3.3): animate -> carry skinned points
+//! along (in instance-local space) -> choose the points to re-trace ->
+//! trace -> compare with what clients hold (thresholds) -> GridTable ->
+//! Encoder.
+//!
+//! Skipping what the scene does not need is part of the design:
+//! - a rigidly moving instance sends only its transform; its own points are
+//!   re-traced (their surroundings changed) but sent only if their AO moved
+//!   past the threshold;
+//! - a skinned instance re-traces its points when its pose changes, and
+//!   sends those whose position, normal or AO passed the thresholds;
+//! - a static instance is re-traced only where its points lie within reach
+//!   (the AO radius) of a moving instance's swept bounds;
+//! - with per-viewer culling, points outside the viewer's extended frustum
+//!   wait until they come into view;
+//! - static geometry sits in a BVH built once; only the moving part is
+//!   rebuilt;
+//! - a frame with nothing to say is not sent.
+//!
+//! Here are the pipeline's state, its creation (points, grids and the
+//! first trace of every point) and its accessors; [`config`] holds the
+//! settings, [`step`] one frame in its phases, [`bvh`] the BVHs it traces
+//! against, [`dirty`] the tracing and thresholds that make the dirty set,
+//! [`backend`] the [`AoBackend`] it may trace on instead, and [`report`]
+//! what a frame did.
+
+pub(crate) mod backend;
+mod bvh;
+pub(crate) mod config;
+mod dirty;
+pub(crate) mod report;
+mod step;
+
+use std::sync::Arc;
+
+use glam::{Affine3A, Vec3};
+use psao_codec::{EncodedFrame, Encoder, GridTable};
+
+use crate::error::{SceneError, check_param};
+use crate::model::alpha::AlphaMask;
+use crate::model::pose::Pose;
+use crate::model::scene::{Scene, check_transform};
+use crate::points::generate::{PointSet, generate_points};
+use crate::points::layout::layout;
+use crate::precision::check_precision;
+use crate::trace::ao::AoTracer;
+use crate::trace::geometry::TriangleBvh;
+use backend::AoBackend;
+use config::{PipelineConfig, Views};
+
+/// One instance as the pipeline holds it: its points, its pose now, its
+/// table (what clients hold) and its BVH.
+struct InstanceState {
+    /// Points in the mesh's bind pose.
+    points: PointSet,
+    /// Points now (instance-local; skinned instances move them).
+    positions: Vec<Vec3>,
+    /// Point normals now.
+    normals: Vec<Vec3>,
+    /// Skinned vertex positions and normals now (empty: the mesh's own).
+    vertices: Vec<Vec3>,
+    vertex_normals: Vec<Vec3>,
+    /// Room to skin into before the new pose is known to be sound.
+    scratch_vertices: Vec<Vec3>,
+    scratch_normals: Vec<Vec3>,
+    /// Joint matrices of the current pose (skinned instances).
+    joints: Vec<Affine3A>,
+    table: GridTable,
+    transform: Affine3A,
+    transform_seq: u32,
+    /// Local bounds of the mesh as it is now.
+    bounds: (Vec3, Vec3),
+    /// Whether it can move or deform.
+    dynamic: bool,
+    /// Points waiting to be traced until they come into view.
+    pending: Vec<bool>,
+    /// Its own BVH in local space (dynamic instances, split BVH): moved by
+    /// its transform, refitted when it deforms.
+    bvh: Option<Arc<TriangleBvh>>,
+}
+
+/// A server streaming one scene.
+pub struct Pipeline {
+    scene: Scene,
+    config: PipelineConfig,
+    /// Traces instead of the CPU tracer when set.
+    backend: Option<Box<dyn AoBackend>>,
+    instances: Vec<InstanceState>,
+    masks: Vec<Option<Arc<AlphaMask>>>,
+    encoder: Encoder,
+    pose: Pose,
+    /// Transforms set by [`Pipeline::place_instance`], overriding animation.
+    overrides: Vec<Option<Affine3A>>,
+    static_layer: Option<Arc<TriangleBvh>>,
+    whole_layer: Option<Arc<TriangleBvh>>,
+    time: f64,
+    frame: u64,
+    /// What culling culls to.
+    views: Views,
+}
+
+impl std::fmt::Debug for Pipeline {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Pipeline")
+            .field("instances", &self.instances.len())
+            .field("time", &self.time)
+            .field("frame", &self.frame)
+            .finish()
+    }
+}
+
+/// The bounds of `points`; a zero box without points.
+fn bounds_of(points: &[Vec3]) -> (Vec3, Vec3) {
+    crate::model::mesh::bounds_of(points).unwrap_or((Vec3::ZERO, Vec3::ZERO))
+}
+
+/// Most poses sampled to find a skinned instance's bounds over its
+/// animation.
+const MAX_BOUND_SAMPLES: usize = 1800;
+
+impl Pipeline {
+    /// Generates points for every instance, lays out their grids and traces
+    /// every point once (the state the first keyframe carries). Refuses a
+    /// scene that f32 cannot place finely enough for its AO radius and
+    /// point spacing ([`check_precision`], in the pose at time 0).
+    pub fn new(scene: Scene, config: PipelineConfig) -> Result<Pipeline, SceneError> {
+        Pipeline::build(scene, config, None)
+    }
+
+    /// As [`new`](Self::new), with AO traced by `backend` (from the first
+    /// trace on) instead of the CPU tracer.
+    pub fn with_backend(
+        scene: Scene,
+        config: PipelineConfig,
+        backend: Box<dyn AoBackend>,
+    ) -> Result<Pipeline, SceneError> {
+        Pipeline::build(scene, config, Some(backend))
+    }
+
+    /// The backend's name, or "cpu".
+    pub fn backend_name(&self) -> String {
+        self.backend.as_ref().map_or("cpu".into(), |b| b.name())
+    }
+
+    fn build(
+        scene: Scene,
+        config: PipelineConfig,
+        backend: Option<Box<dyn AoBackend>>,
+    ) -> Result<Pipeline, SceneError> {
+        scene.validate()?;
+        config.ao.validate()?;
+        if let Some(c) = &config.cull {
+            check_param("cull.aspect", c.aspect as f64, 1e-3, 1e3, "in [1e-3, 1e3]")?;
+            check_param("cull.far", c.far as f64, 1e-3, 1e9, "in [1e-3, 1e9]")?;
+            check_param("cull.margin", c.margin as f64, 0.0, 1e9, "in [0, 1e9]")?;
+        }
+        let dynamic = scene.dynamic_instances();
+        let pose = scene.pose(0.0);
+        let skin_bounds = skinned_bounds(&scene, &dynamic);
+        let masks = scene
+            .meshes
+            .iter()
+            .map(|m| m.alpha.clone().map(Arc::new))
+            .collect();
+        let mut instances = Vec::with_capacity(scene.instances.len());
+        for (i, inst) in scene.instances.iter().enumerate() {
+            let mesh = &scene.meshes[inst.mesh];
+            let seed = config.seed ^ ((i as u64) << 32);
+            let points = generate_points(mesh, config.density, seed)?;
+            let rest = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ZERO));
+            let grid_bounds = skin_bounds[i].unwrap_or(rest);
+            check_precision(
+                i,
+                &pose.instances[i],
+                grid_bounds,
+                points.radius,
+                config.ao.radius,
+            )?;
+            let sides = if mesh.double_sided { 2.0 } else { 1.0 };
+            let def = layout(
+                i,
+                grid_bounds,
+                mesh.area() * sides,
+                points.len(),
+                points.radius.max(1e-6),
+                &config.layout,
+            )?;
+            let table = GridTable::new(i as u32, def, points.len().max(1) as u32)?;
+            let (vertices, vertex_normals) = scene.skinned(i, &pose);
+            let skinned = inst.skin.is_some() && mesh.skin.is_some();
+            let (mut positions, mut normals) = (Vec::new(), Vec::new());
+            if skinned {
+                points.follow(
+                    mesh,
+                    &vertices,
+                    &vertex_normals,
+                    &mut positions,
+                    &mut normals,
+                );
+            } else {
+                positions.clone_from(&points.positions);
+                normals.clone_from(&points.normals);
+            }
+            let (vertices, vertex_normals) = if skinned {
+                (vertices.into_owned(), vertex_normals.into_owned())
+            } else {
+                (Vec::new(), Vec::new())
+            };
+            let bounds = if skinned { bounds_of(&vertices) } else { rest };
+            instances.push(InstanceState {
+                pending: if config.cull.is_some() {
+                    vec![false; points.len()]
+                } else {
+                    Vec::new()
+                },
+                points,
+                positions,
+                normals,
+                vertices,
+                vertex_normals,
+                scratch_vertices: Vec::new(),
+                scratch_normals: Vec::new(),
+                joints: pose.joints[i].clone(),
+                table,
+                transform: pose.instances[i],
+                transform_seq: 0,
+                bounds,
+                dynamic: dynamic[i],
+                bvh: None,
+            });
+        }
+        let mut pipeline = Pipeline {
+            scene,
+            backend,
+            encoder: Encoder::new(config.encoder),
+            config,
+            instances,
+            masks,
+            overrides: vec![None; pose.instances.len()],
+            pose,
+            static_layer: None,
+            whole_layer: None,
+            time: 0.0,
+            frame: 0,
+            views: Views::CameraPath,
+        };
+        let all: Vec<Vec<u32>> = pipeline
+            .instances
+            .iter()
+            .map(|s| (0..s.points.len() as u32).collect())
+            .collect();
+        let tracer = pipeline.backend.is_none().then(|| pipeline.tracer(false));
+        pipeline.trace_and_update(tracer.as_ref(), &all, true)?;
+        for s in &mut pipeline.instances {
+            s.table.take_dirty();
+        }
+        Ok(pipeline)
+    }
+
+    /// Seconds of scene time so far.
+    pub fn time(&self) -> f32 {
+        self.time as f32
+    }
+
+    /// Sets what culling (when configured) culls to from the next step
+    /// on: the scene's camera path (the default), the union of viewers'
+    /// frusta, or nothing. Points culled meanwhile wait and are traced when
+    /// they come into a view.
+    pub fn set_views(&mut self, views: Views) {
+        self.views = views;
+    }
+
+    /// The settings it runs with.
+    pub fn config(&self) -> &PipelineConfig {
+        &self.config
+    }
+
+    /// The scene being streamed.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// The table of instance `i`.
+    pub fn table(&self, i: usize) -> Option<&GridTable> {
+        self.instances.get(i).map(|s| &s.table)
+    }
+
+    /// Number of instances.
+    pub fn instance_count(&self) -> usize {
+        self.instances.len()
+    }
+
+    /// The points of instance `i` in its mesh's bind pose (local space).
+    pub fn points(&self, i: usize) -> Option<&PointSet> {
+        self.instances.get(i).map(|s| &s.points)
+    }
+
+    /// Positions and normals of instance `i`'s points now (local space;
+    /// skinned instances move them).
+    pub fn current_points(&self, i: usize) -> Option<(&[Vec3], &[Vec3])> {
+        self.instances
+            .get(i)
+            .map(|s| (s.positions.as_slice(), s.normals.as_slice()))
+    }
+
+    /// World transform of instance `i` now.
+    pub fn transform(&self, i: usize) -> Option<Affine3A> {
+        self.instances.get(i).map(|s| s.transform)
+    }
+
+    /// A tracer over the scene as it is now (what [`step`](Self::step)
+    /// traces against), for reference renders and tests.
+    pub fn current_tracer(&mut self) -> AoTracer {
+        self.tracer(false)
+    }
+
+    /// Places dynamic instance `i` at `transform` from the next step on, in
+    /// place of its animation (a scene event, such as a user moving an
+    /// object). Static instances share one BVH built once and cannot be
+    /// moved; a singular or non-finite transform is refused, and so is one
+    /// that takes it where f32 is too coarse ([`check_precision`]).
+    pub fn place_instance(&mut self, i: usize, transform: Affine3A) -> Result<(), SceneError> {
+        let Some(s) = self.instances.get(i) else {
+            return Err(SceneError::Element {
+                element: format!("instance {i}"),
+                reason: format!("the scene has {} instances", self.instances.len()),
+            });
+        };
+        if !s.dynamic {
+            return Err(SceneError::Element {
+                element: format!("instance {i}"),
+                reason: "is static (no animation moves it), so it cannot be placed".into(),
+            });
+        }
+        check_transform(i, &transform, Some(s.bounds))?;
+        check_precision(
+            i,
+            &transform,
+            s.bounds,
+            s.points.radius,
+            self.config.ao.radius,
+        )?;
+        self.overrides[i] = Some(transform);
+        Ok(())
+    }
+
+    /// Whether instance `i` can move (an animation drives it or its skin).
+    pub fn is_dynamic(&self, i: usize) -> bool {
+        self.instances.get(i).is_some_and(|s| s.dynamic)
+    }
+
+    /// A keyframe of the current state (for a client joining now).
+    pub fn keyframe(&mut self) -> Result<EncodedFrame, SceneError> {
+        let mut kf = self.encoder.keyframe();
+        for s in &self.instances {
+            kf.snapshot(&s.table)?;
+            kf.transform(s.table.id(), s.transform_seq, &s.transform.to_cols_array());
+        }
+        // A keyframe is always a frame (finish returns None only for empty
+        // deltas).
+        kf.finish()?
+            .ok_or(SceneError::Encode(psao_codec::EncodeError::FrameTooLarge))
+    }
+}
+
+/// For each skinned instance, the local bounds of its skinned vertices at
+/// time 0 and, when it is animated, over its animations, grown by 5% of
+/// their extent: room for its grid. Animations loop over their own
+/// durations, so together they repeat only after a common multiple of
+/// them; poses are sampled at 30 Hz over the sum of the distinct durations
+/// (which covers each animation's whole loop against several phases of the
+/// others), at most 60 s and [`MAX_BOUND_SAMPLES`] poses. A pose beyond the
+/// sampled ones can still push points out of the grid: they are dropped and
+/// counted (`TableStats::out_of_grid`), never an error.
+fn skinned_bounds(scene: &Scene, dynamic: &[bool]) -> Vec<Option<(Vec3, Vec3)>> {
+    let mut out = vec![None; scene.instances.len()];
+    let skinned: Vec<usize> = (0..scene.instances.len())
+        .filter(|&i| {
+            scene.instances[i].skin.is_some()
+                && scene.meshes[scene.instances[i].mesh].skin.is_some()
+        })
+        .collect();
+    if skinned.is_empty() {
+        return out;
+    }
+    let mut durations: Vec<f32> = scene
+        .animations
+        .iter()
+        .map(|a| a.duration())
+        .filter(|d| *d > 0.0)
+        .collect();
+    durations.sort_by(f32::total_cmp);
+    durations.dedup();
+    let horizon = durations.iter().sum::<f32>().min(60.0);
+    let samples = ((horizon * 30.0).ceil() as usize).clamp(1, MAX_BOUND_SAMPLES);
+    let mut pose = Pose::default();
+    for k in 0..=samples {
+        scene.pose_into(horizon * k as f32 / samples as f32, &mut pose);
+        for &i in &skinned {
+            if k > 0 && !dynamic[i] {
+                continue;
+            }
+            let (p, _) = scene.skinned(i, &pose);
+            let b = bounds_of(&p);
+            if !b.0.is_finite() || !b.1.is_finite() {
+                continue;
+            }
+            out[i] = Some(match out[i] {
+                Some((lo, hi)) => (b.0.min(lo), b.1.max(hi)),
+                None => b,
+            });
+        }
+    }
+    for b in out.iter_mut().flatten() {
+        let pad = (b.1 - b.0) * 0.05;
+        *b = (b.0 - pad, b.1 + pad);
+    }
+    out
+}

@@ -1,0 +1,66 @@
+//! What one server frame did: counts and the time of each phase
+//! ([`FrameReport`]).
+
+use std::time::Duration;
+
+/// What one server frame did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameReport {
+    /// Points in the scene.
+    pub points: u64,
+    /// Points re-traced.
+    pub traced: u64,
+    /// Points that needed re-tracing but were out of the viewer's view
+    /// (they wait until they come into view).
+    pub culled: u64,
+    /// Rays cast.
+    pub rays: u64,
+    /// Points whose change passed the thresholds (set in their table).
+    pub updated: u64,
+    /// Transforms sent.
+    pub transforms: u32,
+    /// Skinned instances whose pose changed.
+    pub deformed: u32,
+    /// Instances whose new pose was degenerate (a singular or non-finite
+    /// transform, or skinned vertices that overflow) and that kept their
+    /// last valid pose instead.
+    pub held: u32,
+    /// Bytes of the frame sent (0 when none was).
+    pub bytes: u64,
+    /// Time to evaluate animations and skin meshes and points.
+    pub t_animate: Duration,
+    /// Time to choose the points to re-trace.
+    pub t_select: Duration,
+    /// Time to build BVHs.
+    pub t_bvh: Duration,
+    /// Time to trace.
+    pub t_trace: Duration,
+    /// Time to update tables and encode.
+    pub t_encode: Duration,
+}
+
+impl FrameReport {
+    /// Adds `other`'s counts and times to this one (`points` is kept as the
+    /// larger of the two).
+    pub fn accumulate(&mut self, other: &FrameReport) {
+        self.points = self.points.max(other.points);
+        self.traced += other.traced;
+        self.culled += other.culled;
+        self.rays += other.rays;
+        self.updated += other.updated;
+        self.transforms += other.transforms;
+        self.deformed += other.deformed;
+        self.held += other.held;
+        self.bytes += other.bytes;
+        self.t_animate += other.t_animate;
+        self.t_select += other.t_select;
+        self.t_bvh += other.t_bvh;
+        self.t_trace += other.t_trace;
+        self.t_encode += other.t_encode;
+    }
+
+    /// Server time of the frame, all stages.
+    pub fn total_time(&self) -> Duration {
+        self.t_animate + self.t_select + self.t_bvh + self.t_trace + self.t_encode
+    }
+}

@@ -1,0 +1,277 @@
+//! One server frame, [`Pipeline::step`], in its phases: animate and skin,
+//! choose what motion can reach, cull per viewer, update the BVHs, trace
+//! and apply the thresholds (the dirty set), encode. Each is timed in the
+//! [`FrameReport`].
+
+use std::time::Instant;
+
+use glam::Vec3;
+use psao_codec::EncodedFrame;
+
+use super::config::{ViewerCull, Views};
+use super::report::FrameReport;
+use super::{Pipeline, bounds_of};
+use crate::error::{SceneError, check_param};
+use crate::model::camera::Frustum;
+use crate::model::mesh::transformed_bounds;
+use crate::model::scene::check_transform;
+use crate::trace::ao::{AoParams, AoTracer, ray_offset};
+
+/// Where a step's animation moved or deformed instances.
+struct Motion {
+    /// Per instance, whether its transform changed (it is sent).
+    moved: Vec<bool>,
+    /// Per instance, whether it moved or deformed.
+    changed: Vec<bool>,
+    /// The skinned instances whose pose changed.
+    deformed: Vec<usize>,
+    /// The world box each change swept (before and after), grown by what
+    /// an AO ray reaches ([`grow`]).
+    swept: Vec<(Vec3, Vec3)>,
+}
+
+/// A box grown by what an AO ray from inside it reaches. A ray reaches R
+/// beyond its origin, which sits `ray_offset` off the surface: grow boxes
+/// by both (the offset at the box's farthest corner), plus a millimetre of
+/// slack.
+fn grow(ao: &AoParams, b: (Vec3, Vec3)) -> (Vec3, Vec3) {
+    let far = b.0.abs().max(b.1.abs());
+    let reach = ao.radius + ray_offset(ao.bias, far) + 1e-3;
+    (b.0 - Vec3::splat(reach), b.1 + Vec3::splat(reach))
+}
+
+fn overlaps(a: (Vec3, Vec3), b: (Vec3, Vec3)) -> bool {
+    a.0.cmple(b.1).all() && b.0.cmple(a.1).all()
+}
+
+impl Pipeline {
+    /// Advances the scene by `dt` seconds and produces the frame clients
+    /// need, if any. Scene time is kept in f64, so a run is the same for
+    /// the same sequence of steps.
+    pub fn step(&mut self, dt: f32) -> Result<(Option<EncodedFrame>, FrameReport), SceneError> {
+        check_param("dt", dt as f64, 0.0, 1e6, "finite, in [0, 1e6] seconds")?;
+        let t0 = Instant::now();
+        self.time += dt as f64;
+        self.frame += 1;
+        let mut report = FrameReport {
+            points: self.instances.iter().map(|s| s.points.len() as u64).sum(),
+            ..FrameReport::default()
+        };
+        let motion = self.animate(&mut report);
+        report.t_animate = t0.elapsed();
+        let t1 = Instant::now();
+        let mut which = self.points_to_retrace(&motion);
+        if let Some(cull) = self.config.cull {
+            report.culled = self.cull(&cull, &mut which);
+        }
+        report.t_select = t1.elapsed();
+        let anything = which.iter().any(|w| !w.is_empty());
+        let t2 = Instant::now();
+        let tracer = self.update_bvhs(&motion, anything);
+        report.t_bvh = t2.elapsed();
+        let t3 = Instant::now();
+        if anything {
+            let (traced, rays, updated) = self.trace_and_update(tracer.as_ref(), &which, false)?;
+            report.traced = traced;
+            report.rays = rays;
+            report.updated = updated;
+        }
+        report.t_trace = t3.elapsed();
+        let t4 = Instant::now();
+        let frame = self.encode(&motion.moved, &mut report)?;
+        report.t_encode = t4.elapsed();
+        Ok((frame, report))
+    }
+
+    /// Animates the scene to the pipeline's time and takes each dynamic
+    /// instance to its new pose (its transform, from the animation or
+    /// [`place_instance`](Self::place_instance), and for a skinned one its
+    /// skinned vertices and the points on them); remembers where motion
+    /// happened (swept bounds). Counts deformed and held instances in
+    /// `report`.
+    fn animate(&mut self, report: &mut FrameReport) -> Motion {
+        let ao = self.config.ao;
+        self.scene.pose_into(self.time as f32, &mut self.pose);
+        let mut motion = Motion {
+            moved: vec![false; self.instances.len()],
+            changed: vec![false; self.instances.len()],
+            deformed: Vec::new(),
+            swept: Vec::new(),
+        };
+        for (i, s) in self.instances.iter_mut().enumerate() {
+            if !s.dynamic {
+                continue;
+            }
+            let next = self.overrides[i].unwrap_or(self.pose.instances[i]);
+            let joints = &self.pose.joints[i];
+            let deformed = !s.vertices.is_empty() && *joints != s.joints;
+            if next == s.transform && !deformed {
+                continue;
+            }
+            // Work out the new state before changing anything: a degenerate
+            // pose (a singular or non-finite transform, say an object
+            // scaled to zero to hide it, or skinned vertices that overflow)
+            // keeps the instance where it was.
+            let inst = &self.scene.instances[i];
+            let mesh = &self.scene.meshes[inst.mesh];
+            let mut bounds = s.bounds;
+            if deformed && let Some(w) = &mesh.skin {
+                w.skin(
+                    &mesh.positions,
+                    &mesh.normals,
+                    joints,
+                    &mut s.scratch_vertices,
+                    &mut s.scratch_normals,
+                );
+                bounds = bounds_of(&s.scratch_vertices);
+            }
+            let after = transformed_bounds(&next, bounds);
+            if check_transform(i, &next, Some(bounds)).is_err()
+                || !after.0.is_finite()
+                || !after.1.is_finite()
+            {
+                report.held += 1;
+                continue;
+            }
+            let before = transformed_bounds(&s.transform, s.bounds);
+            if deformed {
+                std::mem::swap(&mut s.vertices, &mut s.scratch_vertices);
+                std::mem::swap(&mut s.vertex_normals, &mut s.scratch_normals);
+                s.points.follow(
+                    mesh,
+                    &s.vertices,
+                    &s.vertex_normals,
+                    &mut s.positions,
+                    &mut s.normals,
+                );
+                s.bounds = bounds;
+                s.joints.clone_from(joints);
+                report.deformed += 1;
+                motion.deformed.push(i);
+            }
+            motion
+                .swept
+                .push(grow(&ao, (before.0.min(after.0), before.1.max(after.1))));
+            if next != s.transform {
+                s.transform = next;
+                s.transform_seq = s.transform_seq.wrapping_add(1);
+                motion.moved[i] = true;
+            }
+            motion.changed[i] = true;
+        }
+        motion
+    }
+
+    /// Chooses the points to re-trace, per instance: every point without
+    /// skipping; otherwise every point of an instance that moved or
+    /// deformed, and the points of the others that lie within what the
+    /// motion can reach (its swept bounds).
+    fn points_to_retrace(&self, motion: &Motion) -> Vec<Vec<u32>> {
+        let ao = self.config.ao;
+        let mut which: Vec<Vec<u32>> = vec![Vec::new(); self.instances.len()];
+        if !self.config.skip {
+            for (w, s) in which.iter_mut().zip(&self.instances) {
+                *w = (0..s.points.len() as u32).collect();
+            }
+        } else if !motion.swept.is_empty() {
+            let swept = &motion.swept;
+            for (i, s) in self.instances.iter().enumerate() {
+                if motion.changed[i] {
+                    which[i] = (0..s.points.len() as u32).collect();
+                    continue;
+                }
+                let wb = transformed_bounds(&s.transform, s.bounds);
+                if !swept.iter().any(|&b| overlaps(b, grow(&ao, wb))) {
+                    continue;
+                }
+                which[i] = (0..s.points.len() as u32)
+                    .filter(|&k| {
+                        let p = s.transform.transform_point3(s.positions[k as usize]);
+                        swept
+                            .iter()
+                            .any(|b| p.cmpge(b.0).all() && p.cmple(b.1).all())
+                    })
+                    .collect();
+            }
+        }
+        which
+    }
+
+    /// Keeps in `which` only the points near the viewer's frustum; the
+    /// others become pending, and pending points now in view join `which`.
+    /// Returns how many points wait.
+    fn cull(&mut self, cull: &ViewerCull, which: &mut [Vec<u32>]) -> u64 {
+        let frusta: Vec<Frustum> = match &self.views {
+            Views::All => Vec::new(),
+            Views::Frusta(f) => f.clone(),
+            Views::CameraPath => match &self.scene.camera {
+                Some(path) => {
+                    vec![
+                        path.at(self.time as f32)
+                            .frustum(cull.aspect, cull.near(), cull.far),
+                    ]
+                }
+                None => Vec::new(),
+            },
+        };
+        let everything = matches!(self.views, Views::All)
+            || (self.views == Views::CameraPath && self.scene.camera.is_none());
+        let reach = cull.margin + self.config.ao.radius;
+        let mut waiting = 0u64;
+        for (s, w) in self.instances.iter_mut().zip(which.iter_mut()) {
+            for &k in w.iter() {
+                s.pending[k as usize] = true;
+            }
+            w.clear();
+            for (k, pending) in s.pending.iter_mut().enumerate() {
+                if !*pending {
+                    continue;
+                }
+                let p = s.transform.transform_point3(s.positions[k]);
+                if everything || frusta.iter().any(|f| f.touches_sphere(p, reach)) {
+                    *pending = false;
+                    w.push(k as u32);
+                } else {
+                    waiting += 1;
+                }
+            }
+        }
+        waiting
+    }
+
+    /// Brings the BVHs up to date with the motion: refits the deformed
+    /// instances' own BVHs (split BVH), or drops the one BVH over
+    /// everything when anything changed (rebuilt the next time something is
+    /// traced). Returns the CPU tracer when there is `anything` to trace
+    /// and no backend.
+    fn update_bvhs(&mut self, motion: &Motion, anything: bool) -> Option<AoTracer> {
+        if self.config.split_bvh {
+            self.refit_deformed(&motion.deformed);
+        } else if motion.changed.contains(&true) {
+            // Rebuilt the next time something is traced.
+            self.whole_layer = None;
+        }
+        (anything && self.backend.is_none()).then(|| self.tracer(false))
+    }
+
+    /// Encodes the frame: the transforms of the instances that `moved` and
+    /// every table's changes (the dirty set); `None` when there is nothing
+    /// to say. Counts transforms and bytes in `report`.
+    fn encode(
+        &mut self,
+        moved: &[bool],
+        report: &mut FrameReport,
+    ) -> Result<Option<EncodedFrame>, SceneError> {
+        let mut frame = self.encoder.delta();
+        for (i, s) in self.instances.iter_mut().enumerate() {
+            if moved[i] {
+                frame.transform(s.table.id(), s.transform_seq, &s.transform.to_cols_array());
+                report.transforms += 1;
+            }
+            frame.changes(&mut s.table);
+        }
+        let frame = frame.finish()?;
+        report.bytes = frame.as_ref().map_or(0, |f| f.bytes.len() as u64);
+        Ok(frame)
+    }
+}

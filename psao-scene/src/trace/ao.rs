@@ -1,0 +1,318 @@
+//! CPU ray-traced ambient occlusion for points (paper 3.3) with obvhs.
+//!
+//! Two estimators with the same expectation, `E[min(t, R) / R]` over
+//! cosine-distributed directions:
+//! - closest hit: trace to `R`, score `min(t, R) / R`;
+//! - Laine-Karras: draw `u` uniform in `[0, 1)`, trace a first-hit
+//!   (occlusion) ray of length `u R`, score 1 if it misses. Since
+//!   `P(t > u R) = E[min(t, R) / R]` for uniform `u`, the mean is the same,
+//!   with shorter rays that stop at the first hit.
+
+use std::sync::Arc;
+
+use glam::{Vec3, Vec3A};
+use psao_codec::{SentPoint, Thresholds};
+use rayon::prelude::*;
+
+use super::geometry::{Geometry, Layer, RAY_LEAD, TriangleBvh};
+use crate::error::{SceneError, check_param};
+use crate::random::{hash, uniform};
+
+/// The golden ratio's fractional part in 32-bit fixed point.
+const GOLDEN: u32 = 0x9E37_79B9;
+
+/// Most rays per point.
+pub const MAX_RAYS: u32 = 1 << 20;
+
+/// How a point's ray scores are added up: ray `k` goes into partial sum
+/// `k % RAY_SUM_LANES`, and the partial sums are then added in order. A
+/// GPU that traces one point on this many invocations (psao-gpu) adds in
+/// the same order, so the two backends round alike.
+pub const RAY_SUM_LANES: u32 = 8;
+
+/// Which AO estimator to use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Estimator {
+    /// Closest-hit rays of length R, scored `min(t, R) / R`.
+    ClosestHit,
+    /// Occlusion rays of uniform random length in `[0, R)`, scored 0 or 1
+    /// (Laine and Karras 2010).
+    LaineKarras,
+}
+
+/// AO parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AoParams {
+    /// Falloff radius R (the paper: 0.6 m).
+    pub radius: f32,
+    /// Rays per point (the prototype: 192).
+    pub rays: u32,
+    /// Ray origin offset along the normal, against self-intersection.
+    pub bias: f32,
+    /// The estimator.
+    pub estimator: Estimator,
+    /// Seed of the ray directions (and lengths).
+    pub seed: u64,
+}
+
+impl AoParams {
+    /// Checks radius (finite, > 0), bias (finite, >= 0) and rays
+    /// (at most [`MAX_RAYS`]).
+    pub fn validate(&self) -> Result<(), SceneError> {
+        check_param(
+            "radius",
+            self.radius as f64,
+            1e-30,
+            1e30,
+            "finite and positive",
+        )?;
+        check_param(
+            "bias",
+            self.bias as f64,
+            0.0,
+            1e30,
+            "finite and not negative",
+        )?;
+        check_param(
+            "rays",
+            self.rays as f64,
+            0.0,
+            MAX_RAYS as f64,
+            "at most 2^20",
+        )
+    }
+}
+
+impl Default for AoParams {
+    fn default() -> Self {
+        AoParams {
+            radius: 0.6,
+            rays: 192,
+            bias: 1e-3,
+            estimator: Estimator::ClosestHit,
+            seed: 1,
+        }
+    }
+}
+
+/// Traces AO rays against one or more placed triangle BVHs (for example a
+/// static one built once, and one per moving instance).
+#[derive(Clone, Debug)]
+pub struct AoTracer {
+    layers: Vec<Layer>,
+}
+
+/// AO of a batch of points.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct AoResult {
+    /// AO per point, in input order (1 = open).
+    pub ao: Vec<f32>,
+    /// Rays traced.
+    pub rays: u64,
+}
+
+/// The points of a batch worth sending: those whose new AO, position or
+/// normal passed the thresholds against what clients hold
+/// ([`psao_codec::SentPoint::changed`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ChangedPoints {
+    /// Indices into the batch of the changed points, ascending.
+    pub changed: Vec<u32>,
+    /// AO of each changed point, in the order of `changed`.
+    pub ao: Vec<f32>,
+    /// The cells whose held words change (`SentPoint::cell` of the changed
+    /// points that had a word), ascending, each once. A changed point
+    /// without a word gets a cell only when it is set.
+    pub cells: Vec<u32>,
+    /// Rays traced.
+    pub rays: u64,
+}
+
+impl ChangedPoints {
+    /// Compares a traced batch with what clients hold, one record per
+    /// point, on the host.
+    pub fn compare(
+        result: &AoResult,
+        sent: &[SentPoint],
+        thresholds: &Thresholds,
+    ) -> Result<ChangedPoints, SceneError> {
+        if sent.len() != result.ao.len() {
+            return Err(SceneError::SentCount {
+                points: result.ao.len(),
+                sent: sent.len(),
+            });
+        }
+        let mut out = ChangedPoints {
+            rays: result.rays,
+            ..ChangedPoints::default()
+        };
+        for (i, (s, &ao)) in sent.iter().zip(&result.ao).enumerate() {
+            if s.changed(ao, thresholds) {
+                out.changed.push(i as u32);
+                out.ao.push(ao);
+                if s.word.is_allocated() {
+                    out.cells.push(s.cell);
+                }
+            }
+        }
+        out.cells.sort_unstable();
+        out.cells.dedup();
+        Ok(out)
+    }
+}
+
+impl AoTracer {
+    /// Builds one BVH over `triangles` (all solid).
+    pub fn new(triangles: &[[Vec3; 3]]) -> AoTracer {
+        AoTracer::from_layers(vec![Layer::world(Arc::new(TriangleBvh::new(Geometry {
+            triangles: triangles.to_vec(),
+            masks: Vec::new(),
+        })))])
+    }
+
+    /// Traces against all of `layers` together.
+    pub fn from_layers(layers: Vec<Layer>) -> AoTracer {
+        AoTracer { layers }
+    }
+
+    /// Number of triangles over all layers.
+    pub fn triangles(&self) -> usize {
+        self.layers.iter().map(|l| l.bvh().len()).sum()
+    }
+
+    /// AO at points with unit normals; point `i` draws its random numbers
+    /// as point id `i`. See [`trace_ids`](Self::trace_ids).
+    pub fn trace(
+        &self,
+        points: &[Vec3],
+        normals: &[Vec3],
+        p: &AoParams,
+    ) -> Result<AoResult, SceneError> {
+        let ids: Vec<u32> = (0..points.len() as u32).collect();
+        self.trace_ids(&ids, points, normals, p)
+    }
+
+    /// AO at points with unit normals and stable ids (a point's random
+    /// numbers depend on its id, so re-tracing a subset gives each point
+    /// the same rays). Rays are traced in parallel over points sorted along
+    /// a Morton curve (coherent rays); the result does not depend on the
+    /// thread count. A non-finite point, or one so near the largest f32
+    /// that its ray origin overflows, is reported open (1).
+    pub fn trace_ids(
+        &self,
+        ids: &[u32],
+        points: &[Vec3],
+        normals: &[Vec3],
+        p: &AoParams,
+    ) -> Result<AoResult, SceneError> {
+        p.validate()?;
+        if points.len() != normals.len() || points.len() != ids.len() {
+            return Err(SceneError::LengthMismatch {
+                points: points.len(),
+                normals: normals.len().min(ids.len()),
+            });
+        }
+        let order = morton_order(points);
+        let mut sorted: Vec<(usize, f32)> = order
+            .par_iter()
+            .map(|&i| (i, self.point_ao(ids[i], points[i], normals[i], p)))
+            .collect();
+        sorted.sort_unstable_by_key(|x| x.0);
+        Ok(AoResult {
+            ao: sorted.into_iter().map(|x| x.1).collect(),
+            rays: points.len() as u64 * p.rays as u64,
+        })
+    }
+
+    /// AO at one point; `id` selects its random numbers. `p` must be
+    /// valid ([`AoParams::validate`]).
+    fn point_ao(&self, id: u32, point: Vec3, normal: Vec3, p: &AoParams) -> f32 {
+        if self.layers.iter().all(|l| l.bvh().is_empty()) {
+            return 1.0;
+        }
+        if p.rays == 0 || !point.is_finite() {
+            return 1.0;
+        }
+        let n = normal.try_normalize().unwrap_or(Vec3::Z);
+        let (t1, t2) = n.any_orthonormal_pair();
+        let bias = ray_offset(p.bias, point);
+        let origin = Vec3A::from(point + n * bias);
+        if !origin.is_finite() {
+            // Within a ray offset of the largest f32: nothing to trace from.
+            return 1.0;
+        }
+        let shift = hash(p.seed as u32 ^ hash(id ^ hash((p.seed >> 32) as u32)));
+        let mut sums = [0.0f32; RAY_SUM_LANES as usize];
+        for k in 0..p.rays {
+            let sum = &mut sums[(k % RAY_SUM_LANES) as usize];
+            // Stratified in r1 (one stratum per ray), random within.
+            let r1 = (k as f32 + uniform(p.seed, id, 3 * k)) / p.rays as f32;
+            let r2 = uniform(p.seed, id, 3 * k + 1);
+            let (s, c) = (std::f32::consts::TAU * r2).sin_cos();
+            let rr = r1.sqrt();
+            let dir = t1 * (rr * c) + t2 * (rr * s) + n * (1.0 - r1).max(0.0).sqrt();
+            let dir = Vec3A::from(dir);
+            match p.estimator {
+                Estimator::ClosestHit => {
+                    // Each layer's ray ends at the nearest hit so far.
+                    let mut t = p.radius;
+                    for l in &self.layers {
+                        if let Some(ray) = l.local(origin, dir, t) {
+                            t = t.min(l.bvh().closest(ray) - RAY_LEAD);
+                        }
+                    }
+                    *sum += t / p.radius;
+                }
+                Estimator::LaineKarras => {
+                    // Lengths from a golden-ratio sequence, rotated per
+                    // point: evenly spread over [0, 1) and uncorrelated
+                    // with the direction strata.
+                    let u = (k.wrapping_mul(GOLDEN).wrapping_add(shift) >> 8) as f32
+                        / (1u32 << 24) as f32;
+                    let len = u * p.radius;
+                    if self
+                        .layers
+                        .iter()
+                        .all(|l| l.local(origin, dir, len).is_none_or(|r| l.bvh().misses(r)))
+                    {
+                        *sum += 1.0;
+                    }
+                }
+            }
+        }
+        sums.iter().fold(0.0, |total, &s| total + s) / p.rays as f32
+    }
+}
+
+/// How far along its normal a ray starts from `point`: the configured bias
+/// plus a part that grows with the coordinates, so the offset stays above
+/// f32 rounding far from the origin.
+pub fn ray_offset(bias: f32, point: Vec3) -> f32 {
+    bias + point.abs().max_element() * (1.0 / (1u32 << 21) as f32)
+}
+
+/// Indices of `points` sorted along a 30-bit Morton curve over their bounds.
+pub fn morton_order(points: &[Vec3]) -> Vec<usize> {
+    let Some(&first) = points.first() else {
+        return Vec::new();
+    };
+    let (lo, hi) = points
+        .iter()
+        .filter(|p| p.is_finite())
+        .fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p)));
+    let scale = 1023.0 / (hi - lo).max_element().max(f32::MIN_POSITIVE);
+    let spread = |v: u32| {
+        let mut x = v & 0x3FF;
+        x = (x | (x << 16)) & 0x030000FF;
+        x = (x | (x << 8)) & 0x0300F00F;
+        x = (x | (x << 4)) & 0x030C30C3;
+        (x | (x << 2)) & 0x09249249
+    };
+    let code = |p: Vec3| {
+        let q = ((p - lo) * scale).clamp(Vec3::ZERO, Vec3::splat(1023.0));
+        spread(q.x as u32) | (spread(q.y as u32) << 1) | (spread(q.z as u32) << 2)
+    };
+    let mut idx: Vec<usize> = (0..points.len()).collect();
+    idx.sort_by_key(|&i| (code(points[i]), i));
+    idx
+}

@@ -1,0 +1,9 @@
+//! AO, the third stage of the data path (paper 3.3): CPU ray tracing with
+//! obvhs of the ambient occlusion at points. [`geometry`] holds what rays
+//! are traced against (triangles with alpha masks, BVHs over them, BVHs
+//! placed in the world as layers); [`ao`] the tracer itself (parameters,
+//! the closest-hit and Laine-Karras estimators, results, and which traced
+//! points changed enough to send).
+
+pub(crate) mod ao;
+pub(crate) mod geometry;
