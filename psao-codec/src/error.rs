@@ -3,7 +3,7 @@
 
 use thiserror::Error;
 
-use crate::wire::compress::Compression;
+use crate::wire::compression::Compression;
 
 /// A rule of an instance definition that was broken.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Error)]

@@ -68,5 +68,5 @@ pub use server::encoder::{EncodedFrame, Encoder, EncoderConfig, FrameBuilder, Fr
 pub use server::table::{
     DirtyCell, DirtySet, DropReason, GridTable, Placement, SentPoint, TableStats, Thresholds,
 };
-pub use wire::compress::Compression;
+pub use wire::compression::Compression;
 pub use wire::point::{POSITION_QUANTA, PointWord, normal_table};

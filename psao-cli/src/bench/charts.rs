@@ -7,7 +7,7 @@ use anyhow::Context as _;
 use plotters::prelude::*;
 
 use super::images::register_fonts;
-use super::measure::{Method, Row, SceneResult};
+use super::model::{Method, Row, SceneResult};
 
 /// Chart size, pixels.
 const SIZE: (u32, u32) = (900, 560);

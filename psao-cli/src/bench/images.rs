@@ -11,7 +11,7 @@ use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 use psao_eval::{GBuffer, NO_INSTANCE, error_map};
 
-use super::measure::{Frame, SceneResult};
+use super::model::{Frame, SceneResult};
 
 /// DejaVu Sans (see assets/README.md): text in charts and pictures needs no
 /// system font.

@@ -31,12 +31,13 @@ use anyhow::Context as _;
 use indicatif::ProgressBar;
 use psao_codec::{Decoder, Limits};
 use psao_eval::{
-    GBuffer, NO_INSTANCE, PosedScene, SaoParams, View, psao_image, ray_traced_ao, rmse, sao, ssim,
+    NO_INSTANCE, PosedScene, SaoParams, View, psao_image, ray_traced_ao, rmse, sao, ssim,
 };
 use psao_scene::{AoParams, Camera, Estimator, Pipeline, PipelineConfig, Scene};
 
 use super::Backend;
 use super::images;
+use super::model::{Breakdown, Frame, Method, Row, SceneResult, Showcase};
 
 /// Client frames per second: frame times lie on this grid.
 pub const CLIENT_HZ: f64 = 60.0;
@@ -198,129 +199,6 @@ impl Settings {
     pub fn units_per_scene(&self) -> u64 {
         1 + self.psao_configs().len() as u64 + self.rtao_rays.len() as u64 + 1
     }
-}
-
-/// Which method a row measures.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Method {
-    /// PSAO at a density (points kept per unit area, the paper's N) and
-    /// server rate.
-    Psao {
-        /// Density.
-        density: f32,
-        /// Server rate, Hz.
-        rate: u16,
-    },
-    /// Per-pixel ray-traced AO with this many rays per pixel.
-    Rtao {
-        /// Rays per pixel.
-        rays: u32,
-    },
-    /// Scalable Ambient Obscurance.
-    Sao,
-}
-
-impl Method {
-    /// Short name as in the paper's tables.
-    pub fn label(&self) -> String {
-        match self {
-            Method::Psao { density, rate } => format!("PSAO-{density} @{rate} Hz"),
-            Method::Rtao { rays } => format!("RTAO-{rays}spp"),
-            Method::Sao => "SAO".into(),
-        }
-    }
-}
-
-/// One configuration's figures on one scene (means over the frames).
-#[derive(Clone, Debug)]
-pub struct Row {
-    /// The method.
-    pub method: Method,
-    /// Server milliseconds per tick (PSAO only).
-    pub server_ms: Option<f64>,
-    /// Client milliseconds per frame for the AO pass.
-    pub client_ms: f64,
-    /// Megabits per second at the server rate (PSAO only).
-    pub mbit_s: Option<f64>,
-    /// Root mean square error over all frames' pixels.
-    pub rmse: f64,
-    /// PSNR of the pooled mean square error, peak 1.
-    pub psnr: f64,
-    /// Mean SSIM over frames.
-    pub ssim: f64,
-    /// Mean FLIP of the composited image over frames.
-    pub flip: f64,
-    /// Points the server holds (PSAO only).
-    pub points: Option<usize>,
-    /// Server setup seconds: points, layout, first trace and keyframe
-    /// (PSAO only).
-    pub setup_s: Option<f64>,
-    /// Keyframe bytes (PSAO only).
-    pub keyframe_bytes: Option<usize>,
-    /// Covered pixels the client had no data for, over all frames.
-    pub unknown_px: usize,
-    /// PSAO: the part of `client_ms` spent decoding frames. RTAO: the
-    /// per-frame BVH build a client would need for a moving scene (not in
-    /// `client_ms`).
-    pub extra_ms: Option<f64>,
-    /// Where the squared error lies.
-    pub breakdown: Breakdown,
-}
-
-/// Where a method's squared error lies, over all frames.
-#[derive(Clone, Debug, Default)]
-pub struct Breakdown {
-    /// Per instance seen, its share of the squared error, largest first.
-    pub by_instance: Vec<(u32, f64)>,
-    /// Share of the squared error in pixels the method left open (AO at
-    /// least 0.999) where the reference is dark (below 0.9).
-    pub open_where_dark: f64,
-}
-
-/// One frame's inputs, shared by every method.
-pub struct Frame {
-    /// Scene time.
-    pub time: f32,
-    /// The view.
-    pub view: View,
-    /// The G-buffer.
-    pub gbuffer: GBuffer,
-    /// The reference AO image.
-    pub reference: Vec<f32>,
-    /// The composited reference, 8-bit sRGB, for FLIP.
-    pub composite: Vec<u8>,
-    /// The geometry at this time (for RTAO).
-    pub posed: PosedScene,
-    /// Milliseconds to pose the scene and build its BVH (what a per-pixel
-    /// RTAO client of a moving scene pays each frame).
-    pub bvh_ms: f64,
-}
-
-/// The images of the first frame, for the side-by-side picture.
-pub struct Showcase {
-    /// (label, AO image) per method shown.
-    pub images: Vec<(String, Vec<f32>)>,
-}
-
-/// Everything measured on one scene.
-pub struct SceneResult {
-    /// Scene name.
-    pub name: String,
-    /// Rows in table order.
-    pub rows: Vec<Row>,
-    /// Frames (the first is the showcase frame).
-    pub frames: Vec<Frame>,
-    /// First-frame images of the shown methods.
-    pub showcase: Showcase,
-    /// Mean fraction of pixels covered by geometry.
-    pub coverage: f64,
-    /// Triangles in the scene.
-    pub triangles: usize,
-    /// Seconds to trace the reference, all frames.
-    pub reference_s: f64,
-    /// Per instance, what kind it is ("static", "moving" or "skinned",
-    /// and "alpha-masked").
-    pub kinds: Vec<String>,
 }
 
 /// Running means of the error metrics over frames.

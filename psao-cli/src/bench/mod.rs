@@ -8,6 +8,7 @@
 mod charts;
 pub mod images;
 mod measure;
+mod model;
 mod report;
 
 use std::path::PathBuf;

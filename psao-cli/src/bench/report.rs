@@ -4,7 +4,8 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use super::measure::{Method, Row, SceneResult, Settings};
+use super::measure::Settings;
+use super::model::{Method, Row, SceneResult};
 
 /// The PSNR margin over SAO the accuracy issue targets for PSAO-1024.
 pub const TARGET_DB_OVER_SAO: f64 = 3.0;

@@ -1,28 +1,10 @@
-//! Payload compression: the ids of the spec and the calls into zstd / lz4_flex.
+//! Payload compression: the calls into zstd / lz4_flex, and reading a
+//! compression id off the wire.
 
 use crate::error::{DecodeError, EncodeError};
-
-/// Payload compression of a frame (header byte 6).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Compression {
-    /// Id 0: the payload is stored as it is.
-    None,
-    /// Id 1: one LZ4 block (no LZ4 frame header).
-    Lz4,
-    /// Id 2: one or more zstd frames (RFC 8878), no dictionary.
-    Zstd,
-}
+use crate::wire::compression::Compression;
 
 impl Compression {
-    /// The id on the wire.
-    pub fn id(self) -> u8 {
-        match self {
-            Compression::None => 0,
-            Compression::Lz4 => 1,
-            Compression::Zstd => 2,
-        }
-    }
-
     /// The compression of an id.
     pub fn from_id(id: u8) -> Result<Compression, DecodeError> {
         match id {
@@ -30,15 +12,6 @@ impl Compression {
             1 => Ok(Compression::Lz4),
             2 => Ok(Compression::Zstd),
             other => Err(DecodeError::UnknownCompression(other)),
-        }
-    }
-
-    /// Whether this build can (de)compress it.
-    pub fn available(self) -> bool {
-        match self {
-            Compression::None => true,
-            Compression::Lz4 => cfg!(feature = "lz4"),
-            Compression::Zstd => cfg!(feature = "zstd"),
         }
     }
 }

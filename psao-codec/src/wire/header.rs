@@ -1,7 +1,7 @@
 //! The 32-byte frame header (spec/wire-format.md, "Frame header").
 
 use crate::error::DecodeError;
-use crate::wire::compress::Compression;
+use crate::wire::compression::Compression;
 
 /// `PSAO` in ASCII.
 pub const MAGIC: [u8; 4] = *b"PSAO";

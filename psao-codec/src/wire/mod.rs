@@ -6,6 +6,7 @@
 //! parse frames with what is here.
 
 pub(crate) mod compress;
+pub(crate) mod compression;
 pub(crate) mod frame;
 pub(crate) mod header;
 pub(crate) mod message;
