@@ -15,6 +15,7 @@ use psao_codec::{SentPoint, Thresholds};
 use rayon::prelude::*;
 
 use super::geometry::{Geometry, Layer, RAY_LEAD, TriangleBvh};
+use super::top::TopLevel;
 use crate::error::{SceneError, check_param};
 use crate::random::{hash, uniform};
 
@@ -100,6 +101,8 @@ impl Default for AoParams {
 #[derive(Clone, Debug)]
 pub struct AoTracer {
     layers: Vec<Layer>,
+    /// The layers' world boxes in a BVH ([`TopLevel`]).
+    top: TopLevel,
 }
 
 /// AO of a batch of points.
@@ -170,9 +173,16 @@ impl AoTracer {
         })))])
     }
 
-    /// Traces against all of `layers` together.
+    /// Traces against all of `layers` together, through a BVH over their
+    /// world boxes: a ray visits only the layers whose box it crosses.
     pub fn from_layers(layers: Vec<Layer>) -> AoTracer {
-        AoTracer { layers }
+        let top = TopLevel::new(&layers);
+        AoTracer { layers, top }
+    }
+
+    /// Layers with triangles: (tested by every ray, in the top-level BVH).
+    pub fn layer_counts(&self) -> (usize, usize) {
+        self.top.counts()
     }
 
     /// Number of triangles over all layers.
@@ -227,7 +237,7 @@ impl AoTracer {
     /// AO at one point; `id` selects its random numbers. `p` must be
     /// valid ([`AoParams::validate`]).
     fn point_ao(&self, id: u32, point: Vec3, normal: Vec3, p: &AoParams) -> f32 {
-        if self.layers.iter().all(|l| l.bvh().is_empty()) {
+        if self.top.is_empty() {
             return 1.0;
         }
         if p.rays == 0 || !point.is_finite() {
@@ -254,13 +264,10 @@ impl AoTracer {
             let dir = Vec3A::from(dir);
             match p.estimator {
                 Estimator::ClosestHit => {
-                    // Each layer's ray ends at the nearest hit so far.
-                    let mut t = p.radius;
-                    for l in &self.layers {
-                        if let Some(ray) = l.local(origin, dir, t) {
-                            t = t.min(l.bvh().closest(ray) - RAY_LEAD);
-                        }
-                    }
+                    let t = match self.top.closest(&self.layers, origin, dir, p.radius) {
+                        Some(lead) => p.radius.min(lead - RAY_LEAD),
+                        None => p.radius,
+                    };
                     *sum += t / p.radius;
                 }
                 Estimator::LaineKarras => {
@@ -270,11 +277,7 @@ impl AoTracer {
                     let u = (k.wrapping_mul(GOLDEN).wrapping_add(shift) >> 8) as f32
                         / (1u32 << 24) as f32;
                     let len = u * p.radius;
-                    if self
-                        .layers
-                        .iter()
-                        .all(|l| l.local(origin, dir, len).is_none_or(|r| l.bvh().misses(r)))
-                    {
+                    if self.top.misses(&self.layers, origin, dir, len) {
                         *sum += 1.0;
                     }
                 }

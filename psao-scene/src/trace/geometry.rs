@@ -17,6 +17,7 @@ use obvhs::ray::{Ray, RayHit};
 use obvhs::triangle::Triangle;
 
 use crate::model::alpha::AlphaMask;
+use crate::model::mesh::transformed_bounds;
 
 /// How far (in `t`) AO rays start behind their origin. obvhs's wide BVH
 /// (CWBVH) skips every child box that a ray leaves within 1e-4 of its
@@ -61,6 +62,8 @@ pub struct TriangleBvh {
     accel: Option<Accel>,
     tris: Vec<Triangle>,
     masks: Vec<TriangleMask>,
+    /// The box of the triangles (`None`: no triangle).
+    bounds: Option<(Vec3, Vec3)>,
 }
 
 impl std::fmt::Debug for TriangleBvh {
@@ -81,6 +84,12 @@ fn to_triangles(triangles: &[[Vec3; 3]]) -> Vec<Triangle> {
             v2: t[2].into(),
         })
         .collect()
+}
+
+fn bounds_of_triangles(tris: &[Triangle]) -> Option<(Vec3, Vec3)> {
+    let first = tris.first()?;
+    let b = tris.iter().fold(first.aabb(), |b, t| b.union(&t.aabb()));
+    Some((b.min.into(), b.max.into()))
 }
 
 fn keep_masks(masks: Vec<TriangleMask>) -> Vec<TriangleMask> {
@@ -123,6 +132,7 @@ impl TriangleBvh {
         });
         TriangleBvh {
             accel,
+            bounds: bounds_of_triangles(&tris),
             tris,
             masks: keep_masks(geometry.masks),
         }
@@ -136,6 +146,7 @@ impl TriangleBvh {
             return false;
         }
         self.tris = to_triangles(triangles);
+        self.bounds = bounds_of_triangles(&self.tris);
         match &mut self.accel {
             Some(Accel::Binary(bvh)) => {
                 for n in 0..bvh.nodes.len() {
@@ -170,6 +181,11 @@ impl TriangleBvh {
     /// Number of triangles.
     pub fn len(&self) -> usize {
         self.tris.len()
+    }
+
+    /// The box of the triangles in their own space (`None`: no triangle).
+    pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
+        self.bounds
     }
 
     /// Whether it holds no triangle.
@@ -305,19 +321,39 @@ impl Layer {
         self.to_world
     }
 
-    /// The ray from `origin` along `dir` up to `tmax`, in the layer's space
-    /// (the same `t` reaches the same point), started [`RAY_LEAD`] behind
-    /// `origin` with `tmin` at `origin`: its `t` runs `RAY_LEAD` ahead.
-    /// `None` when the ray is not finite in the layer's space (a point near
-    /// the largest f32, or a transform that takes it there): it can hit
-    /// nothing there.
-    pub(super) fn local(&self, origin: Vec3A, dir: Vec3A, tmax: f32) -> Option<Ray> {
-        let start = origin - dir * RAY_LEAD;
-        let (start, dir) = match &self.to_local {
-            None => (start, dir),
-            Some(m) => (m.transform_point3a(start), m.transform_vector3a(dir)),
+    /// The box of the layer's triangles in world space (`None`: no
+    /// triangle, or a box that is not finite).
+    pub fn world_bounds(&self) -> Option<(Vec3, Vec3)> {
+        let b = self.bvh.bounds()?;
+        let (lo, hi) = match &self.to_world {
+            None => b,
+            Some(m) => transformed_bounds(m, b),
         };
-        (start.is_finite() && dir.is_finite())
-            .then(|| Ray::new(start, dir, RAY_LEAD, tmax + RAY_LEAD))
+        (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
     }
+
+    /// The world ray `world` in the layer's space: the same `t` reaches
+    /// the same point, `tmin` and `tmax` unchanged. `None` when it is not
+    /// finite there (a point near the largest f32, or a transform that
+    /// takes it there): it can hit nothing there.
+    pub(super) fn local_ray(&self, world: &Ray) -> Option<Ray> {
+        let (start, dir) = match &self.to_local {
+            None => (world.origin, world.direction),
+            Some(m) => (
+                m.transform_point3a(world.origin),
+                m.transform_vector3a(world.direction),
+            ),
+        };
+        (start.is_finite() && dir.is_finite()).then(|| Ray::new(start, dir, world.tmin, world.tmax))
+    }
+}
+
+/// The world ray of an AO ray from `origin` along `dir` up to `tmax`,
+/// started [`RAY_LEAD`] behind `origin` with `tmin` at `origin`: its `t`
+/// runs `RAY_LEAD` ahead. `None` when its start is not finite.
+pub(super) fn lead_ray(origin: Vec3A, dir: Vec3A, tmax: f32) -> Option<Ray> {
+    let start = origin - dir * RAY_LEAD;
+    start
+        .is_finite()
+        .then(|| Ray::new(start, dir, RAY_LEAD, tmax + RAY_LEAD))
 }
