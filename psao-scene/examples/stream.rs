@@ -10,6 +10,9 @@
 //!   (the baseline of the static/moving BVH split);
 //! - `--cull`: trace only near the viewer following the scene's camera
 //!   path;
+//! - `--scene NAME`: stream an embedded scene other than the default:
+//!   `hall` (the procedural hall: 160 moving props, 4 walking figures) or
+//!   `cesium-man` (CesiumMan alone on a floor);
 //! - `--gltf PATH`: stream a glTF file instead, standing on a floor;
 //! - `--frames N`, `--density D`, `--rays N`, `--lk` (Laine-Karras
 //!   estimator).
@@ -51,10 +54,19 @@ fn main() {
     let skip = !flag("--no-skip");
     let split_bvh = !flag("--no-split");
     let gltf: String = arg("--gltf", String::new());
-    let (scene, name) = if gltf.is_empty() {
-        (default_scene(), "default scene".to_string())
-    } else {
+    let embedded: String = arg("--scene", "default".to_string());
+    let (scene, name) = if !gltf.is_empty() {
         (gltf_scene(&gltf), gltf.clone())
+    } else {
+        match embedded.as_str() {
+            "default" => (default_scene(), "default scene".to_string()),
+            "hall" => (hall_scene(), "hall".to_string()),
+            "cesium-man" => (cesium_man_scene(), "CesiumMan".to_string()),
+            other => {
+                eprintln!("error: unknown scene {other}: expected default, hall or cesium-man");
+                std::process::exit(2)
+            }
+        }
     };
     let config = PipelineConfig {
         density,
@@ -145,6 +157,11 @@ fn main() {
     println!(
         "  points culled      {:.0} per frame waiting out of view",
         sum.culled as f64 / n
+    );
+    println!(
+        "  per traced point   {:.3} us of server time ({:.3} us tracing)",
+        sum.total_time().as_secs_f64() * 1e6 / (sum.traced as f64).max(1.0),
+        sum.t_trace.as_secs_f64() * 1e6 / (sum.traced as f64).max(1.0)
     );
     println!(
         "  server ms/frame    {:.3} total: {:.3} animate + skin, {:.3} select, {:.3} BVH, {:.3} trace, {:.3} tables + encode",

@@ -26,7 +26,9 @@
 //!   CPU, or on any [`AoBackend`]), apply the thresholds (the dirty set),
 //!   encode the frame;
 //! - `scenes/`, the embedded [`default_scene`] and [`cesium_man_scene`],
-//!   and [`stage`] (a glTF model on a floor with an orbiting camera).
+//!   the procedural [`hall_scene`] (a large interior with many moving
+//!   props and walking figures), and [`stage`] (a glTF model on a floor
+//!   with an orbiting camera).
 //!
 //! Shared by the stages: errors ([`SceneError`], `error.rs`), the f32
 //! precision checks ([`check_precision`], `precision.rs`) and counter-based
@@ -83,6 +85,7 @@ pub use precision::{
 };
 pub use random::{hash, uniform};
 pub use scenes::default_scene::{MOVING_BOX, TRELLIS, WALKER, cesium_man_scene, default_scene};
+pub use scenes::hall::{HallParams, hall, hall_scene};
 pub use scenes::stage::{FLOOR_MARGIN, ORBIT_SECONDS, stage};
 pub use trace::ao::{
     AoParams, AoResult, AoTracer, ChangedPoints, Estimator, MAX_RAYS, RAY_SUM_LANES, morton_order,

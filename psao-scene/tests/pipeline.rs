@@ -480,3 +480,108 @@ fn instances_can_be_placed_by_scene_events() {
         assert_eq!(p.transform(MOVING_BOX).unwrap(), to);
     }
 }
+
+/// CesiumMan's staged scene with the character's mesh cut into two
+/// primitives on the same node and skin (as a glTF mesh of several
+/// primitives imports), the vertices shared.
+fn cesium_man_in_two_primitives() -> Scene {
+    let mut s = cesium_man_scene();
+    let i = (0..s.instances.len())
+        .find(|&i| s.instances[i].skin.is_some())
+        .expect("a skinned instance");
+    let mesh = s.meshes[s.instances[i].mesh].clone();
+    let half = mesh.triangle_count() / 2 * 3;
+    let mut first = mesh.clone();
+    first.indices.truncate(half);
+    let mut second = mesh;
+    second.indices.drain(..half);
+    let m = s.instances[i].mesh;
+    s.meshes[m] = first;
+    s.meshes.push(second);
+    let mut twin = s.instances[i].clone();
+    twin.mesh = s.meshes.len() - 1;
+    s.instances.push(twin);
+    s
+}
+
+#[test]
+fn the_primitives_of_one_skinned_mesh_deform_as_one_layer_with_the_same_ao() {
+    let config = quick();
+    let mut whole = Pipeline::new(cesium_man_scene(), config.clone()).unwrap();
+    let mut split = Pipeline::new(cesium_man_in_two_primitives(), config.clone()).unwrap();
+    assert_eq!(split.instance_count(), whole.instance_count() + 1);
+    for _ in 0..8 {
+        whole.step(1.0 / 30.0).unwrap();
+        split.step(1.0 / 30.0).unwrap();
+    }
+    // One layer for the two primitives: the floor and the figure, as for
+    // the mesh in one piece.
+    let (a, b) = (whole.current_tracer(), split.current_tracer());
+    assert_eq!(a.layer_counts(), b.layer_counts());
+    assert_eq!(a.triangles(), b.triangles());
+    // Probes around the walking figure see the same occluders, bit for bit.
+    let probes: Vec<Vec3> = (0..400)
+        .map(|k| {
+            let u = |j| uniform(3, k, j);
+            Vec3::new(u(0) - 0.5, u(1) * 1.8, u(2) - 0.5)
+        })
+        .collect();
+    let normals: Vec<Vec3> = (0..400)
+        .map(|k| Vec3::new(uniform(4, k, 0) - 0.5, 0.5, uniform(4, k, 1) - 0.5).normalize())
+        .collect();
+    let ra = a.trace(&probes, &normals, &config.ao).unwrap();
+    let rb = b.trace(&probes, &normals, &config.ao).unwrap();
+    assert_eq!(ra, rb);
+    assert!(ra.ao.iter().any(|&x| x < 0.9), "the probes see the figure");
+}
+
+#[test]
+fn the_hall_has_many_moving_parts_inside_its_walls_and_streams() {
+    let scene = hall(HallParams {
+        props: 40,
+        figures: 2,
+    });
+    scene.validate().unwrap();
+    let dynamic = scene.dynamic_instances();
+    let moving = dynamic.iter().filter(|&&d| d).count();
+    assert!(moving >= 42, "{moving} moving instances");
+    // Props and figures stay inside the 36 x 18 x 6 m hall at every
+    // second of their animations, and so does the camera.
+    let inside =
+        |p: Vec3| p.cmpge(Vec3::splat(-0.01)).all() && p.cmple(Vec3::new(36.01, 6.01, 18.01)).all();
+    for t in 0..60 {
+        let pose = scene.pose(t as f32);
+        for (i, m) in pose.instances.iter().enumerate() {
+            if dynamic[i] {
+                assert!(inside(m.translation.into()), "instance {i} at {t} s: {m:?}");
+            }
+        }
+        let cam = scene.camera.as_ref().unwrap().at(t as f32 * 0.5);
+        assert!(inside(cam.eye), "camera at {t} s: {:?}", cam.eye);
+    }
+    // The default hall holds the props and figures its parameters say.
+    assert_eq!(
+        hall_scene()
+            .dynamic_instances()
+            .iter()
+            .filter(|&&d| d)
+            .count(),
+        moving + 120 + 2
+    );
+    let mut p = Pipeline::new(
+        scene,
+        PipelineConfig {
+            density: 2.0,
+            ao: AoParams {
+                rays: 8,
+                ..AoParams::default()
+            },
+            ..PipelineConfig::default()
+        },
+    )
+    .unwrap();
+    let (_, report) = p.step(0.25).unwrap();
+    assert!(report.traced > 0 && report.transforms > 0, "{report:?}");
+    let (direct, boxed) = p.current_tracer().layer_counts();
+    assert!(boxed >= 42 && direct == 0, "({direct}, {boxed})");
+}

@@ -1,7 +1,8 @@
 //! The BVHs a pipeline traces against: static geometry in one world-space
 //! BVH built once, each dynamic instance in its own local-space BVH placed
-//! by its transform and refitted when it deforms (or, unsplit, one BVH
-//! over everything).
+//! by its transform and refitted when it deforms, the primitives of one
+//! skinned mesh (one node, one skin) in one BVH together (or, unsplit, one
+//! BVH over everything). The tracer puts a BVH over these layers' boxes.
 
 use std::sync::Arc;
 
@@ -68,8 +69,39 @@ impl Pipeline {
                 self.world_geometry(|s| !s.dynamic),
             )));
         }
-        for i in 0..self.instances.len() {
-            if self.instances[i].dynamic && self.instances[i].bvh.is_none() {
+        let mut layers: Vec<Layer> = self
+            .static_layer
+            .iter()
+            .cloned()
+            .map(Layer::world)
+            .collect();
+        // Skinned instances that deform as one, while their transforms
+        // agree (a held pose or a placed instance can part them).
+        let mut grouped = vec![false; self.instances.len()];
+        for g in 0..self.skin_groups.len() {
+            let members = &self.skin_groups[g].members;
+            let transform = self.instances[members[0]].transform;
+            if members
+                .iter()
+                .any(|&m| self.instances[m].transform != transform)
+            {
+                continue;
+            }
+            if self.skin_groups[g].bvh.is_none() {
+                let geometry = self.group_geometry(g);
+                self.skin_groups[g].bvh = Some(Arc::new(TriangleBvh::refittable(geometry)));
+            }
+            let group = &self.skin_groups[g];
+            for &m in &group.members {
+                grouped[m] = true;
+            }
+            layers.extend(group.bvh.clone().map(|b| Layer::placed(b, transform)));
+        }
+        for (i, &in_group) in grouped.iter().enumerate() {
+            if !self.instances[i].dynamic || in_group {
+                continue;
+            }
+            if self.instances[i].bvh.is_none() {
                 let mut g = Geometry::default();
                 self.instance_geometry(i, false, &mut g);
                 let bvh = if self.instances[i].vertices.is_empty() {
@@ -79,24 +111,34 @@ impl Pipeline {
                 };
                 self.instances[i].bvh = Some(Arc::new(bvh));
             }
+            let s = &self.instances[i];
+            layers.extend(s.bvh.clone().map(|b| Layer::placed(b, s.transform)));
         }
-        let mut layers: Vec<Layer> = self
-            .static_layer
-            .iter()
-            .cloned()
-            .map(Layer::world)
-            .collect();
-        layers.extend(
-            self.instances
-                .iter()
-                .filter_map(|s| s.bvh.clone().map(|b| Layer::placed(b, s.transform))),
-        );
         AoTracer::from_layers(layers)
     }
 
+    /// The local triangles of skin group `g`'s members, one after another.
+    fn group_geometry(&self, g: usize) -> Geometry {
+        let mut geometry = Geometry::default();
+        for &m in &self.skin_groups[g].members {
+            self.instance_geometry(m, false, &mut geometry);
+        }
+        geometry
+    }
+
     /// Refits the BVH of every instance in `deformed` to its mesh as it is
-    /// now.
+    /// now, and the BVH of every skin group with a member among them.
     pub(super) fn refit_deformed(&mut self, deformed: &[usize]) {
+        for g in 0..self.skin_groups.len() {
+            let group = &self.skin_groups[g];
+            if group.bvh.is_none() || !group.members.iter().any(|m| deformed.contains(m)) {
+                continue;
+            }
+            let geometry = self.group_geometry(g);
+            if let Some(bvh) = &mut self.skin_groups[g].bvh {
+                Arc::make_mut(bvh).refit(&geometry.triangles);
+            }
+        }
         for &i in deformed {
             if self.instances[i].bvh.is_none() {
                 continue;

@@ -79,6 +79,34 @@ struct InstanceState {
     bvh: Option<Arc<TriangleBvh>>,
 }
 
+/// Skinned instances on one node with one skin (the primitives of one
+/// skinned glTF mesh): they deform together and, while their transforms
+/// agree, are traced as one layer, one refittable BVH over all their
+/// triangles, instead of a layer each.
+struct SkinGroup {
+    /// The instances, ascending.
+    members: Vec<usize>,
+    /// The BVH over the members' triangles in their shared local space.
+    bvh: Option<Arc<TriangleBvh>>,
+}
+
+/// The groups of `scene`'s dynamic skinned instances that share a node and
+/// a skin, of two or more.
+fn skin_groups(scene: &Scene, dynamic: &[bool]) -> Vec<SkinGroup> {
+    let mut by_key: std::collections::BTreeMap<(usize, usize), Vec<usize>> = Default::default();
+    for (i, inst) in scene.instances.iter().enumerate() {
+        let skinned = scene.meshes[inst.mesh].skin.is_some();
+        if let (true, true, Some(node), Some(skin)) = (dynamic[i], skinned, inst.node, inst.skin) {
+            by_key.entry((node, skin)).or_default().push(i);
+        }
+    }
+    by_key
+        .into_values()
+        .filter(|m| m.len() >= 2)
+        .map(|members| SkinGroup { members, bvh: None })
+        .collect()
+}
+
 /// A server streaming one scene.
 pub struct Pipeline {
     scene: Scene,
@@ -93,6 +121,8 @@ pub struct Pipeline {
     overrides: Vec<Option<Affine3A>>,
     static_layer: Option<Arc<TriangleBvh>>,
     whole_layer: Option<Arc<TriangleBvh>>,
+    /// Skinned instances that deform as one ([`SkinGroup`]).
+    skin_groups: Vec<SkinGroup>,
     time: f64,
     frame: u64,
     /// What culling culls to.
@@ -229,6 +259,7 @@ impl Pipeline {
                 bvh: None,
             });
         }
+        let skin_groups = skin_groups(&scene, &dynamic);
         let mut pipeline = Pipeline {
             scene,
             backend,
@@ -240,6 +271,7 @@ impl Pipeline {
             pose,
             static_layer: None,
             whole_layer: None,
+            skin_groups,
             time: 0.0,
             frame: 0,
             views: Views::CameraPath,

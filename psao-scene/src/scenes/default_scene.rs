@@ -32,7 +32,7 @@ pub const TRELLIS: usize = 15;
 pub const WALKER: usize = 16;
 
 /// CesiumMan (CC-BY 4.0, Cesium; see `assets/README.md`).
-const CESIUM_MAN: &[u8] = include_bytes!("../../assets/CesiumMan.glb");
+pub(crate) const CESIUM_MAN: &[u8] = include_bytes!("../../assets/CesiumMan.glb");
 
 /// The default scene.
 pub fn default_scene() -> Scene {
