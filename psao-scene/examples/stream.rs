@@ -96,12 +96,32 @@ fn main() {
     let points: usize = (0..server.instance_count())
         .map(|i| server.points(i).map_or(0, |p| p.len()))
         .sum();
+    let digest = {
+        use std::hash::{DefaultHasher, Hasher};
+        let mut h = DefaultHasher::new();
+        h.write(&kf.bytes);
+        h.finish()
+    };
     println!(
-        "{name}: {} instances, {points} points; setup (points, layout, first trace) {:.2} s; keyframe {} bytes",
+        "{name}: {} instances, {points} points; setup (points, layout, first trace) {:.2} s; keyframe {} bytes (digest {digest:016x})",
         server.instance_count(),
         setup.as_secs_f64(),
         kf.bytes.len()
     );
+    let held = server.memory_bytes();
+    println!(
+        "  server memory      {:.1} MB held by the pipeline ({:.0} bytes per point)",
+        held as f64 / 1e6,
+        held as f64 / points.max(1) as f64
+    );
+    if let Some((rss, peak)) = memory_kb() {
+        println!(
+            "  process memory     {:.0} MB resident after setup ({:.0} bytes per point, with what the allocator keeps), {:.0} MB peak during setup",
+            rss as f64 * 1024.0 / 1e6,
+            rss as f64 * 1024.0 / points.max(1) as f64,
+            peak as f64 * 1024.0 / 1e6
+        );
+    }
     let mut sum = FrameReport::default();
     let mut sent = 0u32;
     let t = Instant::now();
@@ -173,6 +193,21 @@ fn main() {
         ms(sum.t_encode)
     );
     println!("  client mirror      equal to the server's tables");
+}
+
+/// Resident and peak resident memory of this process in KiB (Linux).
+fn memory_kb() -> Option<(u64, u64)> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let field = |name: &str| {
+        status
+            .lines()
+            .find(|l| l.starts_with(name))?
+            .split_whitespace()
+            .nth(1)?
+            .parse::<u64>()
+            .ok()
+    };
+    Some((field("VmRSS:")?, field("VmHWM:")?))
 }
 
 fn config_cull(server: &Pipeline) -> bool {

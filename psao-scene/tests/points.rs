@@ -279,3 +279,36 @@ fn layout_checks_parameters_and_handles_flat_meshes() {
     .unwrap();
     assert!(psao_codec::key_fits(def.dims));
 }
+
+#[test]
+fn points_and_the_whole_setup_do_not_depend_on_the_thread_count() {
+    let in_pool = |threads: usize, f: &(dyn Fn() -> Vec<u8> + Sync)| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(f)
+    };
+    // A mesh large enough for several spawning and neighbour chunks.
+    let mesh = Mesh::quad(Vec3::ZERO, Vec3::Z * 30.0, Vec3::X * 30.0).subdivided(3);
+    let points = || {
+        let p = generate_points(&mesh, 80.0, 9).unwrap();
+        assert!(p.len() > 30_000, "{}", p.len());
+        format!("{:?}", (p.positions, p.normals, p.anchors, p.radius)).into_bytes()
+    };
+    assert_eq!(in_pool(1, &points), in_pool(2, &points));
+    // The whole setup (points of every instance, layout, the first trace):
+    // the same keyframe byte for byte.
+    let keyframe = || {
+        let mut p = Pipeline::new(
+            hall(HallParams {
+                props: 12,
+                figures: 1,
+            }),
+            PipelineConfig::with_density_and_rays(1.0, 4),
+        )
+        .unwrap();
+        p.keyframe().unwrap().bytes.to_vec()
+    };
+    assert_eq!(in_pool(1, &keyframe), in_pool(3, &keyframe));
+}

@@ -291,6 +291,26 @@ impl GridTable {
         self.cell_len[cell as usize]
     }
 
+    /// Bytes the table holds (allocated capacity of its arrays): what a
+    /// server pays per instance for its grid, its point locations and its
+    /// dirty set.
+    pub fn memory_bytes(&self) -> u64 {
+        use std::mem::size_of;
+        let bytes = |len: usize, size: usize| (len * size) as u64;
+        bytes(self.buckets.capacity(), size_of::<BucketEntry>())
+            + bytes(self.bucket_len.capacity(), 1)
+            + bytes(self.words.capacity(), 4)
+            + bytes(self.cell_len.capacity(), 1)
+            + bytes(self.cell_key.capacity(), 4)
+            + bytes(self.slot_point.capacity(), 4)
+            + bytes(self.free.capacity(), 4)
+            + bytes(self.points.capacity(), size_of::<Loc>())
+            + bytes(self.bucket_dirty.capacity(), 1)
+            + bytes(self.dirty_buckets.capacity(), 4)
+            + bytes(self.cell_dirty.capacity(), 1)
+            + bytes(self.dirty_cells.capacity(), size_of::<DirtyCell>())
+    }
+
     /// Counters.
     pub fn stats(&self) -> TableStats {
         self.stats

@@ -57,8 +57,9 @@ impl Pipeline {
         let (mut base, mut cell_base) = (0u32, 0u32);
         for (i, (s, list)) in self.instances.iter().zip(which).enumerate() {
             let nm = normal_matrix(&s.transform);
+            let (positions, normals) = s.now();
             for &k in list {
-                let (p, n) = (s.positions[k as usize], s.normals[k as usize]);
+                let (p, n) = (positions[k as usize], normals[k as usize]);
                 ids.push(base + k);
                 pts.push(s.transform.transform_point3(p));
                 nrm.push((nm * n).normalize_or_zero());
@@ -145,7 +146,8 @@ impl Pipeline {
                 });
             };
             let s = &mut self.instances[i];
-            let (p, n) = (s.positions[k as usize], s.normals[k as usize]);
+            let (positions, normals) = s.now();
+            let (p, n) = (positions[k as usize], normals[k as usize]);
             s.table.set_point(k, p, n, value)?;
         }
         Ok(())

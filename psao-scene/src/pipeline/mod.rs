@@ -35,11 +35,12 @@ use std::sync::Arc;
 
 use glam::{Affine3A, Vec3};
 use psao_codec::{EncodedFrame, Encoder, GridTable};
+use rayon::prelude::*;
 
 use crate::error::{SceneError, check_param};
 use crate::model::alpha::AlphaMask;
 use crate::model::pose::Pose;
-use crate::model::scene::{Scene, check_transform};
+use crate::model::scene::{Instance, Scene, check_transform};
 use crate::points::generate::{PointSet, generate_points};
 use crate::points::layout::layout;
 use crate::precision::check_precision;
@@ -53,9 +54,11 @@ use config::{PipelineConfig, Views};
 struct InstanceState {
     /// Points in the mesh's bind pose.
     points: PointSet,
-    /// Points now (instance-local; skinned instances move them).
+    /// Points now (instance-local), for a skinned instance, which moves
+    /// them; empty for a rigid one, whose points are `points`' own (see
+    /// [`InstanceState::now`]).
     positions: Vec<Vec3>,
-    /// Point normals now.
+    /// Point normals now (empty for a rigid instance, as `positions`).
     normals: Vec<Vec3>,
     /// Skinned vertex positions and normals now (empty: the mesh's own).
     vertices: Vec<Vec3>,
@@ -105,6 +108,37 @@ fn skin_groups(scene: &Scene, dynamic: &[bool]) -> Vec<SkinGroup> {
         .filter(|m| m.len() >= 2)
         .map(|members| SkinGroup { members, bvh: None })
         .collect()
+}
+
+impl InstanceState {
+    /// Positions and normals of the points now (instance-local).
+    fn now(&self) -> (&[Vec3], &[Vec3]) {
+        if self.positions.is_empty() {
+            (&self.points.positions, &self.points.normals)
+        } else {
+            (&self.positions, &self.normals)
+        }
+    }
+
+    /// Bytes held for this instance: its points, skinned state, table and
+    /// bookkeeping (capacities, not lengths).
+    fn memory_bytes(&self) -> u64 {
+        let v3 = std::mem::size_of::<Vec3>() as u64;
+        let p = &self.points;
+        (p.positions.capacity() + p.normals.capacity()) as u64 * v3
+            + p.anchors.capacity() as u64
+                * std::mem::size_of::<crate::points::generate::Anchor>() as u64
+            + (self.positions.capacity()
+                + self.normals.capacity()
+                + self.vertices.capacity()
+                + self.vertex_normals.capacity()
+                + self.scratch_vertices.capacity()
+                + self.scratch_normals.capacity()) as u64
+                * v3
+            + self.joints.capacity() as u64 * std::mem::size_of::<Affine3A>() as u64
+            + self.pending.capacity() as u64
+            + self.table.memory_bytes()
+    }
 }
 
 /// A server streaming one scene.
@@ -192,11 +226,13 @@ impl Pipeline {
             .iter()
             .map(|m| m.alpha.clone().map(Arc::new))
             .collect();
-        let mut instances = Vec::with_capacity(scene.instances.len());
-        for (i, inst) in scene.instances.iter().enumerate() {
+        // Instances are set up in parallel (points, layout, skinning);
+        // each depends on its index alone, and the first error in instance
+        // order is the one returned, whatever the thread count.
+        let set_up = |(i, inst): (usize, &Instance)| -> Result<InstanceState, SceneError> {
             let mesh = &scene.meshes[inst.mesh];
             let seed = config.seed ^ ((i as u64) << 32);
-            let points = generate_points(mesh, config.density, seed)?;
+            let mut points = generate_points(mesh, config.density, seed)?;
             let rest = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ZERO));
             let grid_bounds = skin_bounds[i].unwrap_or(rest);
             check_precision(
@@ -228,8 +264,9 @@ impl Pipeline {
                     &mut normals,
                 );
             } else {
-                positions.clone_from(&points.positions);
-                normals.clone_from(&points.normals);
+                // A rigid instance's points stay where they were made: no
+                // copy of them, and no anchors (only skinning follows them).
+                points.anchors = Vec::new();
             }
             let (vertices, vertex_normals) = if skinned {
                 (vertices.into_owned(), vertex_normals.into_owned())
@@ -237,7 +274,7 @@ impl Pipeline {
                 (Vec::new(), Vec::new())
             };
             let bounds = if skinned { bounds_of(&vertices) } else { rest };
-            instances.push(InstanceState {
+            Ok(InstanceState {
                 pending: if config.cull.is_some() {
                     vec![false; points.len()]
                 } else {
@@ -257,8 +294,16 @@ impl Pipeline {
                 bounds,
                 dynamic: dynamic[i],
                 bvh: None,
-            });
-        }
+            })
+        };
+        let instances = scene
+            .instances
+            .par_iter()
+            .enumerate()
+            .map(set_up)
+            .collect::<Vec<_>>()
+            .into_iter()
+            .collect::<Result<Vec<_>, _>>()?;
         let skin_groups = skin_groups(&scene, &dynamic);
         let mut pipeline = Pipeline {
             scene,
@@ -330,9 +375,22 @@ impl Pipeline {
     /// Positions and normals of instance `i`'s points now (local space;
     /// skinned instances move them).
     pub fn current_points(&self, i: usize) -> Option<(&[Vec3], &[Vec3])> {
+        self.instances.get(i).map(InstanceState::now)
+    }
+
+    /// Bytes the pipeline holds for its instances (points, skinned
+    /// vertices, tables, bookkeeping; allocated capacity) and its BVHs'
+    /// triangles: the server's memory for the scene, without what the
+    /// allocator keeps aside.
+    pub fn memory_bytes(&self) -> u64 {
+        let bvh = |b: &Option<Arc<TriangleBvh>>| b.as_ref().map_or(0, |b| b.memory_bytes());
         self.instances
-            .get(i)
-            .map(|s| (s.positions.as_slice(), s.normals.as_slice()))
+            .iter()
+            .map(|s| s.memory_bytes() + bvh(&s.bvh))
+            .sum::<u64>()
+            + bvh(&self.static_layer)
+            + bvh(&self.whole_layer)
+            + self.skin_groups.iter().map(|g| bvh(&g.bvh)).sum::<u64>()
     }
 
     /// World transform of instance `i` now.
@@ -405,7 +463,7 @@ impl Pipeline {
 /// sampled ones can still push points out of the grid: they are dropped and
 /// counted (`TableStats::out_of_grid`), never an error.
 fn skinned_bounds(scene: &Scene, dynamic: &[bool]) -> Vec<Option<(Vec3, Vec3)>> {
-    let mut out = vec![None; scene.instances.len()];
+    let out = vec![None; scene.instances.len()];
     let skinned: Vec<usize> = (0..scene.instances.len())
         .filter(|&i| {
             scene.instances[i].skin.is_some()
@@ -425,24 +483,36 @@ fn skinned_bounds(scene: &Scene, dynamic: &[bool]) -> Vec<Option<(Vec3, Vec3)>> 
     durations.dedup();
     let horizon = durations.iter().sum::<f32>().min(60.0);
     let samples = ((horizon * 30.0).ceil() as usize).clamp(1, MAX_BOUND_SAMPLES);
-    let mut pose = Pose::default();
-    for k in 0..=samples {
-        scene.pose_into(horizon * k as f32 / samples as f32, &mut pose);
-        for &i in &skinned {
-            if k > 0 && !dynamic[i] {
-                continue;
-            }
-            let (p, _) = scene.skinned(i, &pose);
-            let b = bounds_of(&p);
-            if !b.0.is_finite() || !b.1.is_finite() {
-                continue;
-            }
-            out[i] = Some(match out[i] {
-                Some((lo, hi)) => (b.0.min(lo), b.1.max(hi)),
-                None => b,
-            });
-        }
-    }
+    // Poses sampled in parallel; the union of boxes (min and max) is the
+    // same in any order.
+    let union = |a: Option<(Vec3, Vec3)>, b: Option<(Vec3, Vec3)>| match (a, b) {
+        (Some(a), Some(b)) => Some((a.0.min(b.0), a.1.max(b.1))),
+        (a, b) => a.or(b),
+    };
+    let mut out = (0..=samples)
+        .into_par_iter()
+        .fold(
+            || (Pose::default(), vec![None; scene.instances.len()]),
+            |(mut pose, mut acc), k| {
+                scene.pose_into(horizon * k as f32 / samples as f32, &mut pose);
+                for &i in &skinned {
+                    if k > 0 && !dynamic[i] {
+                        continue;
+                    }
+                    let (p, _) = scene.skinned(i, &pose);
+                    let b = bounds_of(&p);
+                    if b.0.is_finite() && b.1.is_finite() {
+                        acc[i] = union(acc[i], Some(b));
+                    }
+                }
+                (pose, acc)
+            },
+        )
+        .map(|(_, acc)| acc)
+        .reduce(
+            || vec![None; scene.instances.len()],
+            |a, b| a.into_iter().zip(b).map(|(a, b)| union(a, b)).collect(),
+        );
     for b in out.iter_mut().flatten() {
         let pad = (b.1 - b.0) * 0.05;
         *b = (b.0 - pad, b.1 + pad);

@@ -184,9 +184,10 @@ impl Pipeline {
                 if !swept.iter().any(|&b| overlaps(b, grow(&ao, wb))) {
                     continue;
                 }
+                let positions = s.now().0;
                 which[i] = (0..s.points.len() as u32)
                     .filter(|&k| {
-                        let p = s.transform.transform_point3(s.positions[k as usize]);
+                        let p = s.transform.transform_point3(positions[k as usize]);
                         swept
                             .iter()
                             .any(|b| p.cmpge(b.0).all() && p.cmple(b.1).all())
@@ -223,11 +224,18 @@ impl Pipeline {
                 s.pending[k as usize] = true;
             }
             w.clear();
+            // The points now (a rigid instance's are its points' own),
+            // borrowed apart from the pending flags.
+            let now = if s.positions.is_empty() {
+                &s.points.positions
+            } else {
+                &s.positions
+            };
             for (k, pending) in s.pending.iter_mut().enumerate() {
                 if !*pending {
                     continue;
                 }
-                let p = s.transform.transform_point3(s.positions[k]);
+                let p = s.transform.transform_point3(now[k]);
                 if everything || frusta.iter().any(|f| f.touches_sphere(p, reach)) {
                     *pending = false;
                     w.push(k as u32);

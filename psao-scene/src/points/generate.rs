@@ -1,9 +1,9 @@
 //! Point generation (paper 3.1): points spawned uniformly over a mesh's
 //! surface, then weighted sample elimination (Yuksel 2015) down to half.
 
-use std::collections::{BinaryHeap, HashMap};
-
 use glam::{IVec3, Vec3};
+use rayon::prelude::*;
+use rustc_hash::FxHashMap;
 
 use crate::error::{SceneError, check_param};
 use crate::model::mesh::Mesh;
@@ -150,6 +150,43 @@ pub fn generate_points(mesh: &Mesh, density: f32, seed: u64) -> Result<PointSet,
 
 /// `count` points uniform over the mesh's area, with interpolated normals
 /// and their anchors; points in alpha-mask holes are left out.
+/// Spawned points per parallel task.
+const SPAWN_CHUNK: usize = 1 << 14;
+
+/// Spawned point `k`: a triangle drawn by area, a uniform spot on it;
+/// `None` in an alpha-mask hole.
+fn spawn_one(
+    mesh: &Mesh,
+    cdf: &[f64],
+    total: f64,
+    seed: u64,
+    k: u32,
+) -> Option<(Vec3, Vec3, Anchor)> {
+    let tris = cdf.len();
+    let pick = uniform(seed, 0, k) as f64 * total;
+    let t = cdf.partition_point(|&c| c <= pick).min(tris - 1);
+    let (r1, r2) = (uniform(seed, 1, k).sqrt(), uniform(seed, 2, k));
+    let (wa, wb, wc) = (1.0 - r1, r1 * (1.0 - r2), r1 * r2);
+    if !mesh.solid(t, [wa, wb, wc]) {
+        return None;
+    }
+    let i = &mesh.indices[3 * t..3 * t + 3];
+    let [a, b, c] = mesh.triangle(t);
+    let n = mesh.normals[i[0] as usize] * wa
+        + mesh.normals[i[1] as usize] * wb
+        + mesh.normals[i[2] as usize] * wc;
+    let face = (b - a).cross(c - a).normalize_or_zero();
+    Some((
+        a * wa + b * wb + c * wc,
+        n.try_normalize().unwrap_or(face),
+        Anchor {
+            triangle: t as u32,
+            weights: [wa, wb, wc],
+            back: false,
+        },
+    ))
+}
+
 fn spawn(mesh: &Mesh, count: usize, seed: u64) -> (Vec<Vec3>, Vec<Vec3>, Vec<Anchor>) {
     let tris = mesh.triangle_count();
     let mut cdf = Vec::with_capacity(tris);
@@ -159,30 +196,25 @@ fn spawn(mesh: &Mesh, count: usize, seed: u64) -> (Vec<Vec3>, Vec<Vec3>, Vec<Anc
         total += (b - a).cross(c - a).length() as f64 * 0.5;
         cdf.push(total);
     }
-    let mut pos = Vec::with_capacity(count);
-    let mut nrm = Vec::with_capacity(count);
-    let mut anchors = Vec::with_capacity(count);
-    for k in 0..count as u32 {
-        let pick = uniform(seed, 0, k) as f64 * total;
-        let t = cdf.partition_point(|&c| c <= pick).min(tris - 1);
-        let (r1, r2) = (uniform(seed, 1, k).sqrt(), uniform(seed, 2, k));
-        let (wa, wb, wc) = (1.0 - r1, r1 * (1.0 - r2), r1 * r2);
-        if !mesh.solid(t, [wa, wb, wc]) {
-            continue;
-        }
-        let i = &mesh.indices[3 * t..3 * t + 3];
-        let [a, b, c] = mesh.triangle(t);
-        pos.push(a * wa + b * wb + c * wc);
-        let n = mesh.normals[i[0] as usize] * wa
-            + mesh.normals[i[1] as usize] * wb
-            + mesh.normals[i[2] as usize] * wc;
-        let face = (b - a).cross(c - a).normalize_or_zero();
-        nrm.push(n.try_normalize().unwrap_or(face));
-        anchors.push(Anchor {
-            triangle: t as u32,
-            weights: [wa, wb, wc],
-            back: false,
-        });
+    // Each spawned point depends on its index alone: spawned in parallel,
+    // in chunks kept in order, so the result does not depend on threads.
+    let chunks: Vec<Vec<(Vec3, Vec3, Anchor)>> = (0..count.div_ceil(SPAWN_CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let (lo, hi) = (c * SPAWN_CHUNK, ((c + 1) * SPAWN_CHUNK).min(count));
+            (lo as u32..hi as u32)
+                .filter_map(|k| spawn_one(mesh, &cdf, total, seed, k))
+                .collect()
+        })
+        .collect();
+    let kept: usize = chunks.iter().map(Vec::len).sum();
+    let mut pos = Vec::with_capacity(kept);
+    let mut nrm = Vec::with_capacity(kept);
+    let mut anchors = Vec::with_capacity(kept);
+    for (p, n, a) in chunks.into_iter().flatten() {
+        pos.push(p);
+        nrm.push(n);
+        anchors.push(a);
     }
     (pos, nrm, anchors)
 }
@@ -212,6 +244,7 @@ pub fn eliminate(points: &[Vec3], normals: &[Vec3], keep: usize, area: f32) -> (
     // Start from +0.0: an empty float sum is -0.0, whose bits would sort
     // above every positive weight and eliminate isolated points first.
     let mut w: Vec<f32> = (0..n)
+        .into_par_iter()
         .map(|i| {
             neighbours
                 .of(i)
@@ -220,26 +253,93 @@ pub fn eliminate(points: &[Vec3], normals: &[Vec3], keep: usize, area: f32) -> (
         })
         .collect();
     let key = |w: f32| (w + 0.0).to_bits();
-    let mut heap: BinaryHeap<(u32, u32)> = (0..n).map(|i| (key(w[i]), i as u32)).collect();
+    let mut heap = WeightHeap::new(w.iter().map(|&x| key(x)).collect());
     let mut removed = vec![false; n];
     let mut left = n;
     while left > keep {
-        let Some((bits, i)) = heap.pop() else { break };
+        let Some(i) = heap.pop() else { break };
         let i = i as usize;
-        if removed[i] || bits != key(w[i]) {
-            continue;
-        }
         removed[i] = true;
         left -= 1;
         for &(j, d) in neighbours.of(i) {
             let j = j as usize;
             if !removed[j] {
                 w[j] = (w[j] - weight(d)).max(0.0);
-                heap.push((key(w[j]), j as u32));
+                heap.lower(j as u32, key(w[j]));
             }
         }
     }
     ((0..n).filter(|&i| !removed[i]).collect(), r_max)
+}
+
+/// The points still in, as a max-heap by (weight bits, index) whose keys
+/// only go down, lowered in place (the elimination's heap of Yuksel 2015):
+/// every point once, instead of an entry per weight update. The order of
+/// removal is the largest weight first, the larger index among equals.
+struct WeightHeap {
+    /// Point indices in heap order.
+    heap: Vec<u32>,
+    /// Per point, where it is in `heap`.
+    at: Vec<u32>,
+    /// Per point, its key (the weight's bits: non-negative floats order as
+    /// their bits).
+    key: Vec<u32>,
+}
+
+impl WeightHeap {
+    fn new(key: Vec<u32>) -> WeightHeap {
+        let n = key.len() as u32;
+        let mut h = WeightHeap {
+            heap: (0..n).collect(),
+            at: (0..n).collect(),
+            key,
+        };
+        for k in (0..h.heap.len() / 2).rev() {
+            h.sift_down(k);
+        }
+        h
+    }
+
+    fn above(&self, a: u32, b: u32) -> bool {
+        (self.key[a as usize], a) > (self.key[b as usize], b)
+    }
+
+    fn pop(&mut self) -> Option<u32> {
+        let top = *self.heap.first()?;
+        let last = self.heap.pop()?;
+        if !self.heap.is_empty() {
+            self.heap[0] = last;
+            self.at[last as usize] = 0;
+            self.sift_down(0);
+        }
+        Some(top)
+    }
+
+    /// Lowers point `i`'s key to `key` (not above its key now).
+    fn lower(&mut self, i: u32, key: u32) {
+        debug_assert!(key <= self.key[i as usize]);
+        self.key[i as usize] = key;
+        self.sift_down(self.at[i as usize] as usize);
+    }
+
+    fn sift_down(&mut self, mut k: usize) {
+        let len = self.heap.len();
+        loop {
+            let mut top = k;
+            for child in [2 * k + 1, 2 * k + 2] {
+                if child < len && self.above(self.heap[child], self.heap[top]) {
+                    top = child;
+                }
+            }
+            if top == k {
+                return;
+            }
+            self.heap.swap(k, top);
+            self.at[self.heap[k] as usize] = k as u32;
+            self.at[self.heap[top] as usize] = top as u32;
+            k = top;
+        }
+    }
 }
 
 /// Neighbours within `reach` of every point, in CSR form.
@@ -254,33 +354,62 @@ impl Neighbours {
     }
 }
 
+/// One parallel task's lists: their lengths, and their items one after
+/// another.
+type NeighbourChunk = (Vec<usize>, Vec<(u32, f32)>);
+
+/// Points whose neighbours one parallel task lists.
+const NEIGHBOUR_CHUNK: usize = 1 << 12;
+
 fn neighbour_lists(points: &[Vec3], normals: &[Vec3], reach: f32) -> Neighbours {
     let cell = |p: Vec3| (p / reach).floor().as_ivec3();
-    let mut grid: HashMap<IVec3, Vec<u32>> = HashMap::new();
+    let mut grid: FxHashMap<IVec3, Vec<u32>> = FxHashMap::default();
     for (i, &p) in points.iter().enumerate() {
         grid.entry(cell(p)).or_default().push(i as u32);
     }
-    let mut start = Vec::with_capacity(points.len() + 1);
-    let mut items = Vec::new();
-    for (i, &p) in points.iter().enumerate() {
-        start.push(items.len());
-        let c = cell(p);
-        for dz in -1..=1 {
-            for dy in -1..=1 {
-                for dx in -1..=1 {
-                    let Some(list) = grid.get(&(c + IVec3::new(dx, dy, dz))) else {
-                        continue;
-                    };
-                    for &j in list {
-                        let d = points[j as usize].distance(p);
-                        let facing = normals[j as usize].dot(normals[i]) > 0.0;
-                        if j as usize != i && d < reach && facing {
-                            items.push((j, d));
+    // Each point's list depends on the grid alone: listed in parallel, in
+    // chunks kept in order.
+    let lists: Vec<NeighbourChunk> = (0..points.len().div_ceil(NEIGHBOUR_CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let (lo, hi) = (
+                c * NEIGHBOUR_CHUNK,
+                ((c + 1) * NEIGHBOUR_CHUNK).min(points.len()),
+            );
+            let (mut lens, mut items) = (Vec::with_capacity(hi - lo), Vec::new());
+            for i in lo..hi {
+                let before = items.len();
+                let (p, c) = (points[i], cell(points[i]));
+                for dz in -1..=1 {
+                    for dy in -1..=1 {
+                        for dx in -1..=1 {
+                            let Some(list) = grid.get(&(c + IVec3::new(dx, dy, dz))) else {
+                                continue;
+                            };
+                            for &j in list {
+                                let d = points[j as usize].distance(p);
+                                let facing = normals[j as usize].dot(normals[i]) > 0.0;
+                                if j as usize != i && d < reach && facing {
+                                    items.push((j, d));
+                                }
+                            }
                         }
                     }
                 }
+                lens.push(items.len() - before);
             }
+            (lens, items)
+        })
+        .collect();
+    let mut start = Vec::with_capacity(points.len() + 1);
+    let mut items = Vec::with_capacity(lists.iter().map(|l| l.1.len()).sum());
+    for (lens, chunk) in lists {
+        let mut at = items.len();
+        for len in lens {
+            start.push(at);
+            at += len;
         }
+        items.extend(chunk);
     }
     start.push(items.len());
     Neighbours { start, items }

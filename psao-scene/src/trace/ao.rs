@@ -315,7 +315,12 @@ pub fn morton_order(points: &[Vec3]) -> Vec<usize> {
         let q = ((p - lo) * scale).clamp(Vec3::ZERO, Vec3::splat(1023.0));
         spread(q.x as u32) | (spread(q.y as u32) << 1) | (spread(q.z as u32) << 2)
     };
-    let mut idx: Vec<usize> = (0..points.len()).collect();
-    idx.sort_by_key(|&i| (code(points[i]), i));
-    idx
+    // Keys are unique (the index breaks ties): the parallel sort gives
+    // the one order whatever the thread count.
+    let mut keyed: Vec<(u32, usize)> = (0..points.len())
+        .into_par_iter()
+        .map(|i| (code(points[i]), i))
+        .collect();
+    keyed.par_sort_unstable();
+    keyed.into_iter().map(|(_, i)| i).collect()
 }

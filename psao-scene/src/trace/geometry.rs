@@ -183,6 +183,26 @@ impl TriangleBvh {
         self.tris.len()
     }
 
+    /// Bytes held: the triangles, their masks and the BVH's nodes and
+    /// primitive indices (allocated capacity).
+    pub fn memory_bytes(&self) -> u64 {
+        use std::mem::size_of;
+        let accel = match &self.accel {
+            None => 0,
+            Some(Accel::Wide(b)) => {
+                b.nodes.capacity() * size_of::<obvhs::cwbvh::node::CwBvhNode>()
+                    + b.primitive_indices.capacity() * 4
+            }
+            Some(Accel::Binary(b)) => {
+                b.nodes.capacity() * size_of::<obvhs::bvh2::node::Bvh2Node>()
+                    + b.primitive_indices.capacity() * 4
+            }
+        };
+        (self.tris.capacity() * size_of::<Triangle>()
+            + self.masks.capacity() * size_of::<TriangleMask>()
+            + accel) as u64
+    }
+
     /// The box of the triangles in their own space (`None`: no triangle).
     pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
         self.bounds
