@@ -54,8 +54,11 @@ pub enum SceneError {
         /// Number of meshes.
         meshes: usize,
     },
-    /// An instance transform is not finite or is singular.
-    #[error("instance {instance}: transform is not finite or not invertible")]
+    /// An instance transform is not finite, or is singular relative to its
+    /// own scale ([`crate::MIN_TRANSFORM_RATIO`]).
+    #[error(
+        "instance {instance}: transform is not finite or not invertible (singular, or sheared almost flat: |det| below 1e-6 of the product of its column lengths)"
+    )]
     BadTransform {
         /// Instance index.
         instance: usize,

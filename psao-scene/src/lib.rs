@@ -72,7 +72,7 @@ pub use model::camera::{Camera, CameraKey, CameraPath, Frustum};
 pub use model::mesh::{Mesh, bounds_of, transformed_bounds};
 pub use model::node::{Node, Trs, compose};
 pub use model::pose::{Pose, normal_matrix};
-pub use model::scene::{Instance, Scene};
+pub use model::scene::{Instance, MIN_TRANSFORM_RATIO, Scene, invertible};
 pub use model::skin::{Skin, SkinWeights};
 pub use pipeline::Pipeline;
 pub use pipeline::backend::AoBackend;

@@ -1,6 +1,6 @@
 //! The server frame pipeline: skipping, rigid motion, end-to-end streaming.
 
-use glam::{Affine3A, Vec3};
+use glam::{Affine3A, Vec3, Vec3A};
 use psao_codec::{Decoder, Event, Limits, reconstruct_ao, world_to_local};
 use psao_scene::*;
 
@@ -584,4 +584,62 @@ fn the_hall_has_many_moving_parts_inside_its_walls_and_streams() {
     assert!(report.traced > 0 && report.transforms > 0, "{report:?}");
     let (direct, boxed) = p.current_tracer().layer_counts();
     assert!(boxed >= 42 && direct == 0, "({direct}, {boxed})");
+}
+
+#[test]
+fn transforms_are_judged_relative_to_their_own_scale() {
+    // A 7 cm model placed by a node that scales by 1e-4 (ToyCar's case:
+    // determinant 1e-12) loads and streams; so does a mirrored one.
+    let tiny = Affine3A::from_scale_rotation_translation(
+        Vec3::splat(1e-4),
+        glam::Quat::from_rotation_x(-std::f32::consts::FRAC_PI_2),
+        Vec3::new(0.0, 0.01, 0.0),
+    );
+    assert!(invertible(&tiny));
+    assert!(invertible(&(tiny * Affine3A::from_scale(Vec3::new(-1.0, 1.0, 1.0)))));
+    let mut scene = Scene::default();
+    scene.add(
+        Mesh::quad(Vec3::new(-0.1, 0.0, -0.1), Vec3::Z * 0.2, Vec3::X * 0.2),
+        Affine3A::IDENTITY,
+    );
+    scene.add(Mesh::cuboid(Vec3::splat(-300.0), Vec3::splat(300.0)), tiny);
+    // Density counts per world square metre: 2e5 over the 6 cm box's
+    // 216 cm^2 (2.16e6 in its own units) spawns about 4,300.
+    let config = PipelineConfig {
+        density: 2e5,
+        ao: AoParams {
+            radius: 0.02,
+            rays: 8,
+            ..AoParams::default()
+        },
+        ..PipelineConfig::default()
+    };
+    let p = Pipeline::new(scene.clone(), config.clone()).unwrap();
+    let kept = p.points(1).unwrap().len();
+    assert!((1_900..2_400).contains(&kept), "{kept} points on the box");
+    // The same box modelled in metres, unscaled: as many points.
+    let mut metres = scene.clone();
+    metres.meshes[1] = Mesh::cuboid(Vec3::splat(-0.03), Vec3::splat(0.03));
+    metres.instances[1].transform = Affine3A::from_translation(Vec3::new(0.0, 0.01, 0.0));
+    let q = Pipeline::new(metres, config.clone()).unwrap();
+    let same = q.points(1).unwrap().len() as f64;
+    assert!((kept as f64 / same - 1.0).abs() < 0.05, "{kept} and {same}");
+    // Singular (an axis scaled to zero) or sheared almost flat: refused,
+    // whatever the scale.
+    for bad in [
+        Affine3A::from_scale(Vec3::new(1.0, 0.0, 1.0)),
+        Affine3A::from_cols(
+            Vec3A::X,
+            Vec3A::X + Vec3A::Y * 1e-7,
+            Vec3A::Z,
+            Vec3A::ZERO,
+        ),
+        Affine3A::from_scale(Vec3::splat(f32::INFINITY)),
+    ] {
+        assert!(!invertible(&bad), "{bad:?}");
+        let mut s = scene.clone();
+        s.instances[1].transform = bad;
+        let e = Pipeline::new(s, config.clone()).unwrap_err();
+        assert!(matches!(e, SceneError::BadTransform { instance: 1 }), "{e}");
+    }
 }

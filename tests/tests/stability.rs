@@ -83,11 +83,22 @@ fn ao_params(scale: f32) -> AoParams {
     }
 }
 
+/// The pipeline for a room scaled by `scale`: the AO radius scaled with
+/// it, and as many points (density counts per world square metre).
 fn config(scale: f32) -> PipelineConfig {
     PipelineConfig {
-        density: DENSITY,
+        density: DENSITY / (scale * scale),
         ao: ao_params(scale),
         ..PipelineConfig::default()
+    }
+}
+
+/// The unscaled radius, with as many points as a room placed by `scale`
+/// gets at the unscaled density in its own units.
+fn dense(scale: f32) -> PipelineConfig {
+    PipelineConfig {
+        density: DENSITY / (scale * scale),
+        ..config(1.0)
     }
 }
 
@@ -271,7 +282,7 @@ fn a_room_beyond_f32_reach_is_refused_with_the_reason() {
     }
     let shrink =
         Affine3A::from_scale(Vec3::splat(1e-3)) * Affine3A::from_translation(-Vec3::X * 1e7);
-    let e = Pipeline::new(placed(local, shrink), config(1.0)).unwrap_err();
+    let e = Pipeline::new(placed(local, shrink), dense(1e-3)).unwrap_err();
     assert!(
         matches!(&e, SceneError::Precision { reason, coordinate, .. }
             if reason.contains("local space") && *coordinate >= 1e7),
@@ -281,7 +292,7 @@ fn a_room_beyond_f32_reach_is_refused_with_the_reason() {
     // fine for the 0.6 radius, but the client maps world positions into
     // local space 100 times larger, where they are 0.78 apart.
     let small_far = Affine3A::from_translation(far * 1e5) * Affine3A::from_scale(Vec3::splat(0.01));
-    let e = Pipeline::new(placed(room(), small_far), config(1.0)).unwrap_err();
+    let e = Pipeline::new(placed(room(), small_far), dense(0.01)).unwrap_err();
     assert!(
         matches!(&e, SceneError::Precision { reason, .. } if reason.contains("local units")),
         "{e}"

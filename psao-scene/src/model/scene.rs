@@ -264,13 +264,38 @@ impl Scene {
 
 /// Checks an instance's world transform: finite, invertible, and keeping
 /// the mesh's `bounds` finite.
+/// Fewest of `|det M|` per `|m0| |m1| |m2|` (the product of `M`'s column
+/// lengths) an instance transform may have: how far from flat its linear
+/// part is, whatever its scale. The ratio is 1 for a rotation times any
+/// scale (ToyCar's nodes scale by 1e-4: determinant 1e-12, ratio 1) and 0
+/// for a singular matrix (an axis scaled to zero to hide an object); 1e-6
+/// refuses only matrices sheared almost into a plane, whose inverse f32
+/// cannot give to more than a few digits.
+pub const MIN_TRANSFORM_RATIO: f64 = 1e-6;
+
+/// Whether `t` is finite, its inverse is finite, and its linear part is
+/// not near singular relative to its own scale ([`MIN_TRANSFORM_RATIO`];
+/// computed in f64, so tiny scales do not underflow).
+pub fn invertible(t: &Affine3A) -> bool {
+    if !t.is_finite() {
+        return false;
+    }
+    let m = glam::DMat3::from_cols(
+        t.matrix3.x_axis.as_dvec3(),
+        t.matrix3.y_axis.as_dvec3(),
+        t.matrix3.z_axis.as_dvec3(),
+    );
+    let scale = m.x_axis.length() * m.y_axis.length() * m.z_axis.length();
+    let det = m.determinant();
+    scale > 0.0 && det.abs() >= MIN_TRANSFORM_RATIO * scale && t.inverse().is_finite()
+}
+
 pub(crate) fn check_transform(
     instance: usize,
     t: &Affine3A,
     bounds: Option<(Vec3, Vec3)>,
 ) -> Result<(), SceneError> {
-    let det = t.matrix3.determinant();
-    if !t.is_finite() || !det.is_finite() || det.abs() < 1e-12 {
+    if !invertible(t) {
         return Err(SceneError::BadTransform { instance });
     }
     // Finite vertices under a finite transform can still overflow: the

@@ -59,7 +59,9 @@ pub enum Views {
 /// Pipeline settings.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PipelineConfig {
-    /// Points spawned per unit area (half are kept).
+    /// Points spawned per unit of world area (half are kept): an instance
+    /// placed by a scale gets its share of the world area it covers
+    /// (skinned instances: of their mesh's own area).
     pub density: f32,
     /// Seed of point generation.
     pub seed: u64,

@@ -178,6 +178,33 @@ fn bounds_of(points: &[Vec3]) -> (Vec3, Vec3) {
     crate::model::mesh::bounds_of(points).unwrap_or((Vec3::ZERO, Vec3::ZERO))
 }
 
+/// World area per local area of `mesh` placed by `t` (exact per triangle:
+/// a triangle of normal `n` grows by `|cof(M) n|`), 1 for a mesh without
+/// area or a transform that keeps areas (within 1e-5: rotations and
+/// translations).
+fn world_area_scale(mesh: &crate::model::mesh::Mesh, t: &Affine3A) -> f32 {
+    let m = glam::DMat3::from_cols(
+        t.matrix3.x_axis.as_dvec3(),
+        t.matrix3.y_axis.as_dvec3(),
+        t.matrix3.z_axis.as_dvec3(),
+    );
+    // The cofactor matrix det(M) M^-T maps a face's area vector.
+    let cof = m.inverse().transpose() * m.determinant();
+    let (mut local, mut world) = (0.0f64, 0.0f64);
+    for k in 0..mesh.triangle_count() {
+        let [a, b, c] = mesh.triangle(k);
+        let n = (b - a).cross(c - a).as_dvec3() * 0.5;
+        local += n.length();
+        world += (cof * n).length();
+    }
+    let scale = world / local;
+    if local <= 0.0 || !scale.is_finite() || (scale - 1.0).abs() < 1e-5 {
+        1.0
+    } else {
+        scale as f32
+    }
+}
+
 /// Most poses sampled to find a skinned instance's bounds over its
 /// animation.
 const MAX_BOUND_SAMPLES: usize = 1800;
@@ -232,7 +259,17 @@ impl Pipeline {
         let set_up = |(i, inst): (usize, &Instance)| -> Result<InstanceState, SceneError> {
             let mesh = &scene.meshes[inst.mesh];
             let seed = config.seed ^ ((i as u64) << 32);
-            let mut points = generate_points(mesh, config.density, seed)?;
+            // Density counts points per unit of world area: a rigid
+            // instance placed by a scale (a model in millimetres under a
+            // node that scales by 1e-3) gets as many points per square
+            // metre as any other.
+            let skinned = inst.skin.is_some() && mesh.skin.is_some();
+            let area_scale = if skinned {
+                1.0
+            } else {
+                world_area_scale(mesh, &pose.instances[i])
+            };
+            let mut points = generate_points(mesh, config.density * area_scale, seed)?;
             let rest = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ZERO));
             let grid_bounds = skin_bounds[i].unwrap_or(rest);
             check_precision(
@@ -253,7 +290,6 @@ impl Pipeline {
             )?;
             let table = GridTable::new(i as u32, def, points.len().max(1) as u32)?;
             let (vertices, vertex_normals) = scene.skinned(i, &pose);
-            let skinned = inst.skin.is_some() && mesh.skin.is_some();
             let (mut positions, mut normals) = (Vec::new(), Vec::new());
             if skinned {
                 points.follow(
