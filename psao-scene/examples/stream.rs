@@ -13,7 +13,8 @@
 //! - `--scene NAME`: stream an embedded scene other than the default:
 //!   `hall` (the procedural hall: 160 moving props, 4 walking figures) or
 //!   `cesium-man` (CesiumMan alone on a floor);
-//! - `--gltf PATH`: stream a glTF file instead, standing on a floor;
+//! - `--gltf PATH`: stream a scene file instead (glTF or OBJ), standing
+//!   on a floor;
 //! - `--frames N`, `--density D`, `--rays N`, `--lk` (Laine-Karras
 //!   estimator).
 //!
@@ -37,9 +38,9 @@ fn flag(name: &str) -> bool {
     std::env::args().any(|a| a == name)
 }
 
-/// A glTF file standing on a floor 2 m wider than it on every side.
+/// A scene file standing on a floor 2 m wider than it on every side.
 fn gltf_scene(path: &str) -> Scene {
-    load_gltf(std::path::Path::new(path))
+    load_scene_file(std::path::Path::new(path))
         .and_then(stage)
         .unwrap_or_else(|e| {
             eprintln!("error: {e}");

@@ -99,6 +99,23 @@ pub enum SceneError {
         /// What was wrong.
         reason: String,
     },
+    /// An OBJ file (or its material library) is malformed or unsafe to
+    /// load.
+    #[error("OBJ {file}: {element}: {reason}")]
+    Obj {
+        /// The file (or the name given for in-memory data).
+        file: String,
+        /// The element at fault (`file`, `document`, `object 2 (name)`).
+        element: String,
+        /// What was wrong.
+        reason: String,
+    },
+    /// A scene file of a format psao does not read.
+    #[error("unsupported scene format: expected .gltf, .glb or .obj ({file})")]
+    UnsupportedFormat {
+        /// The file.
+        file: String,
+    },
     /// The codec refused a point or a frame.
     #[error("encoding failed: {0}")]
     Encode(#[from] psao_codec::EncodeError),

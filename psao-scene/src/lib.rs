@@ -12,7 +12,9 @@
 //!   cubic spline) and a camera path ([`CameraPath`]); [`Scene::pose`]
 //!   evaluates it at a time;
 //! - `import/`, glTF 2.0 import ([`load_gltf`]) of meshes, nodes, skins,
-//!   animations and alpha-mask materials into that model;
+//!   animations and alpha-mask materials into that model, Wavefront OBJ
+//!   import ([`load_obj`]), and [`load_scene_file`], which picks by
+//!   extension;
 //! - `points/`, point generation with weighted sample elimination
 //!   ([`generate_points`], paper 3.1), each point anchored to its triangle
 //!   so skinning carries it, and grid layout ([`layout`], paper 3.2);
@@ -62,9 +64,10 @@ mod scenes;
 mod trace;
 
 pub use error::{SceneError, check_param};
+pub use import::obj::{MAX_OBJ_BYTES, load_obj, load_obj_slice};
 pub use import::{
     MAX_ACCESSOR_BYTES, MAX_BUFFER_BYTES, MAX_INSTANCES, MAX_SKINNED_VERTICES, load_gltf,
-    load_gltf_slice,
+    load_gltf_slice, load_scene_file,
 };
 pub use model::alpha::{AlphaMask, AlphaTexture};
 pub use model::animation::{Animation, Channel, Interpolation, Keys};

@@ -596,7 +596,9 @@ fn transforms_are_judged_relative_to_their_own_scale() {
         Vec3::new(0.0, 0.01, 0.0),
     );
     assert!(invertible(&tiny));
-    assert!(invertible(&(tiny * Affine3A::from_scale(Vec3::new(-1.0, 1.0, 1.0)))));
+    assert!(invertible(
+        &(tiny * Affine3A::from_scale(Vec3::new(-1.0, 1.0, 1.0)))
+    ));
     let mut scene = Scene::default();
     scene.add(
         Mesh::quad(Vec3::new(-0.1, 0.0, -0.1), Vec3::Z * 0.2, Vec3::X * 0.2),
@@ -628,12 +630,7 @@ fn transforms_are_judged_relative_to_their_own_scale() {
     // whatever the scale.
     for bad in [
         Affine3A::from_scale(Vec3::new(1.0, 0.0, 1.0)),
-        Affine3A::from_cols(
-            Vec3A::X,
-            Vec3A::X + Vec3A::Y * 1e-7,
-            Vec3A::Z,
-            Vec3A::ZERO,
-        ),
+        Affine3A::from_cols(Vec3A::X, Vec3A::X + Vec3A::Y * 1e-7, Vec3A::Z, Vec3A::ZERO),
         Affine3A::from_scale(Vec3::splat(f32::INFINITY)),
     ] {
         assert!(!invertible(&bad), "{bad:?}");

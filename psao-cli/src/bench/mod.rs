@@ -15,7 +15,7 @@ use std::path::PathBuf;
 
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressStyle};
-use psao_scene::{Scene, cesium_man_scene, default_scene, load_gltf, stage};
+use psao_scene::{Scene, cesium_man_scene, default_scene, load_scene_file, stage};
 
 pub use measure::Settings;
 
@@ -35,7 +35,7 @@ pub struct BenchArgs {
     /// 192 rays per point, every density at every rate.
     #[arg(long)]
     full: bool,
-    /// glTF files to bench as well (each staged on a floor, with an
+    /// Scene files (glTF .gltf/.glb, or OBJ) to bench as well (each staged on a floor, with an
     /// orbiting camera when it has no camera path).
     #[arg(long = "gltf")]
     gltf: Vec<PathBuf>,
@@ -116,9 +116,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         scenes.push(("cesium-man".into(), cesium_man_scene()));
     }
     for path in &args.gltf {
-        let scene = load_gltf(path)
-            .and_then(stage)
-            .with_context(|| path.display().to_string())?;
+        // The error names the file already.
+        let scene = load_scene_file(path).and_then(stage)?;
         let name = path
             .file_stem()
             .map(|n| n.to_string_lossy().into_owned())

@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::{Context as _, bail};
 use psao_proto::tls::parse_fingerprint;
 use psao_proto::{ServerStats, Trust};
-use psao_scene::{PipelineConfig, Scene, default_scene, load_gltf};
+use psao_scene::{PipelineConfig, Scene, default_scene, load_scene_file};
 
 /// Where a client connects and how it trusts the server.
 #[derive(clap::Args)]
@@ -58,13 +58,13 @@ pub fn pipeline_config(density: f32, rays: u32) -> PipelineConfig {
     PipelineConfig::with_density_and_rays(density, rays)
 }
 
-/// The scene at `path` (a glTF file) or the embedded default scene, with
+/// The scene at `path` (a .gltf, .glb or .obj file) or the embedded default scene, with
 /// the name `WELCOME` gives it.
 pub fn load_scene(path: Option<&Path>) -> anyhow::Result<(Scene, String)> {
     match path {
         None => Ok((default_scene(), "default".into())),
         Some(p) => {
-            let scene = load_gltf(p)?;
+            let scene = load_scene_file(p)?;
             let name = p
                 .file_name()
                 .map(|n| n.to_string_lossy().into_owned())

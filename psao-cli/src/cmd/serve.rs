@@ -14,7 +14,7 @@ use super::common::{load_scene, pipeline_config, seconds_of, status};
 /// Arguments of `psao serve`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// A glTF file (default: the embedded default scene).
+    /// A scene file: glTF (.gltf, .glb) or OBJ (default: the embedded default scene).
     #[arg(long)]
     scene: Option<PathBuf>,
     /// Address to listen on.

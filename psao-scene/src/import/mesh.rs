@@ -195,7 +195,7 @@ pub(super) fn primitive_mesh(
 }
 
 /// Vertex normals as the area-weighted sum of the adjacent face normals.
-fn face_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
+pub(super) fn face_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
     let mut n = vec![Vec3::ZERO; positions.len()];
     for t in indices.chunks_exact(3) {
         let [a, b, c] = [t[0], t[1], t[2]].map(|i| positions[i as usize]);

@@ -27,6 +27,7 @@ mod buffers;
 mod material;
 mod mesh;
 mod nodes;
+pub(crate) mod obj;
 
 use std::path::Path;
 
@@ -53,6 +54,23 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
     let name = path.display().to_string();
     let bytes = std::fs::read(path).map_err(|e| gltf_error(&name, "file", e.to_string()))?;
     load_gltf_slice(&bytes, &name, path.parent())
+}
+
+/// Reads a scene file by its extension: `.gltf` or `.glb` ([`load_gltf`]),
+/// `.obj` ([`obj::load_obj`]); any other is
+/// [`SceneError::UnsupportedFormat`].
+pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    match ext.as_str() {
+        "gltf" | "glb" => load_gltf(path),
+        "obj" => obj::load_obj(path),
+        _ => Err(SceneError::UnsupportedFormat {
+            file: path.display().to_string(),
+        }),
+    }
 }
 
 /// Reads glTF from memory; `name` names it in errors, `base` is where
