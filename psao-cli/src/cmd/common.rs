@@ -53,9 +53,12 @@ pub fn seconds_of(s: f32) -> Duration {
     Duration::from_secs_f32(if s.is_nan() { 0.0 } else { s.clamp(0.0, 1e7) })
 }
 
-/// The pipeline settings of `--density` and `--rays`.
+/// The pipeline settings of `--density` and `--rays`. Every command's
+/// `--density` counts points kept per square metre, the paper's N (as
+/// `psao bench --densities` does); the pipeline spawns twice as many and
+/// keeps half.
 pub fn pipeline_config(density: f32, rays: u32) -> PipelineConfig {
-    PipelineConfig::with_density_and_rays(density, rays)
+    PipelineConfig::with_density_and_rays(2.0 * density, rays)
 }
 
 /// The scene at `path` (a .gltf, .glb or .obj file) or the embedded default scene, with
@@ -86,14 +89,19 @@ fn read_roots(path: &Path) -> anyhow::Result<Vec<rustls::pki_types::CertificateD
 pub fn status(s: &ServerStats, prev: &ServerStats, dt: f64) -> String {
     let frames = (s.frames - prev.frames).max(1) as f64;
     let clients = s.clients.max(1) as f64;
+    // With no client there is no ACK to age frames by.
+    let age = if s.clients == 0 {
+        "    -".to_string()
+    } else {
+        format!("{:5.1}", s.frame_age * 1e3)
+    };
     format!(
-        "{:5.1} fps | {:6.3} Mbit/s per client | traced {:5.0}/frame | sent {:4.0}/frame | step {:5.2} ms | frame age {:5.1} ms | {} clients",
+        "{:5.1} fps | {:6.3} Mbit/s per client | traced {:5.0}/frame | sent {:4.0}/frame | step {:5.2} ms | frame age {age} ms | {} clients",
         (s.frames - prev.frames) as f64 / dt,
         (s.written_bytes - prev.written_bytes) as f64 * 8.0 / dt / 1e6 / clients,
         (s.report.traced - prev.report.traced) as f64 / frames,
         (s.report.updated - prev.report.updated) as f64 / frames,
         (s.step_time - prev.step_time).as_secs_f64() * 1e3 / frames,
-        s.frame_age * 1e3,
         s.clients,
     )
 }

@@ -33,8 +33,9 @@ pub struct Args {
     /// Clients to connect.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=1000))]
     clients: u16,
-    /// Points spawned per square metre (half are kept).
-    #[arg(long, default_value_t = 64.0)]
+    /// Points kept per square metre (the paper's N, as in `psao bench
+    /// --densities`).
+    #[arg(long, default_value_t = 32.0)]
     density: f32,
     /// AO rays per point.
     #[arg(long, default_value_t = 64)]

@@ -35,8 +35,9 @@ pub struct Args {
     /// Most bytes queued for one client before it is resynchronized.
     #[arg(long, default_value_t = 1 << 20)]
     queue_bytes: usize,
-    /// Points spawned per square metre (half are kept).
-    #[arg(long, default_value_t = 64.0)]
+    /// Points kept per square metre (the paper's N, as in `psao bench
+    /// --densities`).
+    #[arg(long, default_value_t = 32.0)]
     density: f32,
     /// Stop after this many seconds (default: until Ctrl-C).
     #[arg(long)]
@@ -45,6 +46,31 @@ pub struct Args {
     /// viewers' CAMERA messages say they see (spec/session.md 3.2).
     #[arg(long)]
     cull: bool,
+}
+
+/// What the server holds for the scene, in a line: triangles, instances
+/// (how many move), points, keyframe bytes, pipeline memory, setup time.
+fn scene_summary(p: &mut Pipeline, setup_s: f64) -> anyhow::Result<String> {
+    let scene = p.scene();
+    let triangles: usize = scene
+        .instances
+        .iter()
+        .map(|i| scene.meshes[i.mesh].triangle_count())
+        .sum();
+    let instances = p.instance_count();
+    let moving = (0..instances).filter(|&i| p.is_dynamic(i)).count();
+    let points: usize = (0..instances)
+        .map(|i| p.points(i).map_or(0, |s| s.len()))
+        .sum();
+    let memory = p.memory_bytes();
+    let keyframe = p.keyframe()?.bytes.len();
+    Ok(format!(
+        "scene ready in {setup_s:.1} s: {triangles} triangles, {instances} instances ({moving} moving), \
+         {points} points, keyframe {:.1} kB, {:.1} MB held ({:.0} bytes per point)",
+        keyframe as f64 / 1e3,
+        memory as f64 / 1e6,
+        memory as f64 / points.max(1) as f64
+    ))
 }
 
 /// Serves until Ctrl-C or `--seconds`, printing a status line a second.
@@ -67,7 +93,13 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         ..pipeline_config(args.density, 64)
     };
     println!("preparing the scene (points, grids, first trace)...");
-    let pipeline = Pipeline::new(scene, pipeline)?;
+    let started = Instant::now();
+    let mut pipeline = Pipeline::new(scene, pipeline)?;
+    println!(
+        "{}",
+        scene_summary(&mut pipeline, started.elapsed().as_secs_f64())?
+    );
+    let rate = config.frame_rate;
     let server = serve(pipeline, config, &identity).await?;
     println!("listening on {}", server.local_addr());
     println!(
@@ -86,7 +118,19 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
             _ = tokio::signal::ctrl_c() => break,
             _ = tokio::time::sleep(Duration::from_secs(1)) => {
                 let s = server.stats();
-                println!("{}", status(&s, &prev.0, prev.1.elapsed().as_secs_f64()));
+                let dt = prev.1.elapsed().as_secs_f64();
+                let mut line = status(&s, &prev.0, dt);
+                // Ticks a second against the rate WELCOME announced.
+                let fps = (s.frames - prev.0.frames) as f64 / dt;
+                if fps < 0.95 * rate as f64 {
+                    line.push_str(&format!(" | BEHIND: {fps:.1} of {rate} Hz"));
+                    tracing::warn!(
+                        "the server runs at {fps:.1} frames/s, below the {rate} Hz its WELCOME announced (step {:.1} ms)",
+                        (s.step_time - prev.0.step_time).as_secs_f64() * 1e3
+                            / (s.frames - prev.0.frames).max(1) as f64
+                    );
+                }
+                println!("{line}");
                 prev = (s, Instant::now());
                 if until.is_some_and(|u| Instant::now() >= u) {
                     break;
