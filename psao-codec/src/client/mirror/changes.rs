@@ -20,8 +20,8 @@ pub enum Change {
     Words(u32, Range<u32>),
 }
 
-/// What changed since the last [`Mirror::take_changes`] or
-/// [`Mirror::clear_changes`]. After a rejected frame the list may
+/// What changed since the last [`Mirror::take_changes`](crate::Mirror::take_changes) or
+/// [`Mirror::clear_changes`](crate::Mirror::clear_changes). After a rejected frame the list may
 /// over-report (`all` set), never under-report.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Changes {
