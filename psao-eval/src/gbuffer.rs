@@ -31,6 +31,11 @@ pub struct PosedScene {
     corners: Vec<[Vec3; 3]>,
     /// Per world triangle: the unit world normals at its corners.
     normals: Vec<[Vec3; 3]>,
+    /// Per world triangle: 0 when its mesh is double-sided, else the sign
+    /// of its instance's determinant (+1 or -1): its front face is the
+    /// side its world corners wind counterclockwise around, flipped by a
+    /// mirroring transform (as glTF says).
+    facing: Vec<i8>,
     /// Per instance: its local-to-world transform at this time.
     transforms: Vec<Affine3A>,
     time: f32,
@@ -57,7 +62,7 @@ impl PosedScene {
             .map(|m| m.alpha.clone().map(Arc::new))
             .collect();
         let mut g = Geometry::default();
-        let (mut owners, mut normals) = (Vec::new(), Vec::new());
+        let (mut owners, mut normals, mut facing) = (Vec::new(), Vec::new(), Vec::new());
         for (i, inst) in scene.instances.iter().enumerate() {
             let to_world = pose.instances[i];
             let det = to_world.matrix3.determinant();
@@ -84,6 +89,13 @@ impl PosedScene {
                 g.masks.push(masks[inst.mesh].clone().map(|m| (m, idx)));
                 normals.push(idx.map(|k| (nm * nrm[k as usize]).normalize_or_zero()));
                 owners.push((i as u32, tri as u32));
+                facing.push(if mesh.double_sided {
+                    0
+                } else if det < 0.0 {
+                    -1
+                } else {
+                    1
+                });
             }
         }
         let corners = g.triangles.clone();
@@ -92,6 +104,7 @@ impl PosedScene {
             owners,
             corners,
             normals,
+            facing,
             transforms: pose.instances,
             time: t,
         })
@@ -164,8 +177,22 @@ impl PosedScene {
         let dir = to_world.transform_vector3(d_view);
         let len = dir.length();
         let unit = dir / len;
-        let ray = Ray::new(Vec3A::from(eye), Vec3A::from(unit), 0.0, f32::INFINITY);
-        let (prim, t) = self.bvh.closest_triangle(ray)?;
+        // The nearest face the camera sees: a single-sided face seen from
+        // behind is culled, as a glTF renderer culls it (doubleSided:
+        // false), and the ray goes on past it.
+        let mut tmin = 0.0f32;
+        let (prim, t) = loop {
+            let ray = Ray::new(Vec3A::from(eye), Vec3A::from(unit), tmin, f32::INFINITY);
+            let (prim, t) = self.bvh.closest_triangle(ray)?;
+            if !self.culled(prim as usize, unit) {
+                break (prim, t);
+            }
+            let next = t + t.abs() * 4e-7 + f32::MIN_POSITIVE;
+            if next <= tmin || !next.is_finite() {
+                return None;
+            }
+            tmin = next;
+        };
         let [a, b, c] = self.corners[prim as usize];
         let hit = eye + unit * t;
         let w = barycentric(hit, a, b, c);
@@ -188,6 +215,20 @@ impl PosedScene {
             // Distance along the view axis (the view direction has z = -1).
             depth: t / len,
         })
+    }
+}
+
+impl PosedScene {
+    /// Whether world triangle `prim` is single-sided and `dir` sees its
+    /// back.
+    fn culled(&self, prim: usize, dir: Vec3) -> bool {
+        let sign = self.facing[prim];
+        if sign == 0 {
+            return false;
+        }
+        let [a, b, c] = self.corners[prim];
+        let front = (b - a).cross(c - a) * sign as f32;
+        front.dot(dir) > 0.0
     }
 }
 

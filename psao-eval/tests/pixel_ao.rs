@@ -316,3 +316,51 @@ fn the_client_image_uses_the_last_received_transform() {
     };
     assert!(top(&g0, &before) > 0.95 && top(&g1, &after) > 0.95);
 }
+
+#[test]
+fn single_sided_faces_seen_from_behind_are_culled_as_gltf_says() {
+    let view_from = |y: f32| {
+        View::new(
+            Camera {
+                eye: Vec3::new(0.01, y, 0.02),
+                target: Vec3::new(0.0, 0.0, 0.0),
+                fov_y: 0.5,
+            },
+            16,
+            16,
+        )
+        .unwrap()
+    };
+    let seen = |scene: &Scene, y: f32| {
+        let g = PosedScene::new(scene, 0.0).unwrap().gbuffer(&view_from(y));
+        g.covered()
+    };
+    // A 4 m square facing up (+y), and far below it a second square
+    // facing up, seen through the first from below.
+    let mut s = Scene::default();
+    s.add(
+        Mesh::quad(Vec3::new(-2.0, 0.0, -2.0), Vec3::Z * 4.0, Vec3::X * 4.0),
+        Affine3A::IDENTITY,
+    );
+    let all = 16 * 16;
+    assert_eq!(seen(&s, 3.0), all, "its front, from above");
+    assert_eq!(seen(&s, -3.0), 0, "its back, from below: culled");
+    let mut both = s.clone();
+    both.meshes[0].double_sided = true;
+    assert_eq!(seen(&both, -3.0), all, "double-sided: seen from both sides");
+    // Mirrored by a negative scale, its front faces down (-y): the camera
+    // below sees it, the camera above does not.
+    let mut mirrored = s.clone();
+    mirrored.instances[0].transform = Affine3A::from_scale(Vec3::new(1.0, -1.0, 1.0));
+    assert_eq!(seen(&mirrored, -3.0), all, "a mirrored front, from below");
+    assert_eq!(seen(&mirrored, 3.0), 0, "a mirrored back, from above");
+    // What lies behind a culled face is what the camera sees.
+    s.add(
+        Mesh::quad(Vec3::new(-20.0, 5.0, -20.0), Vec3::X * 40.0, Vec3::Z * 40.0),
+        Affine3A::IDENTITY,
+    );
+    let g = PosedScene::new(&s, 0.0)
+        .unwrap()
+        .gbuffer(&view_from(3.0 - 6.0));
+    assert!(g.instance.iter().all(|&i| i == 1), "{:?}", g.instance);
+}
