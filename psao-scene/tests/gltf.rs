@@ -322,3 +322,37 @@ fn glb_headers_and_binary_chunks_are_checked() {
     let e = load_gltf_slice(&glb, "two.glb", None).unwrap_err();
     assert!(e.to_string().contains("only buffer 0"), "{e}");
 }
+
+#[test]
+fn morph_targets_take_their_default_weights_and_animated_weights_are_refused() {
+    // MorphPrimitivesTest: a flat 1 x 1 m plane at y = 0 whose two
+    // primitives each carry a target lifting it by up to 0.2 m, at the
+    // mesh's default weight 0.5.
+    let s = load_gltf(&data("MorphPrimitivesTest.gltf")).unwrap();
+    s.validate().unwrap();
+    let ys: Vec<f32> = s
+        .meshes
+        .iter()
+        .flat_map(|m| m.positions.iter().map(|p| p.y))
+        .collect();
+    let (lo, hi) = ys
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(a, b), &y| (a.min(y), b.max(y)));
+    assert!(lo.abs() < 1e-6, "the base stays at y = 0 ({lo})");
+    assert!((hi - 0.1).abs() < 1e-3, "lifted by half of 0.2 m: {hi}");
+    // Its targets move positions only, so the given normals stay (glTF
+    // morphs a normal only by a target's NORMAL).
+    assert!(
+        s.meshes
+            .iter()
+            .flat_map(|m| &m.normals)
+            .all(|n| n.is_normalized())
+    );
+    // AnimatedMorphCube animates its weights: refused, saying why.
+    let e = load_gltf(&data("AnimatedMorphCube.glb")).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("animated morph target weights are not supported"),
+        "{e}"
+    );
+}

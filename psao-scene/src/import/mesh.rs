@@ -12,9 +12,11 @@ use crate::error::SceneError;
 use crate::model::mesh::Mesh;
 use crate::model::skin::SkinWeights;
 
-/// The [`Mesh`] of a primitive; `element` names it in errors.
+/// The [`Mesh`] of a primitive, its morph targets applied with `weights`
+/// (a missing weight is 0); `element` names it in errors.
 pub(super) fn primitive_mesh(
     prim: &gltf::Primitive<'_>,
+    weights: &[f32],
     buffers: &Buffers,
     name: &str,
     element: &str,
@@ -56,6 +58,59 @@ pub(super) fn primitive_mesh(
             ));
         }
     };
+    let mut positions = positions;
+    // Morph target deltas, weighted (glTF 3.7.2.1): positions now, normals
+    // once they are read.
+    let mut normal_deltas: Vec<(f32, Vec<Vec3>)> = Vec::new();
+    let vec3_of =
+        |a: Option<gltf::Accessor<'_>>, what: &str| -> Result<Option<Vec<Vec3>>, SceneError> {
+            let Some(a) = a else { return Ok(None) };
+            if a.data_type() != DataType::F32 || a.dimensions() != Dimensions::Vec3 {
+                return Err(gltf_error(
+                    name,
+                    element,
+                    format!("{what} accessor {} is not f32 VEC3", a.index()),
+                ));
+            }
+            let v = read(a, what)?.vec3();
+            if v.len() != positions.len() {
+                return Err(gltf_error(
+                    name,
+                    element,
+                    format!(
+                        "{what} has {} values for {} vertices",
+                        v.len(),
+                        positions.len()
+                    ),
+                ));
+            }
+            Ok(Some(v))
+        };
+    let mut morphed = Vec::new();
+    for (k, target) in prim.morph_targets().enumerate() {
+        let w = weights.get(k).copied().unwrap_or(0.0);
+        if !w.is_finite() {
+            return Err(gltf_error(
+                name,
+                element,
+                format!("morph weight {k} is not finite"),
+            ));
+        }
+        if w == 0.0 {
+            continue;
+        }
+        if let Some(d) = vec3_of(target.positions(), "morph target POSITION")? {
+            morphed.push((w, d));
+        }
+        if let Some(d) = vec3_of(target.normals(), "morph target NORMAL")? {
+            normal_deltas.push((w, d));
+        }
+    }
+    for (w, d) in morphed {
+        for (p, d) in positions.iter_mut().zip(d) {
+            *p += w * d;
+        }
+    }
     let indices: Vec<u32> = match prim.indices() {
         Some(a) if a.dimensions() == Dimensions::Scalar => read(a, "index")?
             .u32s()
@@ -85,11 +140,13 @@ pub(super) fn primitive_mesh(
     }
     let normals: Vec<Vec3> = match prim.get(&Semantic::Normals) {
         Some(a) if a.data_type() == DataType::F32 && a.dimensions() == Dimensions::Vec3 => {
-            read(a, "NORMAL")?
-                .vec3()
-                .into_iter()
-                .map(|n| n.normalize_or(Vec3::Z))
-                .collect()
+            let mut n = read(a, "NORMAL")?.vec3();
+            for (w, d) in &normal_deltas {
+                for (n, d) in n.iter_mut().zip(d) {
+                    *n += *w * *d;
+                }
+            }
+            n.into_iter().map(|n| n.normalize_or(Vec3::Z)).collect()
         }
         Some(a) => {
             return Err(gltf_error(

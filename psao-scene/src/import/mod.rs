@@ -9,9 +9,12 @@
 //! skin, if any). Translation, rotation and scale channels become
 //! [`Animation`](crate::Animation)s. `MASK` materials become alpha masks from
 //! the base colour factor and `COLOR_0`. Missing normals are computed from
-//! the faces; missing indices mean sequential triangles.
+//! the faces; missing indices mean sequential triangles. Morph targets are
+//! applied with their default weights (the node's, else the mesh's): the
+//! mesh is the weighted sum, its normals too (from the faces when it has
+//! none).
 //!
-//! Not supported, each refused with an error: morph targets, more than four
+//! Not supported, each refused with an error: animated morph weights, more than four
 //! joints per vertex, alpha masks read from textures, sparse accessors,
 //! primitives other than triangle lists. Any problem is a
 //! [`SceneError::Gltf`] naming the file and the element. Work is bounded:

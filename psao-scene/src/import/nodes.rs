@@ -100,7 +100,7 @@ pub(super) fn read_instances(
     out: &mut Scene,
 ) -> Result<(), SceneError> {
     let mut skins: HashMap<usize, usize> = HashMap::new();
-    let mut meshes: HashMap<(usize, usize), usize> = HashMap::new();
+    let mut meshes: HashMap<(usize, usize, Option<usize>), usize> = HashMap::new();
     for node in visited {
         let here = node_of(node.index(), "scene")?;
         let Some(mesh) = node.mesh() else { continue };
@@ -116,13 +116,18 @@ pub(super) fn read_instances(
             }),
             None => None,
         };
+        // Morph targets take the node's default weights, else the mesh's
+        // (glTF 3.7.2.2); a node with weights of its own gets meshes of
+        // its own.
+        let weights = node.weights().or(mesh.weights()).unwrap_or(&[]);
+        let own = node.weights().map(|_| node.index());
         for prim in mesh.primitives() {
-            let key = (mesh.index(), prim.index());
+            let key = (mesh.index(), prim.index(), own);
             let id = match meshes.get(&key) {
                 Some(&id) => id,
                 None => {
                     let element = format!("mesh {} primitive {}", mesh.index(), prim.index());
-                    let m = primitive_mesh(&prim, buffers, name, &element)?;
+                    let m = primitive_mesh(&prim, weights, buffers, name, &element)?;
                     out.meshes.push(m);
                     meshes.insert(key, out.meshes.len() - 1);
                     out.meshes.len() - 1
@@ -255,7 +260,8 @@ pub(super) fn read_animation(
                 return Err(gltf_error(
                     name,
                     &element,
-                    "morph target weights are not supported".into(),
+                    "animated morph target weights are not supported (default weights are applied)"
+                        .into(),
                 ));
             }
             _ => gltf::accessor::Dimensions::Vec3,
