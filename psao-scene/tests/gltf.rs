@@ -356,3 +356,30 @@ fn morph_targets_take_their_default_weights_and_animated_weights_are_refused() {
         "{e}"
     );
 }
+
+#[test]
+fn the_first_perspective_camera_becomes_the_scene_camera_and_staging_keeps_it() {
+    // Cameras.gltf: a perspective camera (yfov 0.7) and an orthographic
+    // one, each on a node at (0.5, 0.5, 3) looking down -Z.
+    let s = load_gltf(&data("Cameras.gltf")).unwrap();
+    let path = s.camera.clone().expect("a camera path");
+    assert_eq!(path.fov_y, 0.7);
+    let cam = path.at(0.0);
+    assert!(
+        (cam.eye - Vec3::new(0.5, 0.5, 3.0)).length() < 1e-5,
+        "{:?}",
+        cam.eye
+    );
+    let look = (cam.target - cam.eye).normalize();
+    assert!((look - Vec3::NEG_Z).length() < 1e-5, "{look:?}");
+    // The bench stages the model on a floor and keeps the file's camera.
+    let staged = stage(s).unwrap();
+    assert_eq!(staged.camera, Some(path));
+    // A file without cameras gets none (staging then orbits).
+    assert!(
+        load_gltf(&data("BoxAnimated.glb"))
+            .unwrap()
+            .camera
+            .is_none()
+    );
+}

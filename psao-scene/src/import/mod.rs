@@ -12,7 +12,8 @@
 //! the faces; missing indices mean sequential triangles. Morph targets are
 //! applied with their default weights (the node's, else the mesh's): the
 //! mesh is the weighted sum, its normals too (from the faces when it has
-//! none).
+//! none). The first perspective camera in scene order becomes the scene's
+//! camera path (following its node, looking down its -Z).
 //!
 //! Not supported, each refused with an error: animated morph weights, more than four
 //! joints per vertex, alpha masks read from textures, sparse accessors,
@@ -37,7 +38,7 @@ use std::path::Path;
 use crate::error::SceneError;
 use crate::model::scene::Scene;
 use buffers::load_buffers;
-use nodes::{read_animation, read_instances, read_nodes};
+use nodes::{read_animation, read_camera, read_instances, read_nodes};
 
 /// Most buffer bytes a glTF file may declare, all buffers together (1 GiB).
 pub const MAX_BUFFER_BYTES: usize = 1 << 30;
@@ -116,6 +117,8 @@ pub fn load_gltf_slice(bytes: &[u8], name: &str, base: Option<&Path>) -> Result<
     }
     out.validate()
         .map_err(|e| gltf_error(name, "scene", e.to_string()))?;
+    out.camera = read_camera(&visited, &node_of, &out)
+        .map_err(|e| gltf_error(name, "camera", e.to_string()))?;
     Ok(out)
 }
 

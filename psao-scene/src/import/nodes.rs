@@ -12,6 +12,7 @@ use super::mesh::primitive_mesh;
 use super::{MAX_INSTANCES, gltf_error};
 use crate::error::SceneError;
 use crate::model::animation::{Animation, Channel, Interpolation, Keys};
+use crate::model::camera::{CameraKey, CameraPath};
 use crate::model::node::Trs;
 use crate::model::scene::{Instance, Scene};
 use crate::model::skin::Skin;
@@ -294,4 +295,58 @@ pub(super) fn read_animation(
         });
     }
     Ok(out)
+}
+
+/// Most keys sampled from an animated camera node.
+const MAX_CAMERA_KEYS: usize = 1800;
+
+/// The scene's camera: the first node in scene order holding a
+/// perspective camera (glTF names no active camera; orthographic ones are
+/// skipped), as a camera path following the node's world transform,
+/// looking down its -Z, sampled at 30 Hz over the animations when any
+/// animation plays. `None` without a perspective camera. Call on a
+/// validated scene.
+pub(super) fn read_camera(
+    visited: &[gltf::Node<'_>],
+    node_of: &dyn Fn(usize, &str) -> Result<usize, SceneError>,
+    out: &Scene,
+) -> Result<Option<CameraPath>, SceneError> {
+    let Some((node, yfov)) = visited.iter().find_map(|n| match n.camera()?.projection() {
+        gltf::camera::Projection::Perspective(p) => Some((n.index(), p.yfov())),
+        gltf::camera::Projection::Orthographic(_) => None,
+    }) else {
+        return Ok(None);
+    };
+    let ours = node_of(node, "camera")?;
+    let span = out
+        .animations
+        .iter()
+        .map(|a| a.duration())
+        .filter(|d| d.is_finite())
+        .fold(0.0f32, f32::max)
+        .min(60.0);
+    let samples = if span > 0.0 {
+        ((span * 30.0).ceil() as usize).clamp(1, MAX_CAMERA_KEYS)
+    } else {
+        0
+    };
+    let mut keys = Vec::with_capacity(samples + 1);
+    for k in 0..=samples {
+        let time = if samples == 0 {
+            0.0
+        } else {
+            span * k as f32 / samples as f32
+        };
+        let m = out.pose(time).nodes[ours];
+        let eye = m.translation.into();
+        let forward = m.transform_vector3(-Vec3::Z).normalize_or(-Vec3::Z);
+        keys.push(CameraKey {
+            time,
+            eye,
+            target: eye + forward,
+        });
+    }
+    let path = CameraPath { keys, fov_y: yfov };
+    path.validate()?;
+    Ok(Some(path))
 }
