@@ -77,10 +77,10 @@ pub use model::node::{Node, Trs, compose};
 pub use model::pose::{Pose, normal_matrix};
 pub use model::scene::{Instance, MIN_TRANSFORM_RATIO, Scene, invertible};
 pub use model::skin::{Skin, SkinWeights};
-pub use pipeline::Pipeline;
 pub use pipeline::backend::AoBackend;
 pub use pipeline::config::{PipelineConfig, ViewerCull, Views};
 pub use pipeline::report::FrameReport;
+pub use pipeline::{Pipeline, SetupProgress, SetupStage};
 pub use points::generate::{Anchor, MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
 pub use points::layout::{LayoutParams, layout};
 pub use precision::{

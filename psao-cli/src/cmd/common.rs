@@ -9,7 +9,9 @@ use std::time::Duration;
 use anyhow::{Context as _, bail};
 use psao_proto::tls::parse_fingerprint;
 use psao_proto::{ServerStats, Trust};
-use psao_scene::{PipelineConfig, Scene, default_scene, load_scene_file};
+use psao_scene::{
+    Pipeline, PipelineConfig, Scene, SetupProgress, SetupStage, default_scene, load_scene_file,
+};
 
 /// Where a client connects and how it trusts the server.
 #[derive(clap::Args)]
@@ -59,6 +61,32 @@ pub fn seconds_of(s: f32) -> Duration {
 /// keeps half.
 pub fn pipeline_config(density: f32, rays: u32) -> PipelineConfig {
     PipelineConfig::with_density_and_rays(2.0 * density, rays)
+}
+
+/// Sets up a pipeline over `scene` with a progress bar on standard error
+/// (points and grids per instance, then the first trace per point; drawn
+/// only on a terminal).
+pub fn pipeline_with_progress(scene: Scene, config: PipelineConfig) -> anyhow::Result<Pipeline> {
+    let bar = indicatif::ProgressBar::new(0);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{msg:>14} [{bar:30}] {human_pos}/{human_len} ({elapsed}, {eta} left)",
+        )?
+        .progress_chars("=> "),
+    );
+    let pipeline = Pipeline::with_progress(scene, config, None, &|p: SetupProgress| {
+        let what = match p.stage {
+            SetupStage::Points => "points, grids",
+            _ => "first trace",
+        };
+        if bar.message() != what {
+            bar.set_message(what);
+            bar.set_length(p.total);
+        }
+        bar.set_position(p.done);
+    });
+    bar.finish_and_clear();
+    Ok(pipeline?)
 }
 
 /// The scene at `path` (a .gltf, .glb or .obj file) or the embedded default scene, with

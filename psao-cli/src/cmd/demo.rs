@@ -18,7 +18,7 @@ use psao_proto::{
 };
 use psao_scene::{Pipeline, PipelineConfig, Scene, ViewerCull, default_scene};
 
-use super::common::{cpu_seconds, pipeline_config, status};
+use super::common::{cpu_seconds, pipeline_config, pipeline_with_progress, status};
 use crate::bench::images::{ao_png16, composite};
 
 /// Arguments of `psao demo`.
@@ -81,7 +81,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     };
     println!("psao demo: preparing the default scene (points, grids, first trace)...");
     let t = Instant::now();
-    let pipeline = Pipeline::new(default_scene(), pipeline)?;
+    let pipeline = pipeline_with_progress(default_scene(), pipeline)?;
     let server = serve(pipeline, config, &identity).await?;
     println!(
         "server on {} (self-signed certificate, SHA-256 {}), ready in {:.2} s",

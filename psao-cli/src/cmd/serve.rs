@@ -9,7 +9,7 @@ use psao_proto::tls::fingerprint_hex;
 use psao_proto::{Identity, ServerConfig, serve};
 use psao_scene::{Pipeline, PipelineConfig, ViewerCull};
 
-use super::common::{load_scene, pipeline_config, seconds_of, status};
+use super::common::{load_scene, pipeline_config, pipeline_with_progress, seconds_of, status};
 
 /// Arguments of `psao serve`.
 #[derive(clap::Args)]
@@ -94,7 +94,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     };
     println!("preparing the scene (points, grids, first trace)...");
     let started = Instant::now();
-    let mut pipeline = Pipeline::new(scene, pipeline)?;
+    let mut pipeline = pipeline_with_progress(scene, pipeline)?;
     println!(
         "{}",
         scene_summary(&mut pipeline, started.elapsed().as_secs_f64())?

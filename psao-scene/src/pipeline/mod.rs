@@ -141,6 +141,30 @@ impl InstanceState {
     }
 }
 
+/// Points the first trace traces per batch (and per progress report).
+const TRACE_BATCH: u32 = 1 << 16;
+
+/// Which part of [`Pipeline::with_progress`]'s setup is running.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum SetupStage {
+    /// Points, sample elimination and grid layout, per instance.
+    Points,
+    /// The first trace of every point, per point.
+    Trace,
+}
+
+/// How far setup has come: `done` of `total` in `stage`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SetupProgress {
+    /// The part running.
+    pub stage: SetupStage,
+    /// Units done (instances, or points traced).
+    pub done: u64,
+    /// Units in all.
+    pub total: u64,
+}
+
 /// A server streaming one scene.
 pub struct Pipeline {
     scene: Scene,
@@ -215,7 +239,21 @@ impl Pipeline {
     /// scene that f32 cannot place finely enough for its AO radius and
     /// point spacing ([`check_precision`], in the pose at time 0).
     pub fn new(scene: Scene, config: PipelineConfig) -> Result<Pipeline, SceneError> {
-        Pipeline::build(scene, config, None)
+        Pipeline::build(scene, config, None, &|_| {})
+    }
+
+    /// As [`new`](Self::new) (with `backend` if given, as
+    /// [`with_backend`](Self::with_backend)), calling `progress` as setup
+    /// goes: instances set up (points, layout), then points traced. It is
+    /// called from several threads, at most a few hundred times; the
+    /// result is the same as without it.
+    pub fn with_progress(
+        scene: Scene,
+        config: PipelineConfig,
+        backend: Option<Box<dyn AoBackend>>,
+        progress: &(dyn Fn(SetupProgress) + Sync),
+    ) -> Result<Pipeline, SceneError> {
+        Pipeline::build(scene, config, backend, progress)
     }
 
     /// As [`new`](Self::new), with AO traced by `backend` (from the first
@@ -225,7 +263,7 @@ impl Pipeline {
         config: PipelineConfig,
         backend: Box<dyn AoBackend>,
     ) -> Result<Pipeline, SceneError> {
-        Pipeline::build(scene, config, Some(backend))
+        Pipeline::build(scene, config, Some(backend), &|_| {})
     }
 
     /// The backend's name, or "cpu".
@@ -237,8 +275,11 @@ impl Pipeline {
         scene: Scene,
         config: PipelineConfig,
         backend: Option<Box<dyn AoBackend>>,
+        progress: &(dyn Fn(SetupProgress) + Sync),
     ) -> Result<Pipeline, SceneError> {
         scene.validate()?;
+        let total = scene.instances.len() as u64;
+        let done = std::sync::atomic::AtomicU64::new(0);
         config.ao.validate()?;
         if let Some(c) = &config.cull {
             check_param("cull.aspect", c.aspect as f64, 1e-3, 1e3, "in [1e-3, 1e3]")?;
@@ -336,7 +377,16 @@ impl Pipeline {
             .instances
             .par_iter()
             .enumerate()
-            .map(set_up)
+            .map(|x| {
+                let r = set_up(x);
+                let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                progress(SetupProgress {
+                    stage: SetupStage::Points,
+                    done: d,
+                    total,
+                });
+                r
+            })
             .collect::<Vec<_>>()
             .into_iter()
             .collect::<Result<Vec<_>, _>>()?;
@@ -357,13 +407,41 @@ impl Pipeline {
             frame: 0,
             views: Views::CameraPath,
         };
-        let all: Vec<Vec<u32>> = pipeline
+        // The first trace, in batches so that progress can be told (each
+        // point's AO depends on its id alone: the same in any batching).
+        let total: u64 = pipeline
             .instances
             .iter()
-            .map(|s| (0..s.points.len() as u32).collect())
-            .collect();
+            .map(|s| s.points.len() as u64)
+            .sum();
         let tracer = pipeline.backend.is_none().then(|| pipeline.tracer(false));
-        pipeline.trace_and_update(tracer.as_ref(), &all, true)?;
+        let mut traced = 0u64;
+        progress(SetupProgress {
+            stage: SetupStage::Trace,
+            done: 0,
+            total,
+        });
+        for (i, n) in pipeline
+            .instances
+            .iter()
+            .map(|s| s.points.len() as u32)
+            .collect::<Vec<_>>()
+            .into_iter()
+            .enumerate()
+        {
+            for start in (0..n).step_by(TRACE_BATCH as usize) {
+                let end = (start + TRACE_BATCH).min(n);
+                let mut which = vec![Vec::new(); pipeline.instances.len()];
+                which[i] = (start..end).collect();
+                pipeline.trace_and_update(tracer.as_ref(), &which, true)?;
+                traced += (end - start) as u64;
+                progress(SetupProgress {
+                    stage: SetupStage::Trace,
+                    done: traced,
+                    total,
+                });
+            }
+        }
         for s in &mut pipeline.instances {
             s.table.take_dirty();
         }
