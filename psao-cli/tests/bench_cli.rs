@@ -102,6 +102,9 @@ fn bench_writes_its_table_charts_and_images() {
     assert!(md.contains("| PSAO-32 @60 Hz |"), "{md}");
     assert!(md.contains("| SAO |") && md.contains("| RTAO-16spp |"));
     assert!(md.contains("against SAO:") && md.contains("target +3 dB"));
+    // Setup and keyframe size in the table, for every PSAO row.
+    assert!(md.contains("| setup s | keyframe kB |"), "{md}");
+    assert!(md.contains("(radius 0.6)"), "{md}");
     let _ = std::fs::remove_dir_all(&out);
 }
 
@@ -113,6 +116,8 @@ fn bench_refuses_bad_settings() {
         (vec!["--densities=-5,16"], "density -5"),
         (vec!["--only-gltf"], "--gltf"),
         (vec!["--gltf", "/nonexistent/scene.glb"], "scene.glb"),
+        (vec!["--gltf", "/nonexistent/bunny.ply"], "unsupported scene format"),
+        (vec!["--radius", "0"], "--radius 0"),
     ] {
         let out = out_dir("bad");
         let run = Command::new(env!("CARGO_BIN_EXE_psao"))

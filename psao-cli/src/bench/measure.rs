@@ -78,6 +78,8 @@ pub struct Settings {
     pub network_ms: f32,
     /// Where PSAO servers trace.
     pub backend: Backend,
+    /// AO radius R in scene units (the reference, PSAO, RTAO and SAO).
+    pub radius: f32,
 }
 
 impl Settings {
@@ -97,6 +99,7 @@ impl Settings {
             window: 1.0,
             network_ms: 0.0,
             backend: Backend::Cpu,
+            radius: AoParams::default().radius,
         }
     }
 
@@ -134,6 +137,9 @@ impl Settings {
         }
         if self.rates.contains(&0) {
             anyhow::bail!("a server rate of 0 Hz never ticks");
+        }
+        if !(self.radius.is_finite() && self.radius > 0.0) {
+            anyhow::bail!("--radius {} is not a positive number", self.radius);
         }
         if self.backend == Backend::Gpu && !cfg!(feature = "gpu") {
             anyhow::bail!(
@@ -306,11 +312,12 @@ pub fn frame_times(duration: f32, frames: u32) -> Vec<f32> {
 
 /// The reference's AO parameters (closest hit, the server's radius and
 /// bias).
-fn reference_params(rays: u32, seed: u64) -> AoParams {
+fn reference_params(rays: u32, seed: u64, radius: f32) -> AoParams {
     AoParams {
         rays,
         estimator: Estimator::ClosestHit,
         seed,
+        radius,
         ..AoParams::default()
     }
 }
@@ -342,7 +349,7 @@ pub fn measure_scene(
         let reference = ray_traced_ao(
             &posed.tracer(),
             &gbuffer,
-            &reference_params(s.reference_rays, 0x5EED_0001),
+            &reference_params(s.reference_rays, 0x5EED_0001, s.radius),
         )
         .map_err(err)?;
         let composite = images::composite(&gbuffer, &reference);
@@ -384,8 +391,12 @@ pub fn measure_scene(
         for (k, f) in frames.iter().enumerate() {
             let tracer = f.posed.tracer();
             let t = Instant::now();
-            let img = ray_traced_ao(&tracer, &f.gbuffer, &reference_params(rays, 0xA0_0002))
-                .map_err(err)?;
+            let img = ray_traced_ao(
+                &tracer,
+                &f.gbuffer,
+                &reference_params(rays, 0xA0_0002, s.radius),
+            )
+            .map_err(err)?;
             ms += t.elapsed().as_secs_f64() * 1e3;
             errors.add(f, &img)?;
             if k == 0 && rays == s.rtao_rays[0] {
@@ -399,7 +410,10 @@ pub fn measure_scene(
     }
     bar.set_message(format!("{name}: SAO"));
     let (mut errors, mut ms) = (Errors::default(), 0.0);
-    let params = SaoParams::default();
+    let params = SaoParams {
+        radius: s.radius,
+        ..SaoParams::default()
+    };
     for (k, f) in frames.iter().enumerate() {
         let t = Instant::now();
         let img = sao(&f.gbuffer.depth, &f.view, &params).map_err(err)?;
@@ -455,6 +469,7 @@ fn measure_psao(
         density: 2.0 * density,
         ao: AoParams {
             rays: s.point_rays,
+            radius: s.radius,
             ..PipelineConfig::default().ao
         },
         ..PipelineConfig::default()

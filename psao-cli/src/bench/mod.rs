@@ -58,6 +58,11 @@ pub struct BenchArgs {
     /// AO rays per PSAO point (default 64, --full 192).
     #[arg(long)]
     point_rays: Option<u32>,
+    /// AO radius R in scene units, for the reference, PSAO, RTAO and SAO
+    /// alike (default 0.6, the paper's; size it to the scene: a 7 cm model
+    /// wants millimetres).
+    #[arg(long)]
+    radius: Option<f32>,
     /// PSAO densities N, points kept per square metre (the paper's N).
     #[arg(long, value_delimiter = ',')]
     densities: Option<Vec<f32>>,
@@ -98,6 +103,9 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     }
     if let Some(r) = args.point_rays {
         settings.point_rays = r;
+    }
+    if let Some(r) = args.radius {
+        settings.radius = r;
     }
     if let Some(d) = args.densities {
         settings.densities = d;

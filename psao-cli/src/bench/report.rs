@@ -74,11 +74,12 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius 0.6), PSAO {} rays per point traced on the {} backend; client times are the AO work per frame on {} threads.\n",
+        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend; client times are the AO work per frame on {} threads.\n",
         s.width,
         s.height,
         s.frames,
         s.reference_rays,
+        s.radius,
         s.point_rays,
         match s.backend {
             super::Backend::Cpu => "CPU",
@@ -95,14 +96,17 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
             r.coverage * 100.0,
             r.reference_s
         );
-        t.push_str("| configuration | points | server ms/tick | client ms/frame | of which decode (PSAO) / BVH build not included (RTAO) | Mbit/s | RMSE | PSNR dB | SSIM | FLIP |\n");
-        t.push_str("|---|---|---|---|---|---|---|---|---|---|\n");
+        t.push_str("| configuration | points | setup s | keyframe kB | server ms/tick | client ms/frame | of which decode (PSAO) / BVH build not included (RTAO) | Mbit/s | RMSE | PSNR dB | SSIM | FLIP |\n");
+        t.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
         for row in &r.rows {
             let _ = writeln!(
                 t,
-                "| {} | {} | {} | {:.2} | {} | {} | {:.4} | {:.2} | {:.4} | {:.4} |",
+                "| {} | {} | {} | {} | {} | {:.2} | {} | {} | {:.4} | {:.2} | {:.4} | {:.4} |",
                 row.method.label(),
                 row.points.map_or("-".into(), |p| p.to_string()),
+                row.setup_s.map_or("-".into(), |v| format!("{v:.2}")),
+                row.keyframe_bytes
+                    .map_or("-".into(), |b| format!("{:.1}", b as f64 / 1e3)),
                 row.server_ms.map_or("-".into(), |v| {
                     let slow = if keeps_rate(row) == Some(false) {
                         " (slower than the rate)"

@@ -55,12 +55,15 @@ pub fn seconds_of(s: f32) -> Duration {
     Duration::from_secs_f32(if s.is_nan() { 0.0 } else { s.clamp(0.0, 1e7) })
 }
 
-/// The pipeline settings of `--density` and `--rays`. Every command's
-/// `--density` counts points kept per square metre, the paper's N (as
-/// `psao bench --densities` does); the pipeline spawns twice as many and
-/// keeps half.
-pub fn pipeline_config(density: f32, rays: u32) -> PipelineConfig {
-    PipelineConfig::with_density_and_rays(2.0 * density, rays)
+/// The pipeline settings of `--density`, `--rays` and `--radius`. Every
+/// command's `--density` counts points kept per square metre, the paper's
+/// N (as `psao bench --densities` does); the pipeline spawns twice as many
+/// and keeps half. A radius that is not finite and positive is refused
+/// when the pipeline is built.
+pub fn pipeline_config(density: f32, rays: u32, radius: f32) -> PipelineConfig {
+    let mut config = PipelineConfig::with_density_and_rays(2.0 * density, rays);
+    config.ao.radius = radius;
+    config
 }
 
 /// Sets up a pipeline over `scene` with a progress bar on standard error

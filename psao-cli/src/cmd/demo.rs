@@ -37,6 +37,9 @@ pub struct Args {
     /// --densities`).
     #[arg(long, default_value_t = 32.0)]
     density: f32,
+    /// AO radius R in scene units (the paper's 0.6 m by default).
+    #[arg(long, default_value_t = 0.6)]
+    radius: f32,
     /// AO rays per point.
     #[arg(long, default_value_t = 64)]
     rays: u32,
@@ -60,6 +63,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         rate,
         clients,
         density,
+        radius,
         rays,
         images,
         out,
@@ -77,7 +81,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     };
     let pipeline = PipelineConfig {
         cull: cull.then(ViewerCull::default),
-        ..pipeline_config(density, rays)
+        ..pipeline_config(density, rays, radius)
     };
     println!("psao demo: preparing the default scene (points, grids, first trace)...");
     let t = Instant::now();

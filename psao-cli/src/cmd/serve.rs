@@ -39,6 +39,9 @@ pub struct Args {
     /// --densities`).
     #[arg(long, default_value_t = 32.0)]
     density: f32,
+    /// AO radius R in scene units (the paper's 0.6 m by default).
+    #[arg(long, default_value_t = 0.6)]
+    radius: f32,
     /// Stop after this many seconds (default: until Ctrl-C).
     #[arg(long)]
     seconds: Option<f32>,
@@ -90,7 +93,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     };
     let pipeline = PipelineConfig {
         cull: args.cull.then(ViewerCull::default),
-        ..pipeline_config(args.density, 64)
+        ..pipeline_config(args.density, 64, args.radius)
     };
     println!("preparing the scene (points, grids, first trace)...");
     let started = Instant::now();
