@@ -116,7 +116,10 @@ fn bench_refuses_bad_settings() {
         (vec!["--densities=-5,16"], "density -5"),
         (vec!["--only-gltf"], "--gltf"),
         (vec!["--gltf", "/nonexistent/scene.glb"], "scene.glb"),
-        (vec!["--gltf", "/nonexistent/bunny.ply"], "unsupported scene format"),
+        (
+            vec!["--gltf", "/nonexistent/bunny.ply"],
+            "unsupported scene format",
+        ),
         (vec!["--radius", "0"], "--radius 0"),
     ] {
         let out = out_dir("bad");

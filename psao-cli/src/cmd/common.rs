@@ -137,6 +137,17 @@ pub fn status(s: &ServerStats, prev: &ServerStats, dt: f64) -> String {
     )
 }
 
+/// `bytes` in B, kB, MB or GB (powers of 1000), three significant digits.
+pub fn human_bytes(bytes: u64) -> String {
+    let b = bytes as f64;
+    match bytes {
+        0..1_000 => format!("{bytes} B"),
+        1_000..1_000_000 => format!("{:.1} kB", b / 1e3),
+        1_000_000..1_000_000_000 => format!("{:.1} MB", b / 1e6),
+        _ => format!("{:.2} GB", b / 1e9),
+    }
+}
+
 /// CPU seconds this process has used (user + system), where /proc tells.
 pub fn cpu_seconds() -> Option<f64> {
     let stat = std::fs::read_to_string("/proc/self/stat").ok()?;

@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 
 use psao_proto::{ClientConfig, Ended, connect};
 
-use super::common::{ServerArgs, seconds_of};
+use super::common::{ServerArgs, human_bytes, seconds_of};
 
 /// Arguments of `psao view`.
 #[derive(clap::Args)]
@@ -27,38 +27,78 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     )
     .await?;
     if let Some(w) = h.with_session(|s| s.welcome().cloned()) {
+        let compression = match w.compression {
+            0 => "none",
+            1 => "LZ4",
+            2 => "zstd",
+            _ => "unknown",
+        };
         println!(
-            "connected to {addr}: scene `{}`, {} Hz, compression {}, frames up to {} bytes",
-            w.scene, w.frame_rate, w.compression, w.max_frame_bytes
+            "connected to {addr}: scene `{}`, {} Hz, {compression} compression, frames up to {}",
+            w.scene,
+            w.frame_rate,
+            human_bytes(w.max_frame_bytes as u64)
         );
     }
+    let started = Instant::now();
     let until = args.server.seconds.map(|s| Instant::now() + seconds_of(s));
     let mut prev = (h.with_session(|s| s.stats()), Instant::now());
-    loop {
+    let ended = loop {
         tokio::time::sleep(Duration::from_secs(1)).await;
         let (s, seq) = h.with_session(|s| {
             while s.poll_event().is_some() {}
             (s.stats(), s.mirror().sequence())
         });
         let dt = prev.1.elapsed().as_secs_f64();
+        let applied = s.applied - prev.0.applied;
+        // A still scene sends no frames: in sync, not stalled.
+        let rate = match (applied, seq) {
+            (0, Some(_)) if s.requests == prev.0.requests => "in sync, scene static".to_string(),
+            (0, None) => "waiting for the first keyframe".to_string(),
+            _ => format!("{:5.1} frames/s", applied as f64 / dt),
+        };
+        let sequence = seq.map_or("none".to_string(), |q| q.to_string());
         println!(
-            "{:5.1} frames/s | {:6.3} Mbit/s | sequence {:?} | {} keyframes, {} failed, rtt {:.1} ms",
-            (s.applied - prev.0.applied) as f64 / dt,
+            "{rate} | {:6.3} Mbit/s | mirror at frame {sequence} | {} keyframes, {} failed | rtt {:.1} ms",
             (s.bytes - prev.0.bytes) as f64 * 8.0 / dt / 1e6,
-            seq,
             s.keyframes,
             s.failed,
             h.rtt().as_secs_f64() * 1e3
         );
         prev = (s, Instant::now());
         if let Ended::Closed(c) = h.ended() {
-            println!("session ended: {c}");
-            return Ok(());
+            break Some(c);
         }
         if until.is_some_and(|u| Instant::now() >= u) {
-            break;
+            break None;
         }
+    };
+    let (s, seq, instances, mirror) = h.with_session(|s| {
+        let m = s.mirror();
+        (s.stats(), m.sequence(), m.instances().count(), m.bytes())
+    });
+    if ended.is_none() {
+        h.close().await;
     }
-    h.close().await;
+    let secs = started.elapsed().as_secs_f64();
+    println!("summary over {secs:.1} s:");
+    println!(
+        "  frames     {} applied ({} keyframes), {} failed, {} stale, {} keyframe requests",
+        s.applied, s.keyframes, s.failed, s.stale, s.requests
+    );
+    println!(
+        "  received   {} ({:.3} Mbit/s)",
+        human_bytes(s.bytes),
+        s.bytes as f64 * 8.0 / secs.max(1e-9) / 1e6
+    );
+    println!(
+        "  mirror     {instances} instances, {}, at frame {}",
+        human_bytes(mirror),
+        seq.map_or("none".to_string(), |q| q.to_string())
+    );
+    match ended {
+        Some(c) => println!("  ended      {c}"),
+        None => println!("  ended      closed here after --seconds"),
+    }
     Ok(())
 }
