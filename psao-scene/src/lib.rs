@@ -64,7 +64,7 @@ mod scenes;
 mod trace;
 
 pub use error::{SceneError, check_param};
-pub use import::obj::{MAX_OBJ_BYTES, load_obj, load_obj_slice};
+pub use import::obj::{MAX_MTL_BYTES, MAX_MTL_FILES, MAX_OBJ_BYTES, load_obj, load_obj_slice};
 pub use import::{
     MAX_ACCESSOR_BYTES, MAX_BUFFER_BYTES, MAX_INSTANCES, MAX_SKINNED_VERTICES, load_gltf,
     load_gltf_slice, load_scene_file,

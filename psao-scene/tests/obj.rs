@@ -113,3 +113,19 @@ fn other_files_say_which_formats_are_read() {
     let e = load_scene_file(std::path::Path::new("/nonexistent/ROOM.GLB")).unwrap_err();
     assert!(matches!(e, SceneError::Gltf { .. }), "{e}");
 }
+
+#[test]
+fn material_libraries_outside_the_folder_or_not_files_are_left_out() {
+    let dir = temp_dir("escape");
+    std::fs::create_dir_all(dir.join("inner")).unwrap();
+    // A library one folder up, and one named by an absolute path: neither
+    // is read, so the faces stay solid.
+    std::fs::write(dir.join("up.mtl"), "newmtl glass\nd 0.25\n").unwrap();
+    for lib in ["../up.mtl", "/dev/zero"] {
+        let obj = CUBE.replace("mtllib cube.mtl", &format!("mtllib {lib}"));
+        std::fs::write(dir.join("inner/cube.obj"), obj).unwrap();
+        let s = load_scene_file(&dir.join("inner/cube.obj")).unwrap();
+        assert!(s.meshes.iter().all(|m| m.alpha.is_none()), "{lib} was read");
+    }
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -62,6 +62,7 @@ pub(super) fn primitive_mesh(
     // Morph target deltas, weighted (glTF 3.7.2.1): positions now, normals
     // once they are read.
     let mut normal_deltas: Vec<(f32, Vec<Vec3>)> = Vec::new();
+    let vertex_count = positions.len();
     let vec3_of =
         |a: Option<gltf::Accessor<'_>>, what: &str| -> Result<Option<Vec<Vec3>>, SceneError> {
             let Some(a) = a else { return Ok(None) };
@@ -73,20 +74,15 @@ pub(super) fn primitive_mesh(
                 ));
             }
             let v = read(a, what)?.vec3();
-            if v.len() != positions.len() {
+            if v.len() != vertex_count {
                 return Err(gltf_error(
                     name,
                     element,
-                    format!(
-                        "{what} has {} values for {} vertices",
-                        v.len(),
-                        positions.len()
-                    ),
+                    format!("{what} has {} values for {vertex_count} vertices", v.len()),
                 ));
             }
             Ok(Some(v))
         };
-    let mut morphed = Vec::new();
     for (k, target) in prim.morph_targets().enumerate() {
         let w = weights.get(k).copied().unwrap_or(0.0);
         if !w.is_finite() {
@@ -99,16 +95,14 @@ pub(super) fn primitive_mesh(
         if w == 0.0 {
             continue;
         }
+        // Applied at once: one target's deltas held at a time.
         if let Some(d) = vec3_of(target.positions(), "morph target POSITION")? {
-            morphed.push((w, d));
+            for (p, d) in positions.iter_mut().zip(d) {
+                *p += w * d;
+            }
         }
         if let Some(d) = vec3_of(target.normals(), "morph target NORMAL")? {
             normal_deltas.push((w, d));
-        }
-    }
-    for (w, d) in morphed {
-        for (p, d) in positions.iter_mut().zip(d) {
-            *p += w * d;
         }
     }
     let indices: Vec<u32> = match prim.indices() {

@@ -4,22 +4,31 @@
 //! the faces; a material's dissolve (`d`, or `Tr` as `1 - Tr`) below 1
 //! becomes a uniform alpha mask (cut out where it is below one half).
 //! Texture-driven alpha (`map_d`) is not read. Untrusted input: the file
-//! and every material library are read only up to [`MAX_OBJ_BYTES`], and
-//! every index is checked.
+//! is read only up to [`MAX_OBJ_BYTES`]; at most [`MAX_MTL_FILES`]
+//! material libraries, each a regular file inside the OBJ's folder of at
+//! most [`MAX_MTL_BYTES`] (any other is left out: its faces stay solid);
+//! at most [`MAX_INSTANCES`] objects; every index is checked.
 
 use std::io::{BufReader, Read};
 use std::path::Path;
 
 use glam::{Affine3A, Vec3};
 
+use super::MAX_INSTANCES;
 use super::mesh::face_normals;
 use crate::error::SceneError;
 use crate::model::alpha::AlphaMask;
 use crate::model::mesh::Mesh;
 use crate::model::scene::Scene;
 
-/// Largest OBJ file, and largest material library, read (bytes).
+/// Largest OBJ file read (bytes).
 pub const MAX_OBJ_BYTES: u64 = 1 << 30;
+
+/// Largest material library read (bytes).
+pub const MAX_MTL_BYTES: u64 = 16 << 20;
+
+/// Most material libraries one OBJ file may name.
+pub const MAX_MTL_FILES: usize = 16;
 
 fn obj_error(file: &str, element: &str, reason: String) -> SceneError {
     SceneError::Obj {
@@ -29,23 +38,41 @@ fn obj_error(file: &str, element: &str, reason: String) -> SceneError {
     }
 }
 
-/// Reads at most [`MAX_OBJ_BYTES`] of `path`, or says why not.
-fn read_capped(path: &Path) -> Result<Vec<u8>, String> {
+/// Reads at most `cap` bytes of the regular file `path`, or says why not
+/// (a device or a pipe is not read: it might never end).
+fn read_capped(path: &Path, cap: u64) -> Result<Vec<u8>, String> {
+    if !std::fs::metadata(path)
+        .map_err(|e| e.to_string())?
+        .is_file()
+    {
+        return Err("not a regular file".into());
+    }
     let f = std::fs::File::open(path).map_err(|e| e.to_string())?;
     let mut bytes = Vec::new();
-    f.take(MAX_OBJ_BYTES + 1)
+    f.take(cap + 1)
         .read_to_end(&mut bytes)
         .map_err(|e| e.to_string())?;
-    if bytes.len() as u64 > MAX_OBJ_BYTES {
-        return Err(format!("larger than {MAX_OBJ_BYTES} bytes"));
+    if bytes.len() as u64 > cap {
+        return Err(format!("larger than {cap} bytes"));
     }
     Ok(bytes)
+}
+
+/// Whether a material library name stays inside the OBJ file's folder (no
+/// `..`, no absolute path).
+fn stays_inside(name: &Path) -> bool {
+    name.components().all(|c| {
+        matches!(
+            c,
+            std::path::Component::Normal(_) | std::path::Component::CurDir
+        )
+    })
 }
 
 /// Reads an OBJ file and the material libraries beside it.
 pub fn load_obj(path: &Path) -> Result<Scene, SceneError> {
     let name = path.display().to_string();
-    let bytes = read_capped(path).map_err(|e| obj_error(&name, "file", e))?;
+    let bytes = read_capped(path, MAX_OBJ_BYTES).map_err(|e| obj_error(&name, "file", e))?;
     load_obj_slice(&bytes, &name, path.parent())
 }
 
@@ -56,11 +83,17 @@ pub fn load_obj_slice(bytes: &[u8], name: &str, base: Option<&Path>) -> Result<S
     // preset (it stays whole whatever tobj's optional features add).
     let options = tobj::GPU_LOAD_OPTIONS;
     let mut reader = BufReader::new(bytes);
+    let libraries = std::sync::atomic::AtomicUsize::new(0);
     let (models, materials) = tobj::load_obj_buf(&mut reader, &options, |mtl| {
         let Some(dir) = base else {
             return Err(tobj::LoadError::OpenFileFailed);
         };
-        let data = read_capped(&dir.join(mtl)).map_err(|_| tobj::LoadError::OpenFileFailed)?;
+        let n = libraries.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        if n >= MAX_MTL_FILES || !stays_inside(mtl) {
+            return Err(tobj::LoadError::OpenFileFailed);
+        }
+        let data = read_capped(&dir.join(mtl), MAX_MTL_BYTES)
+            .map_err(|_| tobj::LoadError::OpenFileFailed)?;
         tobj::load_mtl_buf(&mut BufReader::new(data.as_slice()))
     })
     .map_err(|e| obj_error(name, "document", e.to_string()))?;
@@ -69,6 +102,13 @@ pub fn load_obj_slice(bytes: &[u8], name: &str, base: Option<&Path>) -> Result<S
     let mut scene = Scene::default();
     for (k, model) in models.iter().enumerate() {
         let element = || format!("object {k} ({})", model.name);
+        if scene.instances.len() >= MAX_INSTANCES {
+            return Err(obj_error(
+                name,
+                &element(),
+                format!("more than {MAX_INSTANCES} objects with faces"),
+            ));
+        }
         let m = &model.mesh;
         if m.positions.len() % 3 != 0 || m.indices.len() % 3 != 0 {
             return Err(obj_error(

@@ -262,8 +262,6 @@ impl Scene {
     }
 }
 
-/// Checks an instance's world transform: finite, invertible, and keeping
-/// the mesh's `bounds` finite.
 /// Fewest of `|det M|` per `|m0| |m1| |m2|` (the product of `M`'s column
 /// lengths) an instance transform may have: how far from flat its linear
 /// part is, whatever its scale. The ratio is 1 for a rotation times any
@@ -274,8 +272,10 @@ impl Scene {
 pub const MIN_TRANSFORM_RATIO: f64 = 1e-6;
 
 /// Whether `t` is finite, its inverse is finite, and its linear part is
-/// not near singular relative to its own scale ([`MIN_TRANSFORM_RATIO`];
-/// computed in f64, so tiny scales do not underflow).
+/// not near singular relative to its own scale ([`MIN_TRANSFORM_RATIO`],
+/// computed in f64, so tiny scales do not underflow the ratio; the f32
+/// inverse must still be finite, which holds for scales down to about
+/// 1e-13).
 pub fn invertible(t: &Affine3A) -> bool {
     if !t.is_finite() {
         return false;
@@ -290,6 +290,8 @@ pub fn invertible(t: &Affine3A) -> bool {
     scale > 0.0 && det.abs() >= MIN_TRANSFORM_RATIO * scale && t.inverse().is_finite()
 }
 
+/// Checks an instance's world transform: finite, [`invertible`], and
+/// keeping the mesh's `bounds` finite.
 pub(crate) fn check_transform(
     instance: usize,
     t: &Affine3A,

@@ -56,6 +56,11 @@ impl Pipeline {
         // the pools of those before it.
         let (mut base, mut cell_base) = (0u32, 0u32);
         for (i, (s, list)) in self.instances.iter().zip(which).enumerate() {
+            if list.is_empty() {
+                base += s.points.len() as u32;
+                cell_base = cell_base.saturating_add(s.table.def().cell_pool);
+                continue;
+            }
             let nm = normal_matrix(&s.transform);
             let (positions, normals) = s.now();
             for &k in list {

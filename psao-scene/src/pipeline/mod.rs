@@ -244,9 +244,9 @@ impl Pipeline {
 
     /// As [`new`](Self::new) (with `backend` if given, as
     /// [`with_backend`](Self::with_backend)), calling `progress` as setup
-    /// goes: instances set up (points, layout), then points traced. It is
-    /// called from several threads, at most a few hundred times; the
-    /// result is the same as without it.
+    /// goes: once per instance set up (points, layout; from several
+    /// threads), then once per batch of 65,536 points traced. The result is
+    /// the same as without it.
     pub fn with_progress(
         scene: Scene,
         config: PipelineConfig,
@@ -421,25 +421,45 @@ impl Pipeline {
             done: 0,
             total,
         });
-        for (i, n) in pipeline
+        // Batches of up to TRACE_BATCH points, filled across instances in
+        // order: the lists of the instances a batch touches are set, then
+        // cleared for the next.
+        let counts: Vec<u32> = pipeline
             .instances
             .iter()
             .map(|s| s.points.len() as u32)
-            .collect::<Vec<_>>()
-            .into_iter()
-            .enumerate()
-        {
-            for start in (0..n).step_by(TRACE_BATCH as usize) {
-                let end = (start + TRACE_BATCH).min(n);
-                let mut which = vec![Vec::new(); pipeline.instances.len()];
-                which[i] = (start..end).collect();
+            .collect();
+        let mut which = vec![Vec::new(); counts.len()];
+        let mut touched = Vec::new();
+        let (mut i, mut start, mut room) = (0usize, 0u32, TRACE_BATCH);
+        while i < counts.len() {
+            let take = (counts[i] - start).min(room);
+            if take > 0 {
+                which[i].extend(start..start + take);
+                touched.push(i);
+                start += take;
+                room -= take;
+            }
+            if start == counts[i] {
+                i += 1;
+                start = 0;
+            }
+            if room == 0 || i == counts.len() {
+                if touched.is_empty() {
+                    break;
+                }
                 pipeline.trace_and_update(tracer.as_ref(), &which, true)?;
-                traced += (end - start) as u64;
+                traced += (TRACE_BATCH - room) as u64;
                 progress(SetupProgress {
                     stage: SetupStage::Trace,
                     done: traced,
                     total,
                 });
+                for &t in &touched {
+                    which[t].clear();
+                }
+                touched.clear();
+                room = TRACE_BATCH;
             }
         }
         for s in &mut pipeline.instances {

@@ -148,8 +148,6 @@ pub fn generate_points(mesh: &Mesh, density: f32, seed: u64) -> Result<PointSet,
     Ok(out)
 }
 
-/// `count` points uniform over the mesh's area, with interpolated normals
-/// and their anchors; points in alpha-mask holes are left out.
 /// Spawned points per parallel task.
 const SPAWN_CHUNK: usize = 1 << 14;
 
@@ -187,6 +185,8 @@ fn spawn_one(
     ))
 }
 
+/// `count` points uniform over the mesh's area, with interpolated normals
+/// and their anchors; points in alpha-mask holes are left out.
 fn spawn(mesh: &Mesh, count: usize, seed: u64) -> (Vec<Vec3>, Vec<Vec3>, Vec<Anchor>) {
     let tris = mesh.triangle_count();
     let mut cdf = Vec::with_capacity(tris);
