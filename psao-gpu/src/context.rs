@@ -111,8 +111,11 @@ impl GpuContext {
         pollster::block_on(Self::open(true))
     }
 
-    /// Opens the preferred adapter of any backend compiled into wgpu, ray
-    /// queries or not, for the client half and the SAO baseline only.
+    /// Opens the preferred Vulkan adapter, ray queries or not, for the
+    /// client half and the SAO baseline only (this crate builds wgpu with
+    /// Vulkan alone; a renderer on another backend hands in its device
+    /// with [`from_device`](Self::from_device), its wgpu's backends being
+    /// its own).
     pub fn new_client() -> Result<GpuContext, GpuError> {
         pollster::block_on(Self::open(false))
     }
@@ -147,11 +150,7 @@ impl GpuContext {
     }
 
     async fn open(ray_queries: bool) -> Result<GpuContext, GpuError> {
-        let backends = if ray_queries {
-            wgpu::Backends::VULKAN
-        } else {
-            wgpu::Backends::all()
-        };
+        let backends = wgpu::Backends::VULKAN;
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
             backends,
             ..wgpu::InstanceDescriptor::new_without_display_handle()
@@ -159,11 +158,7 @@ impl GpuContext {
         let adapters = instance.enumerate_adapters(backends).await;
         if adapters.is_empty() {
             return Err(GpuError::NoAdapter {
-                details: if ray_queries {
-                    "the Vulkan loader found no device".into()
-                } else {
-                    format!("wgpu found no device on {backends:?}")
-                },
+                details: "the Vulkan loader found no device".into(),
             });
         }
         let needed = if ray_queries {
@@ -179,10 +174,11 @@ impl GpuContext {
                     .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS)
                 && client.check_limits(&a.limits())
         };
-        let Some(adapter) = adapters.iter().filter(usable).min_by_key(|a| {
-            let info = a.get_info();
-            (rank(info.device_type), info.backend == wgpu::Backend::Gl)
-        }) else {
+        let Some(adapter) = adapters
+            .iter()
+            .filter(usable)
+            .min_by_key(|a| rank(a.get_info().device_type))
+        else {
             if !ray_queries {
                 let info = adapters[0].get_info();
                 return Err(GpuError::NoAdapter {
@@ -439,7 +435,7 @@ impl GpuContext {
     /// Maps a `MAP_READ` buffer of f32 values once the queue is done and
     /// copies them out.
     pub(crate) fn read_f32(&self, buffer: &wgpu::Buffer) -> Result<Vec<f32>, GpuError> {
-        self.read(buffer)
+        self.read::<f32>(buffer)
     }
 
     /// Maps a `MAP_READ` buffer once the queue is done and copies its

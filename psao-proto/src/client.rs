@@ -153,22 +153,30 @@ pub fn decodable_compressions() -> u8 {
         .fold(0, |m, c| m | 1 << c.id())
 }
 
+/// The smallest frame and payload limits a `HELLO` may offer.
+const MIN_OFFERED_BYTES: u32 = 65_536;
+
 impl ClientSession {
-    /// A session that has queued its `HELLO`.
-    pub fn new(config: ClientConfig) -> ClientSession {
+    /// A session that has queued its `HELLO` (its limits raised to the
+    /// 65,536 bytes `HELLO` must offer at least, for the decoder too).
+    pub fn new(mut config: ClientConfig) -> ClientSession {
+        // HELLO may not offer less than 65,536 bytes (spec/session.md
+        // 3.1): the limits it offers are the ones the decoder keeps.
+        config.limits.max_frame_bytes = config.limits.max_frame_bytes.max(MIN_OFFERED_BYTES);
+        config.limits.max_payload_bytes = config.limits.max_payload_bytes.max(MIN_OFFERED_BYTES);
         let mut transmit = BytesMut::new();
         Control::Hello(Hello {
             version: VERSION,
             compressions: decodable_compressions(),
             point_formats: 1,
-            max_frame_bytes: config.limits.max_frame_bytes.max(65_536),
-            max_payload_bytes: config.limits.max_payload_bytes.max(65_536),
+            max_frame_bytes: config.limits.max_frame_bytes,
+            max_payload_bytes: config.limits.max_payload_bytes,
             max_mirror_bytes: config.limits.max_mirror_bytes,
             viewer: config.viewer,
         })
         .encode(&mut transmit);
         ClientSession {
-            records: RecordReader::new(config.limits.max_frame_bytes.max(65_536)),
+            records: RecordReader::new(config.limits.max_frame_bytes),
             decoder: Decoder::new(config.limits),
             config,
             welcome: None,
@@ -220,8 +228,8 @@ impl ClientSession {
                 Control::Welcome(w) if self.welcome.is_none() => {
                     let ours = decodable_compressions();
                     if ours & (1 << w.compression) == 0
-                        || w.max_frame_bytes > self.config.limits.max_frame_bytes.max(65_536)
-                        || w.max_payload_bytes > self.config.limits.max_payload_bytes.max(65_536)
+                        || w.max_frame_bytes > self.config.limits.max_frame_bytes
+                        || w.max_payload_bytes > self.config.limits.max_payload_bytes
                     {
                         return Err(SessionError::CapabilityMismatch(
                             "WELCOME chose what HELLO did not offer".into(),

@@ -128,7 +128,7 @@ pub enum Control {
     Ack(u32),
     /// Client to server: a keyframe, please.
     KeyframeRequest {
-        /// The sequence held (0xFFFFFFFF: none).
+        /// The sequence held (0 with reason `NoState` when there is none).
         sequence: u32,
         /// Why.
         reason: KeyframeReason,

@@ -464,16 +464,8 @@ fn measure_psao(
     density: f32,
     rate: u16,
 ) -> anyhow::Result<(Row, Vec<f32>)> {
-    let config = PipelineConfig {
-        // The pipeline's density counts spawned points; half are kept.
-        density: 2.0 * density,
-        ao: AoParams {
-            rays: s.point_rays,
-            radius: s.radius,
-            ..PipelineConfig::default().ao
-        },
-        ..PipelineConfig::default()
-    };
+    // `density` counts points kept, as every command's --density does.
+    let config = crate::cmd::common::pipeline_config(density, s.point_rays, s.radius);
     let started = Instant::now();
     let mut pipeline = match s.backend {
         Backend::Cpu => Pipeline::new(scene.clone(), config),
