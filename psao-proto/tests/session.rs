@@ -543,3 +543,46 @@ fn a_close_that_never_follows_the_finished_frame_stream_ends_the_session() {
     let e = c.handle_timeout(t0 + CLOSE_AFTER_FRAMES).unwrap_err();
     assert_eq!(e.close_code(), CloseCode::ServerShutdown, "{e}");
 }
+
+#[test]
+fn the_client_decodes_with_the_limits_its_hello_offers() {
+    // Configured below the 65,536 bytes HELLO must offer: HELLO offers
+    // 65,536, and frames within that decode.
+    let mut c = ClientSession::new(ClientConfig {
+        limits: Limits {
+            max_frame_bytes: 64,
+            max_payload_bytes: 64,
+            ..Limits::default()
+        },
+        ..ClientConfig::default()
+    });
+    let hello = hello_of(&mut c);
+    assert_eq!(
+        (hello.max_frame_bytes, hello.max_payload_bytes),
+        (65_536, 65_536)
+    );
+    let welcome = negotiate(
+        &hello,
+        &Offer {
+            max_frame_bytes: 65_536,
+            max_payload_bytes: 65_536,
+            ..lz4_offer()
+        },
+    )
+    .unwrap();
+    c.on_control(&bytes(Control::Welcome(welcome))).unwrap();
+    let (mut table, mut enc) = server();
+    for k in 0..40 {
+        table
+            .set_point(k, Vec3::new(0.1 * k as f32, 1.0, 1.0), Vec3::Y, 0.5)
+            .unwrap();
+    }
+    settle(&mut table);
+    let mut kf = enc.keyframe();
+    kf.snapshot(&table).unwrap();
+    let kf = kf.finish().unwrap().unwrap();
+    assert!(kf.bytes.len() > 64, "{} bytes", kf.bytes.len());
+    c.on_frames(&record(&kf.bytes)).unwrap();
+    assert_eq!(c.stats().failed, 0);
+    assert!(c.mirror().instance(0).is_some(), "the keyframe applied");
+}
