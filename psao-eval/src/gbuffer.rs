@@ -71,7 +71,7 @@ impl PosedScene {
             }
             let nm = normal_matrix(&to_world);
             let mesh = &scene.meshes[inst.mesh];
-            let (pos, nrm) = scene.skinned(i, &pose);
+            let (pos, nrm) = scene.deformed(i, &pose);
             let world: Vec<Vec3> = pos.iter().map(|&p| to_world.transform_point3(p)).collect();
             if let Some(v) = world.iter().position(|p| !p.is_finite()) {
                 return Err(SceneError::NonFiniteVertex {

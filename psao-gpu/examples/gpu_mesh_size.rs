@@ -50,6 +50,7 @@ fn sphere(nu: u32, nv: u32) -> Mesh {
         indices,
         double_sided: false,
         skin: None,
+        morph: None,
         alpha: None,
     }
 }
@@ -154,7 +155,7 @@ fn main() {
         &pts,
         &nrm,
     );
-    let (skinned_pos, skinned_nrm) = scene.skinned(WALKER, &scene.pose(0.0));
+    let (skinned_pos, skinned_nrm) = scene.deformed(WALKER, &scene.pose(0.0));
     let mut alone = scene_of(vec![Mesh {
         positions: skinned_pos.to_vec(),
         normals: skinned_nrm.to_vec(),

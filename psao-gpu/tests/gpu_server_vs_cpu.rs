@@ -255,37 +255,42 @@ fn the_missing_driver_error_says_what_to_install() {
 #[test]
 fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
     let Some(_ctx) = context() else { return };
-    let scene = default_scene();
-    let config = PipelineConfig {
-        density: 16.0,
-        ao: AoParams {
-            rays: 16,
-            ..AoParams::default()
-        },
-        ..PipelineConfig::default()
-    };
-    let mut cpu = Pipeline::new(scene.clone(), config.clone()).unwrap();
-    let backend = GpuBackend::new(&scene).unwrap();
-    let mut gpu = Pipeline::with_backend(scene, config, Box::new(backend)).unwrap();
-    assert!(
-        gpu.backend_name().starts_with("gpu"),
-        "{}",
-        gpu.backend_name()
-    );
-    assert_eq!(cpu.keyframe().unwrap().bytes, gpu.keyframe().unwrap().bytes);
-    // The box slides and the walker walks: the same points are traced and
-    // the same dirty sets sent.
-    let (mut traced, mut frames) = (0, 0);
-    for _ in 0..20 {
-        let (a, ra) = cpu.step(1.0 / 30.0).unwrap();
-        let (b, rb) = gpu.step(1.0 / 30.0).unwrap();
-        assert_eq!(ra.traced, rb.traced);
-        assert_eq!(ra.updated, rb.updated, "dirty sets differ");
-        assert_eq!(a.map(|f| f.bytes), b.map(|f| f.bytes));
-        traced += rb.traced;
-        frames += 1;
+    // The default scene (the box slides, the walker's skin deforms) and a
+    // cube whose morph weights an animation drives.
+    let cube = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../psao-scene/tests/data/AnimatedMorphCube.glb");
+    let morph = stage(load_gltf(&cube).unwrap()).unwrap();
+    for (name, scene) in [("default", default_scene()), ("morph cube", morph)] {
+        let config = PipelineConfig {
+            density: 16.0,
+            ao: AoParams {
+                rays: 16,
+                ..AoParams::default()
+            },
+            ..PipelineConfig::default()
+        };
+        let mut cpu = Pipeline::new(scene.clone(), config.clone()).unwrap();
+        let backend = GpuBackend::new(&scene).unwrap();
+        let mut gpu = Pipeline::with_backend(scene, config, Box::new(backend)).unwrap();
+        assert!(
+            gpu.backend_name().starts_with("gpu"),
+            "{}",
+            gpu.backend_name()
+        );
+        assert_eq!(cpu.keyframe().unwrap().bytes, gpu.keyframe().unwrap().bytes);
+        // The same points are traced and the same dirty sets sent.
+        let (mut traced, mut deformed) = (0, 0);
+        for _ in 0..20 {
+            let (a, ra) = cpu.step(1.0 / 30.0).unwrap();
+            let (b, rb) = gpu.step(1.0 / 30.0).unwrap();
+            assert_eq!(ra.traced, rb.traced, "{name}");
+            assert_eq!(ra.updated, rb.updated, "{name}: dirty sets differ");
+            assert_eq!(a.map(|f| f.bytes), b.map(|f| f.bytes), "{name}");
+            traced += rb.traced;
+            deformed += rb.deformed;
+        }
+        assert!(traced > 0 && deformed > 0, "{name}: {traced} {deformed}");
     }
-    assert!(traced > 0 && frames == 20);
 }
 
 /// What clients of `p` hold for each of its points (cells numbered across

@@ -73,6 +73,7 @@ pub use model::alpha::{AlphaMask, AlphaTexture};
 pub use model::animation::{Animation, Channel, Interpolation, Keys};
 pub use model::camera::{Camera, CameraKey, CameraPath, Frustum};
 pub use model::mesh::{Mesh, bounds_of, transformed_bounds};
+pub use model::morph::MorphTargets;
 pub use model::node::{Node, Trs, compose};
 pub use model::pose::{Pose, normal_matrix};
 pub use model::scene::{Instance, MIN_TRANSFORM_RATIO, Scene, invertible};

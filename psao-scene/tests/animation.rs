@@ -84,6 +84,139 @@ fn channels_interpolate_step_linear_slerp_and_cubic() {
 }
 
 #[test]
+fn weight_channels_interpolate_every_target_and_are_validated() {
+    let keys = |values: Vec<f32>| Keys::Weights { targets: 2, values };
+    let mut w = Vec::new();
+    // Linear: each target on its own; clamped outside the keys.
+    let c = channel(
+        keys(vec![0.0, 1.0, 1.0, 0.0]),
+        &[0.0, 2.0],
+        Interpolation::Linear,
+    );
+    c.validate(1, 0, 0).unwrap();
+    c.weights(0.5, &mut w);
+    assert_eq!(w, vec![0.25, 0.75]);
+    c.weights(9.0, &mut w);
+    assert_eq!(w, vec![1.0, 0.0]);
+    // Step holds the key at or before the time.
+    let c = channel(
+        keys(vec![0.0, 1.0, 1.0, 0.0]),
+        &[0.0, 2.0],
+        Interpolation::Step,
+    );
+    c.weights(1.9, &mut w);
+    assert_eq!(w, vec![0.0, 1.0]);
+    // Cubic spline with zero tangents: smoothstep between the values, and
+    // the values themselves at the keys.
+    let c = channel(
+        keys(vec![
+            0.0, 0.0, 0.0, 4.0, 0.0, 0.0, 0.0, 0.0, 1.0, 8.0, 0.0, 0.0,
+        ]),
+        &[0.0, 1.0],
+        Interpolation::CubicSpline,
+    );
+    c.validate(1, 0, 0).unwrap();
+    c.weights(0.0, &mut w);
+    assert_eq!(w, vec![0.0, 4.0]);
+    c.weights(0.5, &mut w);
+    assert!(
+        (w[0] - 0.5).abs() < 1e-6 && (w[1] - 6.0).abs() < 1e-6,
+        "{w:?}"
+    );
+    // A weights channel leaves the node's transform alone, and a
+    // translation channel leaves weights alone.
+    let mut trs = Trs::default();
+    c.apply(0.5, &mut trs);
+    assert_eq!(trs, Trs::default());
+    let mut w = vec![7.0];
+    channel(
+        Keys::Translation(vec![Vec3::X]),
+        &[0.0],
+        Interpolation::Step,
+    )
+    .weights(0.0, &mut w);
+    assert_eq!(w, vec![7.0]);
+    // Counts that are no whole number of keys of `targets`, or no targets.
+    for (k, why) in [
+        (keys(vec![0.0, 1.0, 2.0]), "whole number"),
+        (
+            Keys::Weights {
+                targets: 0,
+                values: vec![],
+            },
+            "whole number",
+        ),
+        (keys(vec![0.0, 1.0]), "values for 2 keys"),
+    ] {
+        let e = channel(k, &[0.0, 1.0], Interpolation::Linear)
+            .validate(1, 0, 0)
+            .unwrap_err();
+        assert!(e.to_string().contains(why), "{e}");
+    }
+}
+
+#[test]
+fn morph_targets_blend_from_the_rest_weights() {
+    let t = MorphTargets {
+        rest_weights: vec![0.5, 0.0],
+        positions: vec![vec![Vec3::Y, Vec3::Y], vec![]],
+        normals: vec![vec![], vec![Vec3::X, Vec3::ZERO]],
+    };
+    t.check(2).unwrap();
+    let (p, n) = (vec![Vec3::ZERO, Vec3::X], vec![Vec3::Z, Vec3::Z]);
+    let (mut op, mut on) = (Vec::new(), Vec::new());
+    t.apply(&[1.0, 1.0], &p, &n, &mut op, &mut on);
+    assert_eq!(op, vec![Vec3::Y * 0.5, Vec3::X + Vec3::Y * 0.5]);
+    assert!(close(on[0], Vec3::new(1.0, 0.0, 1.0).normalize(), 1e-6));
+    assert_eq!(on[1], Vec3::Z);
+    // The rest weights give the rest mesh back; missing weights are rest.
+    t.apply(&[0.5], &p, &n, &mut op, &mut on);
+    assert_eq!((op.clone(), on.clone()), (p.clone(), n.clone()));
+    // A normal that cancels out keeps its rest direction.
+    let flip = MorphTargets {
+        rest_weights: vec![0.0],
+        positions: vec![vec![]],
+        normals: vec![vec![-Vec3::Z, -Vec3::Z]],
+    };
+    flip.apply(&[1.0], &p, &n, &mut op, &mut on);
+    assert_eq!(on, n);
+    // Checked: offsets per vertex, finite, one list per target.
+    for (bad, why) in [
+        (
+            MorphTargets {
+                positions: vec![vec![Vec3::Y]],
+                ..flip.clone()
+            },
+            "1 position offsets for 2",
+        ),
+        (
+            MorphTargets {
+                normals: vec![],
+                ..flip.clone()
+            },
+            "normal offset lists",
+        ),
+        (
+            MorphTargets {
+                rest_weights: vec![f32::NAN],
+                ..flip.clone()
+            },
+            "rest weight 0",
+        ),
+        (
+            MorphTargets {
+                positions: vec![vec![Vec3::NAN, Vec3::Y]],
+                ..flip.clone()
+            },
+            "not finite",
+        ),
+    ] {
+        let e = bad.check(2).unwrap_err();
+        assert!(e.contains(why), "{e}");
+    }
+}
+
+#[test]
 fn channels_are_validated() {
     let good = channel(
         Keys::Translation(vec![Vec3::ZERO, Vec3::X]),
@@ -277,14 +410,14 @@ fn linear_blend_skinning_matches_a_hand_computed_pose() {
     });
     assert!(s.validate().is_ok());
     let rest = s.pose(0.0);
-    let (p, _) = s.skinned(i, &rest);
+    let (p, _) = s.deformed(i, &rest);
     assert_eq!(
         &p[..],
         &s.meshes[0].positions[..],
         "the bind pose is the rest pose"
     );
     let bent = s.pose(1.0);
-    let (p, n) = s.skinned(i, &bent);
+    let (p, n) = s.deformed(i, &bent);
     assert!(close(p[0], Vec3::ZERO, 1e-6), "bound to the still joint");
     assert!(close(p[1], Vec3::new(1.0, 1.0, 0.0), 1e-6), "{}", p[1]);
     assert!(close(p[2], Vec3::new(1.5, 0.5, 1.0), 1e-6), "{}", p[2]);
@@ -339,7 +472,7 @@ fn simple_skin_poses_match_its_joints() {
         .unwrap();
     let time = ch.times[k];
     let pose = s.pose(time);
-    let (p, _) = s.skinned(i, &pose);
+    let (p, _) = s.deformed(i, &pose);
     let mesh = &s.meshes[s.instances[i].mesh];
     let w = mesh.skin.as_ref().unwrap();
     let skin = &s.skins[0];

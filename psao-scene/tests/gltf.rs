@@ -82,8 +82,8 @@ fn skinned_and_animated_models_load_and_move() {
         // The mesh deforms: some vertex moves between two times, and every
         // vertex stays finite.
         let (a, b) = (s.pose(0.0), s.pose(duration * 0.5));
-        let (pa, _) = s.skinned(i, &a);
-        let (pb, _) = s.skinned(i, &b);
+        let (pa, _) = s.deformed(i, &a);
+        let (pb, _) = s.deformed(i, &b);
         assert!(pa.iter().chain(pb.iter()).all(|p| p.is_finite()), "{file}");
         let moved = pa
             .iter()
@@ -117,7 +117,7 @@ fn cesium_man_walks_in_place_with_its_skin() {
     let i = s.instances.iter().position(|x| x.skin.is_some()).unwrap();
     for t in [0.0, 0.5, 1.0, 1.5] {
         let pose = s.pose(t);
-        let (p, n) = s.skinned(i, &pose);
+        let (p, n) = s.deformed(i, &pose);
         let world: Vec<Vec3> = p
             .iter()
             .map(|&v| pose.instances[i].transform_point3(v))
@@ -324,7 +324,7 @@ fn glb_headers_and_binary_chunks_are_checked() {
 }
 
 #[test]
-fn morph_targets_take_their_default_weights_and_animated_weights_are_refused() {
+fn morph_targets_take_their_default_weights() {
     // MorphPrimitivesTest: a flat 1 x 1 m plane at y = 0 whose two
     // primitives each carry a target lifting it by up to 0.2 m, at the
     // mesh's default weight 0.5.
@@ -348,13 +348,83 @@ fn morph_targets_take_their_default_weights_and_animated_weights_are_refused() {
             .flat_map(|m| &m.normals)
             .all(|n| n.is_normalized())
     );
-    // AnimatedMorphCube animates its weights: refused, saying why.
-    let e = load_gltf(&data("AnimatedMorphCube.glb")).unwrap_err();
+    // No weights animate here: the targets are applied once, not kept.
+    assert!(s.meshes.iter().all(|m| m.morph.is_none()));
+}
+
+#[test]
+fn animated_morph_weights_deform_the_mesh_like_a_skin() {
+    // AnimatedMorphCube: one mesh with 2 targets, its node's weights
+    // driven by a linear animation over 4.2 s.
+    let s = load_gltf(&data("AnimatedMorphCube.glb")).unwrap();
+    s.validate().unwrap();
+    assert_eq!(s.instances.len(), 1);
+    let m = &s.meshes[s.instances[0].mesh];
+    let morph = m.morph.as_ref().expect("the targets are kept");
+    assert_eq!(morph.len(), 2);
+    assert!(s.deforms(0) && s.dynamic_instances()[0]);
+    assert!((s.duration() - 4.2).abs() < 1e-2, "{}", s.duration());
+    // The weights follow the animation, and the vertices with them.
+    let times = [0.0, 1.0, 2.0, 3.0];
+    let poses: Vec<Pose> = times.iter().map(|&t| s.pose(t)).collect();
+    assert!(poses.iter().all(|p| p.weights[0].len() == 2));
     assert!(
-        e.to_string()
-            .contains("animated morph target weights are not supported"),
-        "{e}"
+        poses.windows(2).any(|w| w[0].weights[0] != w[1].weights[0]),
+        "{:?}",
+        poses.iter().map(|p| &p.weights[0]).collect::<Vec<_>>()
     );
+    let shapes: Vec<Vec<Vec3>> = poses
+        .iter()
+        .map(|p| s.deformed(0, p).0.into_owned())
+        .collect();
+    let moved = shapes
+        .windows(2)
+        .flat_map(|w| w[0].iter().zip(&w[1]).map(|(a, b)| a.distance(*b)))
+        .fold(0.0f32, f32::max);
+    assert!(moved > 1e-3, "nothing moved: {moved}");
+    // A pose is the rest mesh plus each target's offset times its weight
+    // change (glTF 3.7.2.1), normals renormalized.
+    let p = &poses[2];
+    let (pos, nrm) = s.deformed(0, p);
+    for v in 0..m.positions.len() {
+        let mut want = m.positions[v];
+        for k in 0..2 {
+            let dw = p.weights[0][k] - morph.rest_weights[k];
+            if let Some(d) = morph.positions[k].get(v) {
+                want += dw * *d;
+            }
+        }
+        assert!(pos[v].distance(want) < 1e-5, "vertex {v}");
+        assert!(nrm[v].is_normalized(), "normal {v}");
+    }
+    // Streamed, the mesh deforms tick after tick and the mirror keeps up.
+    let staged = stage(s).unwrap();
+    let config = PipelineConfig {
+        density: 64.0,
+        ao: AoParams {
+            rays: 8,
+            ..AoParams::default()
+        },
+        ..PipelineConfig::default()
+    };
+    let mut pipe = Pipeline::new(staged, config).unwrap();
+    let mut client = psao_codec::Decoder::new(psao_codec::Limits::default());
+    client.receive(&pipe.keyframe().unwrap().bytes).unwrap();
+    let mut deformed = 0;
+    for _ in 0..20 {
+        let (frame, report) = pipe.step(1.0 / 10.0).unwrap();
+        deformed += report.deformed;
+        if let Some(f) = frame {
+            client.receive(&f.bytes).unwrap();
+        }
+    }
+    assert!(
+        deformed >= 10,
+        "the cube deformed in {deformed} of 20 ticks"
+    );
+    let t = pipe.table(0).unwrap();
+    let mirror = client.mirror().instance(0).unwrap();
+    assert!(mirror.words() == t.words() && mirror.buckets() == t.buckets());
 }
 
 #[test]

@@ -234,7 +234,7 @@ fn placed_blas<'a>(
     i: usize,
 ) -> Option<&'a MeshBlas> {
     let inst = &scene.instances[i];
-    let rigid = scene.meshes[inst.mesh].skin.is_none() || inst.skin.is_none();
+    let rigid = !scene.deforms(i);
     match (&skinned[i], &meshes[inst.mesh]) {
         (Some(b), _) => Some(b),
         (None, Some(b)) if rigid => Some(b),
@@ -260,12 +260,8 @@ impl Shape {
             instances: scene
                 .instances
                 .iter()
-                .map(|i| {
-                    (
-                        i.mesh,
-                        i.skin.is_some() && scene.meshes[i.mesh].skin.is_some(),
-                    )
-                })
+                .enumerate()
+                .map(|(k, i)| (i.mesh, scene.deforms(k)))
                 .collect(),
         }
     }
@@ -351,10 +347,7 @@ impl GpuScene {
                 limit: limits.max_tlas_instance_count as u64,
             });
         }
-        let skinned_instance = |i: usize| {
-            let inst = &scene.instances[i];
-            inst.skin.is_some() && scene.meshes[inst.mesh].skin.is_some()
-        };
+        let skinned_instance = |i: usize| scene.deforms(i);
         let pose = scene.pose(0.0);
         let ordered: Vec<Vec<u32>> = scene
             .meshes
@@ -396,7 +389,7 @@ impl GpuScene {
                 .map(|i| {
                     let m = &scene.meshes[scene.instances[i].mesh];
                     (skinned_instance(i) && m.triangle_count() > 0).then(|| {
-                        let (p, _) = scene.skinned(i, &pose);
+                        let (p, _) = scene.deformed(i, &pose);
                         local_bounds[i] = vertex_bounds(&p);
                         let k = scene.instances[i].mesh;
                         MeshBlas::new(ctx, &p, &ordered[k], true, m.alpha.is_none())
@@ -443,7 +436,7 @@ impl GpuScene {
             .map(|i| {
                 self.skinned[i]
                     .is_some()
-                    .then(|| scene.skinned(i, &pose).0.into_owned())
+                    .then(|| scene.deformed(i, &pose).0.into_owned())
             })
             .collect();
         let vertices: Vec<Option<&[glam::Vec3]>> = skinned.iter().map(|v| v.as_deref()).collect();

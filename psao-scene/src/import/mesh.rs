@@ -10,13 +10,17 @@ use super::gltf_error;
 use super::material::alpha_mask;
 use crate::error::SceneError;
 use crate::model::mesh::Mesh;
+use crate::model::morph::MorphTargets;
 use crate::model::skin::SkinWeights;
 
 /// The [`Mesh`] of a primitive, its morph targets applied with `weights`
-/// (a missing weight is 0); `element` names it in errors.
+/// (a missing weight is 0); with `animated`, the targets are kept as well
+/// ([`MorphTargets`], rest weights `weights`) for an animation to drive.
+/// `element` names it in errors.
 pub(super) fn primitive_mesh(
     prim: &gltf::Primitive<'_>,
     weights: &[f32],
+    animated: bool,
     buffers: &Buffers,
     name: &str,
     element: &str,
@@ -62,6 +66,7 @@ pub(super) fn primitive_mesh(
     // Morph target deltas, weighted (glTF 3.7.2.1): positions now, normals
     // once they are read.
     let mut normal_deltas: Vec<(f32, Vec<Vec3>)> = Vec::new();
+    let mut morph = MorphTargets::default();
     let vertex_count = positions.len();
     let vec3_of =
         |a: Option<gltf::Accessor<'_>>, what: &str| -> Result<Option<Vec<Vec3>>, SceneError> {
@@ -91,6 +96,20 @@ pub(super) fn primitive_mesh(
                 element,
                 format!("morph weight {k} is not finite"),
             ));
+        }
+        if animated {
+            let p = vec3_of(target.positions(), "morph target POSITION")?.unwrap_or_default();
+            let n = vec3_of(target.normals(), "morph target NORMAL")?.unwrap_or_default();
+            for (q, d) in positions.iter_mut().zip(&p) {
+                *q += w * *d;
+            }
+            if !n.is_empty() && w != 0.0 {
+                normal_deltas.push((w, n.clone()));
+            }
+            morph.rest_weights.push(w);
+            morph.positions.push(p);
+            morph.normals.push(n);
+            continue;
         }
         if w == 0.0 {
             continue;
@@ -241,6 +260,7 @@ pub(super) fn primitive_mesh(
         indices,
         double_sided: prim.material().double_sided(),
         skin,
+        morph: (animated && !morph.is_empty()).then_some(morph),
         alpha,
     })
 }

@@ -6,17 +6,20 @@
 //! their translation, rotation and scale; every mesh primitive is a
 //! [`Mesh`](crate::Mesh), and every node that holds it an
 //! [`Instance`](crate::Instance) hanging from the node (with the node's
-//! skin, if any). Translation, rotation and scale channels become
-//! [`Animation`](crate::Animation)s. `MASK` materials become alpha masks from
+//! skin, if any). Translation, rotation, scale and morph weight channels
+//! become [`Animation`](crate::Animation)s. `MASK` materials become alpha masks from
 //! the base colour factor and `COLOR_0`. Missing normals are computed from
 //! the faces; missing indices mean sequential triangles. Morph targets are
 //! applied with their default weights (the node's, else the mesh's): the
 //! mesh is the weighted sum, its normals too (from the faces when it has
-//! none). The first perspective camera in scene order becomes the scene's
+//! none). A node whose weights an animation drives keeps its targets as
+//! [`MorphTargets`](crate::MorphTargets) and deforms as a skin does (its
+//! normals follow the targets' NORMAL offsets; normals computed from the
+//! faces stay those of the default weights). The first perspective camera in scene order becomes the scene's
 //! camera path (following its node, looking down its -Z).
 //!
-//! Not supported, each refused with an error: animated morph weights, more than four
-//! joints per vertex, alpha masks read from textures, sparse accessors,
+//! Not supported, each refused with an error: more than four joints per
+//! vertex, alpha masks read from textures, sparse accessors,
 //! primitives other than triangle lists. Any problem is a
 //! [`SceneError::Gltf`] naming the file and the element. Work is bounded:
 //! every buffer is read once, at most [`MAX_BUFFER_BYTES`] in all, and the
@@ -97,7 +100,14 @@ pub fn load_gltf_slice(bytes: &[u8], name: &str, base: Option<&Path>) -> Result<
             .flatten()
             .ok_or_else(|| gltf_error(name, what, format!("node {n} is not in the scene")))
     };
-    read_instances(&visited, &buffers, name, &node_of, &mut out)?;
+    // Nodes whose morph weights an animation drives.
+    let morphing: std::collections::HashSet<usize> = gltf
+        .animations()
+        .flat_map(|a| a.channels().collect::<Vec<_>>())
+        .filter(|c| c.target().property() == gltf::animation::Property::MorphTargetWeights)
+        .map(|c| c.target().node().index())
+        .collect();
+    read_instances(&visited, &morphing, &buffers, name, &node_of, &mut out)?;
     for anim in gltf.animations() {
         out.animations
             .push(read_animation(&anim, &buffers, name, &node_of)?);
@@ -105,7 +115,7 @@ pub fn load_gltf_slice(bytes: &[u8], name: &str, base: Option<&Path>) -> Result<
     let skinned: usize = out
         .instances
         .iter()
-        .filter(|i| i.skin.is_some())
+        .filter(|i| i.skin.is_some() || out.meshes[i.mesh].morph.is_some())
         .map(|i| out.meshes[i.mesh].positions.len())
         .fold(0, usize::saturating_add);
     if skinned > MAX_SKINNED_VERTICES {

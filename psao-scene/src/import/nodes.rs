@@ -95,6 +95,7 @@ pub(super) fn read_nodes<'a>(
 /// [`MAX_INSTANCES`].
 pub(super) fn read_instances(
     visited: &[gltf::Node<'_>],
+    morphing: &std::collections::HashSet<usize>,
     buffers: &Buffers,
     name: &str,
     node_of: &dyn Fn(usize, &str) -> Result<usize, SceneError>,
@@ -121,14 +122,17 @@ pub(super) fn read_instances(
         // (glTF 3.7.2.2); a node with weights of its own gets meshes of
         // its own.
         let weights = node.weights().or(mesh.weights()).unwrap_or(&[]);
-        let own = node.weights().map(|_| node.index());
+        // A node whose weights an animation drives keeps the targets, in
+        // meshes of its own.
+        let animated = morphing.contains(&node.index());
+        let own = (node.weights().is_some() || animated).then_some(node.index());
         for prim in mesh.primitives() {
             let key = (mesh.index(), prim.index(), own);
             let id = match meshes.get(&key) {
                 Some(&id) => id,
                 None => {
                     let element = format!("mesh {} primitive {}", mesh.index(), prim.index());
-                    let m = primitive_mesh(&prim, weights, buffers, name, &element)?;
+                    let m = primitive_mesh(&prim, weights, animated, buffers, name, &element)?;
                     out.meshes.push(m);
                     meshes.insert(key, out.meshes.len() - 1);
                     out.meshes.len() - 1
@@ -255,16 +259,22 @@ pub(super) fn read_animation(
         let times = read(&input, "input")?.floats();
         let values = read(&output, "output")?;
         let dims = output.dimensions();
+        // One weight per target of the node's mesh, per key.
+        let targets = target
+            .node()
+            .mesh()
+            .and_then(|m| m.primitives().map(|p| p.morph_targets().len()).max())
+            .unwrap_or(0);
         let want = match target.property() {
             Property::Rotation => gltf::accessor::Dimensions::Vec4,
-            Property::MorphTargetWeights => {
+            Property::MorphTargetWeights if targets == 0 => {
                 return Err(gltf_error(
                     name,
                     &element,
-                    "animated morph target weights are not supported (default weights are applied)"
-                        .into(),
+                    "drives the morph weights of a node whose mesh has no morph targets".into(),
                 ));
             }
+            Property::MorphTargetWeights => gltf::accessor::Dimensions::Scalar,
             _ => gltf::accessor::Dimensions::Vec3,
         };
         if dims != want {
@@ -280,7 +290,8 @@ pub(super) fn read_animation(
                 Keys::Translation(f.chunks_exact(3).map(Vec3::from_slice).collect())
             }
             Property::Scale => Keys::Scale(f.chunks_exact(3).map(Vec3::from_slice).collect()),
-            _ => Keys::Rotation(f.chunks_exact(4).map(Quat::from_slice).collect()),
+            Property::MorphTargetWeights => Keys::Weights { targets, values: f },
+            Property::Rotation => Keys::Rotation(f.chunks_exact(4).map(Quat::from_slice).collect()),
         };
         let interpolation = match sampler.interpolation() {
             I::Linear => Interpolation::Linear,

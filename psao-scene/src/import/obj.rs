@@ -158,6 +158,7 @@ pub fn load_obj_slice(bytes: &[u8], name: &str, base: Option<&Path>) -> Result<S
                 indices: m.indices.clone(),
                 double_sided: false,
                 skin: None,
+                morph: None,
                 alpha,
             },
             Affine3A::IDENTITY,

@@ -1,6 +1,6 @@
-//! Node animation: keyframed translation, rotation and scale channels
-//! (glTF 2.0 animation samplers) with step, linear (slerp for rotations)
-//! and cubic-spline interpolation.
+//! Node animation: keyframed translation, rotation, scale and morph
+//! weight channels (glTF 2.0 animation samplers) with step, linear (slerp
+//! for rotations) and cubic-spline interpolation.
 //!
 //! Every animation loops over its own duration (its last key time): at
 //! scene time `t` it plays at `t mod duration`. An animation of duration 0
@@ -34,6 +34,14 @@ pub enum Keys {
     Rotation(Vec<Quat>),
     /// Node scales.
     Scale(Vec<Vec3>),
+    /// Morph target weights of the node's mesh: `targets` values per key
+    /// (per tangent and value for a cubic spline), key after key.
+    Weights {
+        /// Weights per key (the mesh's number of targets), at least 1.
+        targets: usize,
+        /// The weights, `targets` at a time.
+        values: Vec<f32>,
+    },
 }
 
 impl Keys {
@@ -41,6 +49,7 @@ impl Keys {
         match self {
             Keys::Translation(v) | Keys::Scale(v) => v.len(),
             Keys::Rotation(v) => v.len(),
+            Keys::Weights { targets, values } => values.len() / (*targets).max(1),
         }
     }
 
@@ -48,6 +57,7 @@ impl Keys {
         match self {
             Keys::Translation(v) | Keys::Scale(v) => v.iter().all(|x| x.is_finite()),
             Keys::Rotation(v) => v.iter().all(|q| q.is_finite()),
+            Keys::Weights { values, .. } => values.iter().all(|x| x.is_finite()),
         }
     }
 }
@@ -104,6 +114,14 @@ impl Channel {
             Interpolation::CubicSpline => 3,
             _ => 1,
         };
+        if let Keys::Weights { targets, values } = &self.keys
+            && (*targets == 0 || values.len() % targets != 0)
+        {
+            return Err(bad(format!(
+                "{} weights is not a whole number of keys of {targets} targets",
+                values.len()
+            )));
+        }
         if self.keys.len() != self.times.len() * per_key {
             return Err(bad(format!(
                 "{} values for {} keys ({} per key)",
@@ -131,13 +149,46 @@ impl Channel {
     }
 
     /// Sets the property of `trs` it drives to its value at time `t`
-    /// (clamped to the keys). The channel must be valid.
+    /// (clamped to the keys); a weights channel leaves `trs` as it is
+    /// (see [`weights`](Self::weights)). The channel must be valid.
     pub fn apply(&self, t: f32, trs: &mut Trs) {
         let (i, s, dt) = self.locate(t);
         match &self.keys {
             Keys::Translation(v) => trs.translation = self.vec3(v, i, s, dt),
             Keys::Scale(v) => trs.scale = self.vec3(v, i, s, dt),
             Keys::Rotation(q) => trs.rotation = self.quat(q, i, s, dt),
+            Keys::Weights { .. } => {}
+        }
+    }
+
+    /// For a weights channel, its morph weights at time `t` (clamped to the
+    /// keys) into `out`; other channels leave `out` as it is. The channel
+    /// must be valid.
+    pub fn weights(&self, t: f32, out: &mut Vec<f32>) {
+        let Keys::Weights { targets, values } = &self.keys else {
+            return;
+        };
+        let (i, s, dt) = self.locate(t);
+        let n = *targets;
+        let at = |key: usize| &values[key * n..(key + 1) * n];
+        let last = self.times.len() - 1;
+        out.clear();
+        match self.interpolation {
+            Interpolation::Step => out.extend_from_slice(at(i)),
+            Interpolation::Linear if i == last => out.extend_from_slice(at(i)),
+            Interpolation::Linear => {
+                out.extend(at(i).iter().zip(at(i + 1)).map(|(a, b)| a + (b - a) * s))
+            }
+            Interpolation::CubicSpline if i == last => out.extend_from_slice(at(3 * i + 1)),
+            Interpolation::CubicSpline => {
+                let h = hermite(s);
+                let (p0, m0, m1, p1) = (at(3 * i + 1), at(3 * i + 2), at(3 * i + 3), at(3 * i + 4));
+                out.extend(
+                    (0..n).map(|k| {
+                        p0[k] * h[0] + m0[k] * dt * h[1] + p1[k] * h[2] + m1[k] * dt * h[3]
+                    }),
+                );
+            }
         }
     }
 
@@ -230,6 +281,26 @@ impl Animation {
                 c.apply(local, trs);
             }
         }
+    }
+
+    /// Sets the morph weights of every node a weights channel drives to
+    /// their values at scene time `t` (looping): `weights[node]` takes
+    /// them; nodes no channel drives keep theirs. The animation must be
+    /// valid.
+    pub fn apply_weights(&self, t: f32, weights: &mut [Vec<f32>]) {
+        let local = self.local_time(t);
+        for c in &self.channels {
+            if let (Keys::Weights { .. }, Some(w)) = (&c.keys, weights.get_mut(c.node)) {
+                c.weights(local, w);
+            }
+        }
+    }
+
+    /// Whether a channel drives morph weights.
+    pub fn drives_weights(&self) -> bool {
+        self.channels
+            .iter()
+            .any(|c| matches!(c.keys, Keys::Weights { .. }))
     }
 
     /// A linear translation channel for `node` through `(time, position)`

@@ -5,6 +5,7 @@ use glam::{Affine3A, Vec3};
 
 use crate::error::SceneError;
 use crate::model::alpha::AlphaMask;
+use crate::model::morph::MorphTargets;
 use crate::model::skin::SkinWeights;
 
 /// A triangle mesh in its own (instance-local) space.
@@ -20,6 +21,10 @@ pub struct Mesh {
     pub double_sided: bool,
     /// Joint influences, for instances with a skin.
     pub skin: Option<SkinWeights>,
+    /// Morph targets whose weights an animation drives (applied before
+    /// the skin); `None` when the weights never change (any default
+    /// weights are applied to the positions at import).
+    pub morph: Option<MorphTargets>,
     /// Where the surface has holes.
     pub alpha: Option<AlphaMask>,
 }
@@ -114,6 +119,10 @@ impl Mesh {
                 ));
             }
         }
+        if let Some(m) = &self.morph {
+            m.check(self.positions.len())
+                .map_err(|r| element("morph targets", r))?;
+        }
         if let Some(a) = &self.alpha {
             a.check(self.positions.len())
                 .map_err(|r| element("alpha mask", r))?;
@@ -164,7 +173,7 @@ impl Mesh {
     /// The same surface with every triangle split into four at its edge
     /// midpoints, `levels` times (4^levels as many triangles). Normals are
     /// interpolated and renormalized.
-    /// Skin weights and alpha masks are not carried over.
+    /// Skin weights, morph targets and alpha masks are not carried over.
     pub fn subdivided(&self, levels: u32) -> Mesh {
         let mut m = self.clone();
         for _ in 0..levels {

@@ -20,6 +20,12 @@ pub struct Pose {
     /// Per instance, its skin's joint matrices in the instance's local
     /// space (empty for an instance without a skin).
     pub joints: Vec<Vec<Affine3A>>,
+    /// Per instance, the morph weights of its mesh (empty for a mesh
+    /// without animated [`MorphTargets`](crate::MorphTargets)).
+    pub weights: Vec<Vec<f32>>,
+    /// Per node, the morph weights an animation gives it now (empty where
+    /// none does).
+    node_weights: Vec<Vec<f32>>,
 }
 
 impl Scene {
@@ -34,12 +40,18 @@ impl Scene {
     pub fn pose_into(&self, t: f32, pose: &mut Pose) {
         pose.locals.clear();
         pose.locals.extend(self.nodes.iter().map(|n| n.trs));
+        pose.node_weights.resize_with(self.nodes.len(), Vec::new);
+        pose.node_weights.iter_mut().for_each(Vec::clear);
         for a in &self.animations {
             a.apply(t, &mut pose.locals);
+            if a.drives_weights() {
+                a.apply_weights(t, &mut pose.node_weights);
+            }
         }
         compose(&self.nodes, &pose.locals, &mut pose.nodes);
         pose.instances.clear();
         pose.joints.resize_with(self.instances.len(), Vec::new);
+        pose.weights.resize_with(self.instances.len(), Vec::new);
         for (i, inst) in self.instances.iter().enumerate() {
             let world = match inst.node.and_then(|n| pose.nodes.get(n)) {
                 Some(n) => *n * inst.transform,
@@ -50,22 +62,70 @@ impl Scene {
                 Some(skin) => skin.joint_matrices(&pose.nodes, &world, &mut pose.joints[i]),
                 None => pose.joints[i].clear(),
             }
+            let w = &mut pose.weights[i];
+            w.clear();
+            if let Some(m) = &self.meshes[inst.mesh].morph {
+                match inst.node.and_then(|n| pose.node_weights.get(n)) {
+                    Some(animated) if !animated.is_empty() => w.extend_from_slice(animated),
+                    _ => w.extend_from_slice(&m.rest_weights),
+                }
+            }
         }
     }
 
-    /// The vertex positions and normals of instance `i`'s mesh in its
-    /// local space under `pose` (skinned when it has a skin, else the
-    /// mesh's own). The scene must be valid and `pose` made from it.
-    pub fn skinned<'a>(&'a self, i: usize, pose: &Pose) -> (Cow<'a, [Vec3]>, Cow<'a, [Vec3]>) {
+    /// Whether instance `i`'s mesh changes shape: it has a skin (and joint
+    /// weights) or animated morph targets.
+    pub fn deforms(&self, i: usize) -> bool {
         let inst = &self.instances[i];
         let m = &self.meshes[inst.mesh];
-        match (&m.skin, pose.joints.get(i)) {
-            (Some(w), Some(j)) if inst.skin.is_some() => {
+        (inst.skin.is_some() && m.skin.is_some()) || m.morph.is_some()
+    }
+
+    /// The vertex positions and normals of instance `i`'s mesh in its
+    /// local space under `pose`: morphed when it has animated morph
+    /// targets, then skinned when it has a skin; else the mesh's own. The
+    /// scene must be valid and `pose` made from it.
+    pub fn deformed<'a>(&'a self, i: usize, pose: &Pose) -> (Cow<'a, [Vec3]>, Cow<'a, [Vec3]>) {
+        if !self.deforms(i) {
+            let m = &self.meshes[self.instances[i].mesh];
+            return (Cow::Borrowed(&m.positions), Cow::Borrowed(&m.normals));
+        }
+        let (mut p, mut n) = (Vec::new(), Vec::new());
+        self.deform_into(i, pose, &mut p, &mut n);
+        (Cow::Owned(p), Cow::Owned(n))
+    }
+
+    /// [`deformed`](Self::deformed) into `out_p` and `out_n` (the mesh's
+    /// own vertices for an instance that does not deform).
+    pub fn deform_into(&self, i: usize, pose: &Pose, out_p: &mut Vec<Vec3>, out_n: &mut Vec<Vec3>) {
+        let inst = &self.instances[i];
+        let m = &self.meshes[inst.mesh];
+        let morphed = match (&m.morph, pose.weights.get(i)) {
+            (Some(t), Some(w)) => {
                 let (mut p, mut n) = (Vec::new(), Vec::new());
-                w.skin(&m.positions, &m.normals, j, &mut p, &mut n);
-                (Cow::Owned(p), Cow::Owned(n))
+                t.apply(w, &m.positions, &m.normals, &mut p, &mut n);
+                Some((p, n))
             }
-            _ => (Cow::Borrowed(&m.positions), Cow::Borrowed(&m.normals)),
+            _ => None,
+        };
+        let (base_p, base_n) = match &morphed {
+            Some((p, n)) => (p.as_slice(), n.as_slice()),
+            None => (m.positions.as_slice(), m.normals.as_slice()),
+        };
+        match (&m.skin, pose.joints.get(i)) {
+            (Some(w), Some(j)) if inst.skin.is_some() => w.skin(base_p, base_n, j, out_p, out_n),
+            _ => match morphed {
+                Some((p, n)) => {
+                    *out_p = p;
+                    *out_n = n;
+                }
+                None => {
+                    out_p.clear();
+                    out_p.extend_from_slice(base_p);
+                    out_n.clear();
+                    out_n.extend_from_slice(base_n);
+                }
+            },
         }
     }
 

@@ -221,12 +221,12 @@ impl Scene {
         }
         let pose = self.pose(0.0);
         for (i, inst) in self.instances.iter().enumerate() {
-            let bounds = if inst.skin.is_some() {
-                let (p, _) = self.skinned(i, &pose);
+            let bounds = if self.deforms(i) {
+                let (p, _) = self.deformed(i, &pose);
                 if !p.iter().all(|v| v.is_finite()) {
                     return Err(element(
                         format!("instance {i}"),
-                        "its skinned vertices are not finite at time 0".into(),
+                        "its deformed vertices are not finite at time 0".into(),
                     ));
                 }
                 bounds_of(&p)
@@ -248,7 +248,7 @@ impl Scene {
         for (i, inst) in self.instances.iter().enumerate() {
             let m = &self.meshes[inst.mesh];
             let at = &pose.instances[i];
-            let (positions, _) = self.skinned(i, &pose);
+            let (positions, _) = self.deformed(i, &pose);
             for t in 0..m.triangle_count() {
                 let idx = &m.indices[3 * t..3 * t + 3];
                 let tri = [0, 1, 2].map(|k| at.transform_point3(positions[idx[k] as usize]));

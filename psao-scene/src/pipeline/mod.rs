@@ -68,6 +68,9 @@ struct InstanceState {
     scratch_normals: Vec<Vec3>,
     /// Joint matrices of the current pose (skinned instances).
     joints: Vec<Affine3A>,
+    /// The morph weights `vertices` were made with (empty without
+    /// animated morph targets).
+    weights: Vec<f32>,
     table: GridTable,
     transform: Affine3A,
     transform_seq: u32,
@@ -136,6 +139,7 @@ impl InstanceState {
                 + self.scratch_normals.capacity()) as u64
                 * v3
             + self.joints.capacity() as u64 * std::mem::size_of::<Affine3A>() as u64
+            + self.weights.capacity() as u64 * 4
             + self.pending.capacity() as u64
             + self.table.memory_bytes()
     }
@@ -305,6 +309,7 @@ impl Pipeline {
             // node that scales by 1e-3) gets as many points per square
             // metre as any other.
             let skinned = inst.skin.is_some() && mesh.skin.is_some();
+            let deforms = scene.deforms(i);
             let area_scale = if skinned {
                 1.0
             } else {
@@ -330,9 +335,9 @@ impl Pipeline {
                 &config.layout,
             )?;
             let table = GridTable::new(i as u32, def, points.len().max(1) as u32)?;
-            let (vertices, vertex_normals) = scene.skinned(i, &pose);
+            let (vertices, vertex_normals) = scene.deformed(i, &pose);
             let (mut positions, mut normals) = (Vec::new(), Vec::new());
-            if skinned {
+            if deforms {
                 points.follow(
                     mesh,
                     &vertices,
@@ -345,12 +350,12 @@ impl Pipeline {
                 // copy of them, and no anchors (only skinning follows them).
                 points.anchors = Vec::new();
             }
-            let (vertices, vertex_normals) = if skinned {
+            let (vertices, vertex_normals) = if deforms {
                 (vertices.into_owned(), vertex_normals.into_owned())
             } else {
                 (Vec::new(), Vec::new())
             };
-            let bounds = if skinned { bounds_of(&vertices) } else { rest };
+            let bounds = if deforms { bounds_of(&vertices) } else { rest };
             Ok(InstanceState {
                 pending: if config.cull.is_some() {
                     vec![false; points.len()]
@@ -365,6 +370,7 @@ impl Pipeline {
                 scratch_vertices: Vec::new(),
                 scratch_normals: Vec::new(),
                 joints: pose.joints[i].clone(),
+                weights: pose.weights[i].clone(),
                 table,
                 transform: pose.instances[i],
                 transform_seq: 0,
@@ -599,10 +605,7 @@ impl Pipeline {
 fn skinned_bounds(scene: &Scene, dynamic: &[bool]) -> Vec<Option<(Vec3, Vec3)>> {
     let out = vec![None; scene.instances.len()];
     let skinned: Vec<usize> = (0..scene.instances.len())
-        .filter(|&i| {
-            scene.instances[i].skin.is_some()
-                && scene.meshes[scene.instances[i].mesh].skin.is_some()
-        })
+        .filter(|&i| scene.deforms(i))
         .collect();
     if skinned.is_empty() {
         return out;
@@ -633,7 +636,7 @@ fn skinned_bounds(scene: &Scene, dynamic: &[bool]) -> Vec<Option<(Vec3, Vec3)>> 
                     if k > 0 && !dynamic[i] {
                         continue;
                     }
-                    let (p, _) = scene.skinned(i, &pose);
+                    let (p, _) = scene.deformed(i, &pose);
                     let b = bounds_of(&p);
                     if b.0.is_finite() && b.1.is_finite() {
                         acc[i] = union(acc[i], Some(b));

@@ -104,7 +104,8 @@ impl Pipeline {
             }
             let next = self.overrides[i].unwrap_or(self.pose.instances[i]);
             let joints = &self.pose.joints[i];
-            let deformed = !s.vertices.is_empty() && *joints != s.joints;
+            let weights = &self.pose.weights[i];
+            let deformed = !s.vertices.is_empty() && (*joints != s.joints || *weights != s.weights);
             if next == s.transform && !deformed {
                 continue;
             }
@@ -115,11 +116,10 @@ impl Pipeline {
             let inst = &self.scene.instances[i];
             let mesh = &self.scene.meshes[inst.mesh];
             let mut bounds = s.bounds;
-            if deformed && let Some(w) = &mesh.skin {
-                w.skin(
-                    &mesh.positions,
-                    &mesh.normals,
-                    joints,
+            if deformed {
+                self.scene.deform_into(
+                    i,
+                    &self.pose,
                     &mut s.scratch_vertices,
                     &mut s.scratch_normals,
                 );
@@ -146,6 +146,7 @@ impl Pipeline {
                 );
                 s.bounds = bounds;
                 s.joints.clone_from(joints);
+                s.weights.clone_from(weights);
                 report.deformed += 1;
                 motion.deformed.push(i);
             }
