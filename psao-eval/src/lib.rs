@@ -17,12 +17,14 @@
 //! It builds on psao-scene (scenes and the CPU tracer) and psao-codec (the
 //! mirror); nothing upstream depends on it.
 
+mod coverage;
 mod gbuffer;
 mod metrics;
 mod pixel_ao;
 mod sao;
 mod view;
 
+pub use coverage::path_coverage;
 pub use gbuffer::{GBuffer, NO_INSTANCE, PosedScene};
 pub use metrics::{MetricError, error_map, psnr, rmse, ssim};
 pub use pixel_ao::{ClientImage, psao_image, ray_traced_ao};

@@ -71,7 +71,10 @@ pub use import::{
 };
 pub use model::alpha::{AlphaMask, AlphaTexture};
 pub use model::animation::{Animation, Channel, Interpolation, Keys};
-pub use model::camera::{Camera, CameraKey, CameraPath, Frustum};
+pub use model::camera::{
+    Camera, CameraKey, CameraPath, DEFAULT_FOV_DEGREES, Frustum, MAX_CAMERA_KEYS,
+    MAX_CAMERA_PATH_BYTES,
+};
 pub use model::mesh::{Mesh, bounds_of, transformed_bounds};
 pub use model::morph::MorphTargets;
 pub use model::node::{Node, Trs, compose};
@@ -90,7 +93,10 @@ pub use precision::{
 pub use random::{hash, uniform};
 pub use scenes::default_scene::{MOVING_BOX, TRELLIS, WALKER, cesium_man_scene, default_scene};
 pub use scenes::hall::{HallParams, hall, hall_scene};
-pub use scenes::stage::{FLOOR_MARGIN, ORBIT_SECONDS, stage};
+pub use scenes::stage::{
+    FLOOR_MARGIN, FLOOR_MARGIN_EXTENTS, INTERIOR_SHARE, ORBIT_SECONDS, PROBE_RAYS, Setting,
+    front_share, setting, stage,
+};
 pub use trace::ao::{
     AoParams, AoResult, AoTracer, ChangedPoints, Estimator, MAX_RAYS, RAY_SUM_LANES, morton_order,
     ray_offset,

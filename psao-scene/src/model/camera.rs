@@ -152,6 +152,147 @@ impl CameraPath {
     }
 }
 
+/// Largest camera-path file [`CameraPath::load`] reads, bytes.
+pub const MAX_CAMERA_PATH_BYTES: u64 = 4 << 20;
+
+/// Most keys a camera-path file may hold.
+pub const MAX_CAMERA_KEYS: usize = 100_000;
+
+/// Field of view of a path that does not state one, degrees.
+pub const DEFAULT_FOV_DEGREES: f32 = 50.0;
+
+impl CameraPath {
+    /// A camera that stays at `eye`, looking at `target`, with a vertical
+    /// field of view of `fov_y` radians; validated.
+    pub fn fixed(eye: Vec3, target: Vec3, fov_y: f32) -> Result<CameraPath, SceneError> {
+        let path = CameraPath {
+            keys: vec![CameraKey {
+                time: 0.0,
+                eye,
+                target,
+            }],
+            fov_y,
+        };
+        path.validate()?;
+        Ok(path)
+    }
+
+    /// Parses the text form of a camera path: one key per line as seven
+    /// numbers, `time eye.x eye.y eye.z target.x target.y target.z`
+    /// (seconds and scene units, separated by spaces, tabs or commas),
+    /// and optionally one line `fov DEGREES` (vertical, default
+    /// [`DEFAULT_FOV_DEGREES`]). Blank lines and text after `#` are
+    /// ignored. Errors name the line; the path is validated (times
+    /// strictly increasing) and holds at most [`MAX_CAMERA_KEYS`] keys.
+    pub fn parse(text: &str) -> Result<CameraPath, SceneError> {
+        let bad = |line: usize, reason: String| SceneError::Camera {
+            reason: format!("line {line}: {reason}"),
+        };
+        let mut keys = Vec::new();
+        let mut fov: Option<f32> = None;
+        for (k, raw) in text.lines().enumerate() {
+            let line = k + 1;
+            let body = raw.split('#').next().unwrap_or("").trim();
+            if body.is_empty() {
+                continue;
+            }
+            let words: Vec<&str> = body
+                .split(|c: char| c.is_whitespace() || c == ',')
+                .filter(|w| !w.is_empty())
+                .collect();
+            if words[0].eq_ignore_ascii_case("fov") {
+                if fov.is_some() {
+                    return Err(bad(line, "a second fov line".into()));
+                }
+                let [_, deg] = words[..] else {
+                    return Err(bad(line, "expected `fov DEGREES`".into()));
+                };
+                let deg: f32 = deg
+                    .parse()
+                    .map_err(|_| bad(line, format!("fov `{deg}` is not a number")))?;
+                if !(deg > 0.0 && deg < 180.0) {
+                    return Err(bad(line, format!("fov {deg} is not in (0, 180) degrees")));
+                }
+                fov = Some(deg.to_radians());
+                continue;
+            }
+            if words.len() != 7 {
+                return Err(bad(
+                    line,
+                    format!(
+                        "{} numbers; a key is `time eye.x eye.y eye.z target.x target.y target.z`",
+                        words.len()
+                    ),
+                ));
+            }
+            let mut v = [0f32; 7];
+            for (x, w) in v.iter_mut().zip(&words) {
+                *x = w
+                    .parse::<f32>()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| bad(line, format!("`{w}` is not a finite number")))?;
+            }
+            if keys.len() == MAX_CAMERA_KEYS {
+                return Err(bad(line, format!("more than {MAX_CAMERA_KEYS} keys")));
+            }
+            keys.push(CameraKey {
+                time: v[0],
+                eye: Vec3::new(v[1], v[2], v[3]),
+                target: Vec3::new(v[4], v[5], v[6]),
+            });
+        }
+        if keys.is_empty() {
+            return Err(SceneError::Camera {
+                reason: "the camera path has no keys".into(),
+            });
+        }
+        let path = CameraPath {
+            keys,
+            fov_y: fov.unwrap_or(DEFAULT_FOV_DEGREES.to_radians()),
+        };
+        path.validate()?;
+        Ok(path)
+    }
+
+    /// Reads and [`parse`](Self::parse)s a camera-path file of at most
+    /// [`MAX_CAMERA_PATH_BYTES`]; errors name the file.
+    pub fn load(path: &std::path::Path) -> Result<CameraPath, SceneError> {
+        use std::io::Read as _;
+        let named = |reason: String| SceneError::Camera {
+            reason: format!("{}: {reason}", path.display()),
+        };
+        let file = std::fs::File::open(path).map_err(|e| named(e.to_string()))?;
+        let mut text = String::new();
+        file.take(MAX_CAMERA_PATH_BYTES + 1)
+            .read_to_string(&mut text)
+            .map_err(|e| named(e.to_string()))?;
+        if text.len() as u64 > MAX_CAMERA_PATH_BYTES {
+            return Err(named(format!("larger than {MAX_CAMERA_PATH_BYTES} bytes")));
+        }
+        CameraPath::parse(&text).map_err(|e| match e {
+            SceneError::Camera { reason } => named(reason),
+            e => e,
+        })
+    }
+
+    /// The text form [`parse`](Self::parse) reads back (the same keys and
+    /// field of view, to f32 round-trip precision).
+    pub fn to_text(&self) -> String {
+        let mut out = format!(
+            "# psao camera path: time eye.xyz target.xyz\nfov {}\n",
+            self.fov_y.to_degrees()
+        );
+        for k in &self.keys {
+            out.push_str(&format!(
+                "{} {} {} {} {} {} {}\n",
+                k.time, k.eye.x, k.eye.y, k.eye.z, k.target.x, k.target.y, k.target.z
+            ));
+        }
+        out
+    }
+}
+
 /// Uniform Catmull-Rom between `b` and `c` at `s` in `[0, 1]`.
 fn catmull_rom(a: Vec3, b: Vec3, c: Vec3, d: Vec3, s: f32) -> Vec3 {
     let (s2, s3) = (s * s, s * s * s);
