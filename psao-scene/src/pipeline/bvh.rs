@@ -13,7 +13,7 @@ use crate::trace::geometry::{Geometry, Layer, TriangleBvh};
 impl Pipeline {
     /// Instance `i`'s triangles (with alpha masks) as they are now, in its
     /// local space, or in world space with `world`.
-    fn instance_geometry(&self, i: usize, world: bool, g: &mut Geometry) {
+    pub(super) fn instance_geometry(&self, i: usize, world: bool, g: &mut Geometry) {
         let (s, inst) = (&self.instances[i], &self.scene.instances[i]);
         let m = &self.scene.meshes[inst.mesh];
         let verts = if s.vertices.is_empty() {

@@ -83,6 +83,11 @@ pub struct PipelineConfig {
     /// Trace only near one viewer's frustum (needs a scene camera path);
     /// `None` when one stream serves many viewers.
     pub cull: Option<ViewerCull>,
+    /// Points buried inside solids take the AO of their visible
+    /// neighbours instead of being traced (true; see the pipeline's
+    /// `buried` module), or are traced like any other (false: the
+    /// baseline).
+    pub fill_buried: bool,
 }
 
 impl PipelineConfig {
@@ -115,6 +120,7 @@ impl Default for PipelineConfig {
             skip: true,
             split_bvh: true,
             cull: None,
+            fill_buried: true,
         }
     }
 }

@@ -28,21 +28,28 @@ struct Batch {
 
 impl Pipeline {
     /// Traces the listed points of each instance (world space) and sets the
-    /// ones past the thresholds (all of them with `force`). Returns (traced,
-    /// rays, updated).
+    /// ones past the thresholds (all of them with `force`); buried points
+    /// are not traced but take their donors' AO. Returns (traced, rays,
+    /// updated).
     pub(super) fn trace_and_update(
         &mut self,
         tracer: Option<&AoTracer>,
         which: &[Vec<u32>],
         force: bool,
     ) -> Result<(u64, u64, u64), SceneError> {
-        let batch = self.batch(which, force);
+        let traced = self.traced_only(which);
+        let batch = self.batch(traced.as_deref().unwrap_or(which), force);
         let result = self.trace_batch(tracer, &batch, force)?;
         self.apply(&batch.owner, &result)?;
+        let filled = if traced.is_some() {
+            self.fill_buried(which, force)?
+        } else {
+            0
+        };
         Ok((
             batch.ids.len() as u64,
             result.rays,
-            result.changed.len() as u64,
+            result.changed.len() as u64 + filled,
         ))
     }
 

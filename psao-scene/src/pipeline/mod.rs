@@ -25,6 +25,7 @@
 //! what a frame did.
 
 pub(crate) mod backend;
+mod buried;
 mod bvh;
 pub(crate) mod config;
 mod dirty;
@@ -83,6 +84,8 @@ struct InstanceState {
     /// Its own BVH in local space (dynamic instances, split BVH): moved by
     /// its transform, refitted when it deforms.
     bvh: Option<Arc<TriangleBvh>>,
+    /// Its buried points and their donors (none found yet, or none).
+    buried: buried::Buried,
 }
 
 /// Skinned instances on one node with one skin (the primitives of one
@@ -142,6 +145,7 @@ impl InstanceState {
             + self.weights.capacity() as u64 * 4
             + self.pending.capacity() as u64
             + self.table.memory_bytes()
+            + self.buried.memory_bytes()
     }
 }
 
@@ -377,6 +381,7 @@ impl Pipeline {
                 bounds,
                 dynamic: dynamic[i],
                 bvh: None,
+                buried: buried::Buried::default(),
             })
         };
         let instances = scene
@@ -413,6 +418,9 @@ impl Pipeline {
             frame: 0,
             views: Views::CameraPath,
         };
+        if pipeline.config.fill_buried {
+            pipeline.find_buried()?;
+        }
         // The first trace, in batches so that progress can be told (each
         // point's AO depends on its id alone: the same in any batching).
         let total: u64 = pipeline
