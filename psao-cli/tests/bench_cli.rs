@@ -1,6 +1,6 @@
 //! `psao bench` end to end at a tiny size: it writes the CSV, the markdown
-//! table, the charts and the images, with one row per configuration, and
-//! refuses bad settings with a message.
+//! table, the charts and the images (of the frames `--image-frames` names),
+//! with one row per configuration, and refuses bad settings with a message.
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -121,6 +121,12 @@ fn bench_refuses_bad_settings() {
             "unsupported scene format",
         ),
         (vec!["--radius", "0"], "--radius 0"),
+        (
+            vec!["--frames", "2", "--image-frames", "0,2"],
+            "--image-frames 2 is out of range",
+        ),
+        (vec!["--image-frames", "1,x"], "`x` is not a frame index"),
+        (vec!["--image-frames=-1"], "`-1` is not a frame index"),
     ] {
         let out = out_dir("bad");
         let run = Command::new(env!("CARGO_BIN_EXE_psao"))
@@ -135,4 +141,65 @@ fn bench_refuses_bad_settings() {
         assert!(stderr.contains(says), "{args:?}: {stderr}");
         let _ = std::fs::remove_dir_all(&out);
     }
+}
+
+#[test]
+fn bench_writes_the_images_of_the_frames_asked_for() {
+    let out = out_dir("image-frames");
+    let run = Command::new(env!("CARGO_BIN_EXE_psao"))
+        .args([
+            "bench",
+            "--width",
+            "64",
+            "--height",
+            "36",
+            "--frames",
+            "2",
+            "--reference-rays",
+            "8",
+            "--point-rays",
+            "8",
+            "--densities",
+            "16",
+            "--rates",
+            "30",
+            "--image-frames",
+            "1",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "psao bench failed: {stderr}");
+    for scene in ["default", "cesium-man"] {
+        // Frame 1's files carry its index after the scene's name.
+        for file in [
+            "frame.png",
+            "ao-reference.png",
+            "ao-psao-16-30-hz.png",
+            "ao-rtao-1spp.png",
+            "ao-sao.png",
+            "ao-reference.exr",
+            "gbuffer-position.exr",
+            "gbuffer-normal.exr",
+            "gbuffer-depth-instance.exr",
+        ] {
+            let path = out.join(format!("{scene}-f1-{file}"));
+            let img = image::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            assert!(
+                img.width() >= 64 && img.height() >= 36,
+                "{}",
+                path.display()
+            );
+        }
+        // Frame 0 was not asked for: none of its files.
+        for file in ["frame.png", "ao-reference.png", "ao-reference.exr"] {
+            let path = out.join(format!("{scene}-{file}"));
+            assert!(!path.exists(), "{} written", path.display());
+        }
+        // The charts do not depend on the frames saved.
+        assert!(out.join(format!("{scene}-time-error.png")).exists());
+    }
+    let _ = std::fs::remove_dir_all(&out);
 }

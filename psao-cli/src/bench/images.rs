@@ -1,5 +1,6 @@
 //! Images of `psao bench`: the composited frame FLIP compares, the AO and
-//! G-buffer files of the first frame, and the side-by-side picture.
+//! G-buffer files of each saved frame (`--image-frames`), and the
+//! side-by-side picture.
 
 use std::path::Path;
 use std::sync::Once;
@@ -11,7 +12,7 @@ use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 use psao_eval::{GBuffer, NO_INSTANCE, error_map};
 
-use super::model::{Frame, SceneResult};
+use super::model::{Frame, SceneResult, Shown};
 
 /// DejaVu Sans (see assets/README.md): text in charts and pictures needs no
 /// system font.
@@ -84,16 +85,37 @@ pub fn flip_mean(_frame: &Frame, _test: &[f32]) -> f64 {
     f64::NAN
 }
 
-/// Writes the first frame's files: the reference and each shown method's
-/// AO as 16-bit PNG, the reference AO as float EXR, the G-buffer as EXR
-/// (position, normal, and depth / instance id / coverage), and the
-/// side-by-side picture.
+/// The file-name stem of a saved frame's files: the scene's name for
+/// frame 0 (the names the bench always wrote: `default-frame.png`,
+/// `default-ao-sao.png`), `<scene>-f<k>` for frame k (`default-f3-frame.png`).
+pub fn frame_stem(scene: &str, frame: usize) -> String {
+    if frame == 0 {
+        scene.to_string()
+    } else {
+        format!("{scene}-f{frame}")
+    }
+}
+
+/// Writes each saved frame's files (see [`frame_stem`] for their names):
+/// the reference and each shown method's AO as 16-bit PNG, the reference
+/// AO as float EXR, the G-buffer as EXR (position, normal, and depth /
+/// instance id / coverage), and the side-by-side picture.
 pub fn write_scene_images(out: &Path, r: &SceneResult) -> anyhow::Result<()> {
-    let f = &r.frames[0];
+    for shown in &r.showcase.frames {
+        let f = r
+            .frames
+            .get(shown.frame)
+            .with_context(|| format!("frame {} was not measured", shown.frame))?;
+        write_frame_images(out, &frame_stem(&r.name, shown.frame), f, shown)?;
+    }
+    Ok(())
+}
+
+/// Writes one saved frame's files, named `<stem>-...`.
+fn write_frame_images(out: &Path, stem: &str, f: &Frame, shown: &Shown) -> anyhow::Result<()> {
     let (w, h) = (f.gbuffer.width, f.gbuffer.height);
-    let name = &r.name;
-    for (label, img) in &r.showcase.images {
-        let file = out.join(format!("{name}-ao-{}.png", slug(label)));
+    for (label, img) in shown_images(f, shown) {
+        let file = out.join(format!("{stem}-ao-{}.png", slug(label)));
         ao_png16(img, w, h)
             .save(&file)
             .with_context(|| file.display().to_string())?;
@@ -107,14 +129,14 @@ pub fn write_scene_images(out: &Path, r: &SceneResult) -> anyhow::Result<()> {
         img.save(&path).with_context(|| path.display().to_string())
     };
     let g = &f.gbuffer;
-    exr(format!("{name}-ao-reference.exr"), &|k| [f.reference[k]; 3])?;
-    exr(format!("{name}-gbuffer-position.exr"), &|k| {
+    exr(format!("{stem}-ao-reference.exr"), &|k| [f.reference[k]; 3])?;
+    exr(format!("{stem}-gbuffer-position.exr"), &|k| {
         g.position[k].to_array()
     })?;
-    exr(format!("{name}-gbuffer-normal.exr"), &|k| {
+    exr(format!("{stem}-gbuffer-normal.exr"), &|k| {
         g.normal[k].to_array()
     })?;
-    exr(format!("{name}-gbuffer-depth-instance.exr"), &|k| {
+    exr(format!("{stem}-gbuffer-depth-instance.exr"), &|k| {
         let hit = g.instance[k] != NO_INSTANCE;
         [
             if hit { g.depth[k] } else { -1.0 },
@@ -122,7 +144,20 @@ pub fn write_scene_images(out: &Path, r: &SceneResult) -> anyhow::Result<()> {
             hit as u8 as f32,
         ]
     })?;
-    side_by_side(&out.join(format!("{name}-frame.png")), r)
+    side_by_side(&out.join(format!("{stem}-frame.png")), f, shown)
+}
+
+/// The images of a saved frame with their labels: the reference first,
+/// then the shown methods.
+fn shown_images<'a>(f: &'a Frame, shown: &'a Shown) -> Vec<(&'a str, &'a [f32])> {
+    std::iter::once(("reference", f.reference.as_slice()))
+        .chain(
+            shown
+                .images
+                .iter()
+                .map(|(label, img)| (label.as_str(), img.as_slice())),
+        )
+        .collect()
 }
 
 /// A file-name-safe form of a label.
@@ -151,13 +186,13 @@ pub fn ao_png16(ao: &[f32], w: u32, h: u32) -> ImageBuffer<Luma<u16>, Vec<u16>> 
     })
 }
 
-/// The side-by-side picture: the shown methods' AO in the top row, their
-/// absolute error against the reference (x4) in the bottom row, labelled.
-fn side_by_side(path: &Path, r: &SceneResult) -> anyhow::Result<()> {
+/// The side-by-side picture of a saved frame: the shown methods' AO in
+/// the top row, their absolute error against the reference (x4) in the
+/// bottom row, labelled.
+fn side_by_side(path: &Path, f: &Frame, shown: &Shown) -> anyhow::Result<()> {
     register_fonts()?;
-    let f = &r.frames[0];
     let (w, h) = (f.gbuffer.width as usize, f.gbuffer.height as usize);
-    let shown = &r.showcase.images;
+    let shown = shown_images(f, shown);
     let label_h = 22usize;
     let (cols, rows) = (shown.len(), 2usize);
     let (cw, ch) = (cols * w, rows * (h + label_h));

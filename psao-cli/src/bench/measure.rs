@@ -33,11 +33,13 @@ use psao_codec::{Decoder, Limits};
 use psao_eval::{
     NO_INSTANCE, PosedScene, SaoParams, View, psao_image, ray_traced_ao, rmse, sao, ssim,
 };
-use psao_scene::{AoParams, Camera, Estimator, Pipeline, PipelineConfig, Scene};
+use psao_scene::{
+    AoBackend, AoParams, Camera, Estimator, Pipeline, Scene, SetupProgress, SetupStage,
+};
 
 use super::Backend;
 use super::images;
-use super::model::{Breakdown, Frame, Method, Row, SceneResult, Showcase};
+use super::model::{Breakdown, Frame, Method, Row, SceneResult, Showcase, Shown};
 
 /// Client frames per second: frame times lie on this grid.
 pub const CLIENT_HZ: f64 = 60.0;
@@ -80,6 +82,79 @@ pub struct Settings {
     pub backend: Backend,
     /// AO radius R in scene units (the reference, PSAO, RTAO and SAO).
     pub radius: f32,
+    /// Which measured frames are saved as images.
+    pub image_frames: ImageFrames,
+}
+
+/// Which measured frames `psao bench` saves as images (`--image-frames`):
+/// their AO of each shown method, the reference and G-buffer as EXR, and
+/// the side-by-side picture.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ImageFrames {
+    /// Every measured frame.
+    All,
+    /// These frames (0-based indices into the measured frames, ascending,
+    /// no repeats).
+    List(Vec<usize>),
+}
+
+impl ImageFrames {
+    /// Parses `--image-frames`: `all`, or a comma-separated list of 0-based
+    /// frame indices (sorted and deduplicated here). The error says which
+    /// part is not an index.
+    pub fn parse(text: &str) -> Result<ImageFrames, String> {
+        let text = text.trim();
+        if text.eq_ignore_ascii_case("all") {
+            return Ok(ImageFrames::All);
+        }
+        let mut list = Vec::new();
+        for part in text.split(',') {
+            let part = part.trim();
+            if part.is_empty() {
+                return Err(format!(
+                    "`{text}` has an empty entry, which is not a frame index: give 0-based indices separated by commas (as in 0,2,5), or `all`"
+                ));
+            }
+            let k = part.parse::<usize>().map_err(|_| {
+                format!(
+                    "`{part}` is not a frame index: give 0-based indices of the measured frames separated by commas (as in 0,2,5), or `all`"
+                )
+            })?;
+            list.push(k);
+        }
+        list.sort_unstable();
+        list.dedup();
+        Ok(ImageFrames::List(list))
+    }
+
+    /// The indices to save when `measured` frames were measured, ascending
+    /// (those of a list that are in range).
+    pub fn indices(&self, measured: usize) -> Vec<usize> {
+        match self {
+            ImageFrames::All => (0..measured).collect(),
+            ImageFrames::List(list) => list.iter().copied().filter(|&k| k < measured).collect(),
+        }
+    }
+
+    /// The first listed index that is not below `measured`, if any.
+    pub fn out_of_range(&self, measured: usize) -> Option<usize> {
+        match self {
+            ImageFrames::All => None,
+            ImageFrames::List(list) => list.iter().copied().find(|&k| k >= measured),
+        }
+    }
+}
+
+impl std::fmt::Display for ImageFrames {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ImageFrames::All => f.write_str("all"),
+            ImageFrames::List(list) => {
+                let parts: Vec<String> = list.iter().map(|k| k.to_string()).collect();
+                f.write_str(&parts.join(","))
+            }
+        }
+    }
 }
 
 impl Settings {
@@ -100,6 +175,7 @@ impl Settings {
             network_ms: 0.0,
             backend: Backend::Cpu,
             radius: AoParams::default().radius,
+            image_frames: ImageFrames::List(vec![0]),
         }
     }
 
@@ -121,6 +197,16 @@ impl Settings {
     pub fn validate(&self) -> anyhow::Result<()> {
         if self.frames == 0 {
             anyhow::bail!("--frames must be at least 1");
+        }
+        if let Some(k) = self.image_frames.out_of_range(self.frames as usize) {
+            anyhow::bail!(
+                "--image-frames {k} is out of range: --frames {} measures frames 0 to {} (indices are 0-based)",
+                self.frames,
+                self.frames - 1
+            );
+        }
+        if self.image_frames == ImageFrames::List(Vec::new()) {
+            anyhow::bail!("--image-frames needs at least one frame index (or `all`)");
         }
         if self.reference_rays == 0 || self.point_rays == 0 {
             anyhow::bail!("--reference-rays and --point-rays must be at least 1");
@@ -322,7 +408,28 @@ fn reference_params(rays: u32, seed: u64, radius: f32) -> AoParams {
     }
 }
 
-/// Measures every configuration on one scene.
+/// How many frames the bench measures on a path of `duration` seconds
+/// (frame times that coincide on the 60 Hz grid count once).
+pub fn measured_frames(duration: f32, frames: u32) -> usize {
+    frame_times(duration, frames).len()
+}
+
+/// The progress message of a pipeline's setup: the stage and how far it
+/// is, in percent ("setup: tracing 41%").
+pub fn setup_message(p: SetupProgress) -> String {
+    let stage = match p.stage {
+        SetupStage::Points => "points and grids",
+        SetupStage::Trace => "tracing",
+        _ => "preparing",
+    };
+    let percent = (p.done.min(p.total) * 100)
+        .checked_div(p.total)
+        .unwrap_or(100);
+    format!("setup: {stage} {percent}%")
+}
+
+/// Measures every configuration on one scene. The bar's message says what
+/// runs: the configuration, the pipeline's setup stage and the frame.
 pub fn measure_scene(
     name: &str,
     scene: Scene,
@@ -334,11 +441,19 @@ pub fn measure_scene(
         .camera
         .clone()
         .with_context(|| format!("{name}: the scene has no camera path"))?;
-    bar.set_message(format!("{name}: reference"));
+    let times = frame_times(path.duration(), s.frames);
+    if let Some(k) = s.image_frames.out_of_range(times.len()) {
+        anyhow::bail!(
+            "{name}: --image-frames {k} is out of range: its camera path gives {} distinct frames",
+            times.len()
+        );
+    }
     let started = Instant::now();
     let mut frames = Vec::new();
     let mut covered = 0usize;
-    for t in frame_times(path.duration(), s.frames) {
+    let n = times.len();
+    for (k, &t) in times.iter().enumerate() {
+        bar.set_message(format!("{name}: reference: frame {}/{n}", k + 1));
         let camera: Camera = path.at(t);
         let view = View::new(camera, s.width, s.height).map_err(err)?;
         let t0 = Instant::now();
@@ -366,29 +481,47 @@ pub fn measure_scene(
     let reference_s = started.elapsed().as_secs_f64();
     bar.inc(1);
     let mut rows = Vec::new();
-    let mut showcase = Showcase { images: Vec::new() };
-    showcase
-        .images
-        .push(("reference".into(), frames[0].reference.clone()));
+    // Only the frames asked for keep their images.
+    let keep = s.image_frames.indices(frames.len());
+    let mut showcase = Showcase {
+        frames: keep
+            .iter()
+            .map(|&frame| Shown {
+                frame,
+                images: Vec::new(),
+            })
+            .collect(),
+    };
 
     let focus = s.focus_density();
     let first_rate = s.rates[0];
     for (density, rate) in s.psao_configs() {
         let method = Method::Psao { density, rate };
-        bar.set_message(format!("{name}: {}", method.label()));
-        let (row, first) = measure_psao(&scene, &frames, s, density, rate)
-            .with_context(|| format!("{name}: {}", method.label()))?;
-        if density == focus && rate == first_rate {
-            showcase.images.push((method.label(), first));
+        let label = method.label();
+        bar.set_message(format!("{name}: {label}"));
+        let say = |what: &str| bar.set_message(format!("{name}: {label}: {what}"));
+        let shown = density == focus && rate == first_rate;
+        let (row, kept) = measure_psao(
+            &scene,
+            &frames,
+            s,
+            (density, rate),
+            if shown { &keep } else { &[] },
+            &say,
+        )
+        .with_context(|| format!("{name}: {label}"))?;
+        for (k, img) in kept {
+            showcase.add(k, label.clone(), img);
         }
         rows.push(row);
         bar.inc(1);
     }
     for &rays in &s.rtao_rays {
         let method = Method::Rtao { rays };
-        bar.set_message(format!("{name}: {}", method.label()));
+        let label = method.label();
         let (mut errors, mut ms) = (Errors::default(), 0.0);
         for (k, f) in frames.iter().enumerate() {
+            bar.set_message(format!("{name}: {label}: frame {}/{n}", k + 1));
             let tracer = f.posed.tracer();
             let t = Instant::now();
             let img = ray_traced_ao(
@@ -399,8 +532,8 @@ pub fn measure_scene(
             .map_err(err)?;
             ms += t.elapsed().as_secs_f64() * 1e3;
             errors.add(f, &img)?;
-            if k == 0 && rays == s.rtao_rays[0] {
-                showcase.images.push((method.label(), img));
+            if rays == s.rtao_rays[0] && keep.contains(&k) {
+                showcase.add(k, label.clone(), img);
             }
         }
         let mut row = errors.row(method, ms / frames.len() as f64);
@@ -408,19 +541,19 @@ pub fn measure_scene(
         rows.push(row);
         bar.inc(1);
     }
-    bar.set_message(format!("{name}: SAO"));
     let (mut errors, mut ms) = (Errors::default(), 0.0);
     let params = SaoParams {
         radius: s.radius,
         ..SaoParams::default()
     };
     for (k, f) in frames.iter().enumerate() {
+        bar.set_message(format!("{name}: SAO: frame {}/{n}", k + 1));
         let t = Instant::now();
         let img = sao(&f.gbuffer.depth, &f.view, &params).map_err(err)?;
         ms += t.elapsed().as_secs_f64() * 1e3;
         errors.add(f, &img)?;
-        if k == 0 {
-            showcase.images.push(("SAO".into(), img));
+        if keep.contains(&k) {
+            showcase.add(k, "SAO".into(), img);
         }
     }
     rows.push(errors.row(Method::Sao, ms / frames.len() as f64));
@@ -455,22 +588,31 @@ pub fn measure_scene(
     })
 }
 
-/// Measures PSAO at one density and server rate; also returns its image
-/// of the first frame.
+/// A frame's index and a method's AO image of it.
+type KeptImage = (usize, Vec<f32>);
+
+/// Measures PSAO at one (density, server rate); also returns its images
+/// of the frames in `keep` (indices into `frames`), and only those.
+/// `say` hears what runs: the setup's stage and progress, then the frame.
 fn measure_psao(
     scene: &Scene,
     frames: &[Frame],
     s: &Settings,
-    density: f32,
-    rate: u16,
-) -> anyhow::Result<(Row, Vec<f32>)> {
+    (density, rate): (f32, u16),
+    keep: &[usize],
+    say: &(dyn Fn(&str) + Sync),
+) -> anyhow::Result<(Row, Vec<KeptImage>)> {
     // `density` counts points kept, as every command's --density does.
     let config = crate::cmd::common::pipeline_config(density, s.point_rays, s.radius);
     let started = Instant::now();
-    let mut pipeline = match s.backend {
-        Backend::Cpu => Pipeline::new(scene.clone(), config),
-        Backend::Gpu => gpu_pipeline(scene, config)?,
-    }?;
+    say("setup");
+    let backend = match s.backend {
+        Backend::Cpu => None,
+        Backend::Gpu => Some(gpu_backend(scene)?),
+    };
+    let mut pipeline =
+        Pipeline::with_progress(scene.clone(), config, backend, &|p| say(&setup_message(p)))?;
+    say("keyframe");
     let mut client = Decoder::new(Limits::default());
     let keyframe = pipeline.keyframe()?;
     client.receive(&keyframe.bytes).context("keyframe")?;
@@ -480,8 +622,9 @@ fn measure_psao(
         .sum();
     let period = 1.0 / rate as f64;
     let (mut errors, mut ms, mut unknown) = (Errors::default(), 0.0, 0usize);
-    let mut first = Vec::new();
+    let mut kept = Vec::new();
     for (k, f) in frames.iter().enumerate() {
+        say(&format!("frame {}/{}", k + 1, frames.len()));
         // The newest frame the client holds: a tick's frame is ready one
         // server period after its scene time (the server computes it
         // during that period), plus the network's delay.
@@ -505,11 +648,12 @@ fn measure_psao(
         ms += t.elapsed().as_secs_f64() * 1e3;
         unknown += img.unknown;
         errors.add(f, &img.ao)?;
-        if k == 0 {
-            first = img.ao;
+        if keep.contains(&k) {
+            kept.push((k, img.ao));
         }
     }
     // Server time and bit rate: consecutive ticks at the server rate.
+    say("server ticks");
     let ticks = ((s.window as f64 * rate as f64).round() as u32).max(1);
     let (mut bytes, mut server_s, mut decode_s) = (0usize, 0.0f64, 0.0f64);
     for _ in 0..ticks {
@@ -538,31 +682,81 @@ fn measure_psao(
     row.setup_s = Some(setup_s);
     row.keyframe_bytes = Some(keyframe.bytes.len());
     row.unknown_px = unknown;
-    Ok((row, first))
+    Ok((row, kept))
 }
 
-/// A pipeline tracing with wgpu ray queries.
+/// A backend tracing with wgpu ray queries.
 #[cfg(feature = "gpu")]
-fn gpu_pipeline(
-    scene: &Scene,
-    config: PipelineConfig,
-) -> anyhow::Result<Result<Pipeline, psao_scene::SceneError>> {
-    let backend = psao_gpu::GpuBackend::new(scene)?;
-    Ok(Pipeline::with_backend(
-        scene.clone(),
-        config,
-        Box::new(backend),
-    ))
+fn gpu_backend(scene: &Scene) -> anyhow::Result<Box<dyn AoBackend>> {
+    Ok(Box::new(psao_gpu::GpuBackend::new(scene)?))
 }
 
 /// Without the `gpu` feature there is no GPU backend (`Settings::validate`
 /// says so first).
 #[cfg(not(feature = "gpu"))]
-fn gpu_pipeline(
-    _scene: &Scene,
-    _config: PipelineConfig,
-) -> anyhow::Result<Result<Pipeline, psao_scene::SceneError>> {
+fn gpu_backend(_scene: &Scene) -> anyhow::Result<Box<dyn AoBackend>> {
     Err(anyhow::anyhow!(
         "this psao was built without GPU support (--features gpu)"
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn image_frames_parse_lists_and_all() {
+        assert_eq!(ImageFrames::parse("0"), Ok(ImageFrames::List(vec![0])));
+        assert_eq!(
+            ImageFrames::parse("5, 0,2,2"),
+            Ok(ImageFrames::List(vec![0, 2, 5]))
+        );
+        assert_eq!(ImageFrames::parse("ALL"), Ok(ImageFrames::All));
+        for bad in ["", "1,,2", "-1", "x", "1.5", "all,1"] {
+            let e = ImageFrames::parse(bad).expect_err(bad);
+            assert!(e.contains("is not a frame index"), "{bad}: {e}");
+        }
+        assert_eq!(ImageFrames::List(vec![0, 3]).to_string(), "0,3");
+    }
+
+    #[test]
+    fn image_frames_pick_only_measured_frames() {
+        assert_eq!(ImageFrames::All.indices(3), vec![0, 1, 2]);
+        let list = ImageFrames::List(vec![1, 4]);
+        assert_eq!(list.indices(3), vec![1]);
+        assert_eq!(list.out_of_range(3), Some(4));
+        assert_eq!(list.out_of_range(5), None);
+        assert_eq!(ImageFrames::All.out_of_range(0), None);
+    }
+
+    #[test]
+    fn settings_refuse_an_image_frame_past_the_last() {
+        let mut s = Settings::quick();
+        s.frames = 3;
+        s.image_frames = ImageFrames::List(vec![0, 3]);
+        let e = s.validate().expect_err("frame 3 of 3").to_string();
+        assert!(e.contains("--image-frames 3"), "{e}");
+        assert!(e.contains("0 to 2"), "{e}");
+        s.image_frames = ImageFrames::List(vec![2]);
+        assert!(s.validate().is_ok());
+        s.image_frames = ImageFrames::All;
+        assert!(s.validate().is_ok());
+    }
+
+    #[test]
+    fn setup_message_names_the_stage_and_percent() {
+        let p = |stage, done, total| SetupProgress { stage, done, total };
+        assert_eq!(
+            setup_message(p(SetupStage::Trace, 41, 100)),
+            "setup: tracing 41%"
+        );
+        assert_eq!(
+            setup_message(p(SetupStage::Points, 1, 3)),
+            "setup: points and grids 33%"
+        );
+        assert_eq!(
+            setup_message(p(SetupStage::Trace, 0, 0)),
+            "setup: tracing 100%"
+        );
+    }
 }

@@ -3,7 +3,8 @@
 //! rays per pixel, SAO) over frames of the scene's camera path: server and
 //! client milliseconds per frame, bit rate, and RMSE / PSNR / SSIM / FLIP
 //! against a per-pixel ray-traced reference. Writes a CSV, a markdown
-//! table, charts and a side-by-side image of one frame.
+//! table, charts and, for each frame `--image-frames` names (frame 0 by
+//! default), the AO images and a side-by-side picture.
 
 mod charts;
 pub mod images;
@@ -15,9 +16,9 @@ use std::path::PathBuf;
 
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressStyle};
-use psao_scene::{Scene, cesium_man_scene, default_scene, load_scene_file, stage};
+use psao_scene::{AoParams, Scene, cesium_man_scene, default_scene, load_scene_file, stage};
 
-pub use measure::Settings;
+pub use measure::{ImageFrames, Settings};
 
 /// Where PSAO servers trace.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -28,95 +29,111 @@ pub enum Backend {
     Gpu,
 }
 
-/// Arguments of `psao bench`.
+/// Arguments of `psao bench`. Options whose default depends on `--full`
+/// are `Option`s and say both defaults in their help; the others carry
+/// their default for clap to print.
 #[derive(clap::Args)]
 pub struct BenchArgs {
     /// The paper-sized run: 1280x720, 24 frames, a 512-ray reference,
     /// 192 rays per point, every density at every rate.
     #[arg(long)]
     full: bool,
-    /// Scene files (glTF .gltf/.glb, or OBJ) to bench as well (each staged on a floor, with an
-    /// orbiting camera when it has no camera path).
+    /// Scene files (glTF .gltf/.glb, or OBJ) to bench as well, repeatable
+    /// (each staged on a floor, with an orbiting camera when it has no
+    /// camera path) [default: none].
     #[arg(long = "gltf")]
     gltf: Vec<PathBuf>,
     /// Only the scenes passed with --gltf (skip the default and CesiumMan
     /// scenes).
     #[arg(long)]
     only_gltf: bool,
-    /// Image width (default 320, --full 1280).
+    /// Image width [default: 320; with --full: 1280].
     #[arg(long)]
     width: Option<u32>,
-    /// Image height (default 180, --full 720).
+    /// Image height [default: 180; with --full: 720].
     #[arg(long)]
     height: Option<u32>,
-    /// Frames of the camera path to measure (default 6, --full 24).
+    /// Frames of the camera path to measure [default: 6; with --full: 24].
     #[arg(long)]
     frames: Option<u32>,
-    /// Rays per pixel of the reference (default 256, --full 512).
+    /// Which measured frames to save as images: 0-based indices below
+    /// --frames, comma-separated (0,2,5), or `all`. Frame 0's files are
+    /// `SCENE-frame.png`, `SCENE-ao-*.png` and `SCENE-*.exr`; frame k's
+    /// carry `-fk` after the scene's name (`SCENE-f2-frame.png`).
+    #[arg(long, default_value = "0", value_parser = ImageFrames::parse)]
+    image_frames: ImageFrames,
+    /// Rays per pixel of the reference [default: 256; with --full: 512].
     #[arg(long)]
     reference_rays: Option<u32>,
-    /// AO rays per PSAO point (default 64, --full 192).
+    /// AO rays per PSAO point [default: 64; with --full: 192].
     #[arg(long)]
     point_rays: Option<u32>,
     /// AO radius R in scene units, for the reference, PSAO, RTAO and SAO
-    /// alike (default 0.6, the paper's; size it to the scene: a 7 cm model
-    /// wants millimetres).
-    #[arg(long)]
-    radius: Option<f32>,
-    /// PSAO densities N, points kept per square metre (the paper's N).
-    #[arg(long, value_delimiter = ',')]
-    densities: Option<Vec<f32>>,
-    /// Server rates in Hz.
-    #[arg(long, value_delimiter = ',')]
-    rates: Option<Vec<u16>>,
+    /// alike; the default is the paper's (size it to the scene: a 7 cm
+    /// model wants millimetres).
+    #[arg(long, default_value_t = AoParams::default().radius)]
+    radius: f32,
+    /// PSAO densities N, points kept per square metre (the paper's N),
+    /// comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "128,256,512,1024,2048")]
+    densities: Vec<f32>,
+    /// Server rates in Hz, comma-separated: every density runs at the
+    /// first, the listed density nearest 1024 at the others (with --full:
+    /// every density at every rate).
+    #[arg(long, value_delimiter = ',', default_value = "60,30,15,5")]
+    rates: Vec<u16>,
     /// Network delay in ms: a server tick's frame reaches the client one
     /// server period plus this after its scene time.
-    #[arg(long)]
-    network_ms: Option<f32>,
+    #[arg(long, default_value_t = 0.0)]
+    network_ms: f32,
     /// Where PSAO servers trace their AO rays: `cpu` (obvhs) or `gpu`
     /// (wgpu ray queries; build with `--features gpu`).
-    #[arg(long, value_enum, default_value_t = Backend::Cpu)]
+    // The values are named above: listing them with their descriptions
+    // would switch `--help` to its long layout.
+    #[arg(long, value_enum, default_value_t = Backend::Cpu, hide_possible_values = true)]
     backend: Backend,
     /// Output folder.
     #[arg(long, default_value = "bench-out")]
     out: PathBuf,
 }
 
+impl BenchArgs {
+    /// The settings these arguments ask for (not yet validated): `--full`
+    /// or the quick defaults, with every given option over them.
+    pub fn settings(&self) -> Settings {
+        let mut settings = if self.full {
+            Settings::full()
+        } else {
+            Settings::quick()
+        };
+        if let Some(w) = self.width {
+            settings.width = w;
+        }
+        if let Some(h) = self.height {
+            settings.height = h;
+        }
+        if let Some(f) = self.frames {
+            settings.frames = f;
+        }
+        if let Some(r) = self.reference_rays {
+            settings.reference_rays = r;
+        }
+        if let Some(r) = self.point_rays {
+            settings.point_rays = r;
+        }
+        settings.radius = self.radius;
+        settings.densities = self.densities.clone();
+        settings.rates = self.rates.clone();
+        settings.network_ms = self.network_ms;
+        settings.backend = self.backend;
+        settings.image_frames = self.image_frames.clone();
+        settings
+    }
+}
+
 /// Runs the bench and writes its outputs.
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
-    let mut settings = if args.full {
-        Settings::full()
-    } else {
-        Settings::quick()
-    };
-    if let Some(w) = args.width {
-        settings.width = w;
-    }
-    if let Some(h) = args.height {
-        settings.height = h;
-    }
-    if let Some(f) = args.frames {
-        settings.frames = f;
-    }
-    if let Some(r) = args.reference_rays {
-        settings.reference_rays = r;
-    }
-    if let Some(r) = args.point_rays {
-        settings.point_rays = r;
-    }
-    if let Some(r) = args.radius {
-        settings.radius = r;
-    }
-    if let Some(d) = args.densities {
-        settings.densities = d;
-    }
-    if let Some(r) = args.rates {
-        settings.rates = r;
-    }
-    if let Some(n) = args.network_ms {
-        settings.network_ms = n;
-    }
-    settings.backend = args.backend;
+    let settings = args.settings();
     settings.validate()?;
     let mut scenes: Vec<(String, Scene)> = Vec::new();
     if !args.only_gltf {
@@ -135,6 +152,22 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     if scenes.is_empty() {
         anyhow::bail!("no scene to bench: --only-gltf needs --gltf FILE");
     }
+    // Before any work: every scene has a camera path giving each frame
+    // --image-frames asks for (frame times that coincide count once).
+    for (name, scene) in &scenes {
+        let path = scene
+            .camera
+            .as_ref()
+            .with_context(|| format!("{name}: the scene has no camera path"))?;
+        let measured = measure::measured_frames(path.duration(), settings.frames);
+        if let Some(k) = settings.image_frames.out_of_range(measured) {
+            anyhow::bail!(
+                "--image-frames {k} is out of range for {name}: its {:.2} s camera path gives {measured} distinct frames of the {} asked for",
+                path.duration(),
+                settings.frames
+            );
+        }
+    }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let units: u64 = scenes.len() as u64 * settings.units_per_scene();
@@ -144,18 +177,20 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             .progress_chars("=> "),
     );
     eprintln!(
-        "psao bench: {} scene(s), {}x{}, {} frames, reference {} rays/pixel, {} rays/point; output in {}",
+        "psao bench: {} scene(s), {}x{}, {} frames, reference {} rays/pixel, {} rays/point; images of frame(s) {}; output in {}",
         scenes.len(),
         settings.width,
         settings.height,
         settings.frames,
         settings.reference_rays,
         settings.point_rays,
+        settings.image_frames,
         args.out.display()
     );
     let mut results = Vec::new();
     for (name, scene) in scenes {
         let r = measure::measure_scene(&name, scene, &settings, &bar)?;
+        bar.set_message(format!("{name}: writing images and charts"));
         images::write_scene_images(&args.out, &r).with_context(|| name.to_string())?;
         charts::write_charts(&args.out, &r).with_context(|| format!("{name}: charts"))?;
         results.push(r);
@@ -165,4 +200,80 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     println!("{}", report::markdown(&settings, &results));
     println!("wrote {}", files.join(", "));
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+
+    /// `psao bench`'s arguments alone.
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: BenchArgs,
+    }
+
+    fn settings(args: &[&str]) -> Settings {
+        let cli = Cli::try_parse_from(std::iter::once("bench").chain(args.iter().copied()))
+            .unwrap_or_else(|e| panic!("{args:?}: {e}"));
+        cli.args.settings()
+    }
+
+    /// The defaults `--help` prints are the ones the bench runs with.
+    #[test]
+    fn defaults_are_the_quick_and_full_settings() {
+        for (args, want) in [
+            (&[][..], Settings::quick()),
+            (&["--full"][..], Settings::full()),
+        ] {
+            let got = settings(args);
+            assert_eq!(
+                (got.width, got.height, got.frames),
+                (want.width, want.height, want.frames),
+                "{args:?}"
+            );
+            assert_eq!(
+                (got.reference_rays, got.point_rays, got.cross),
+                (want.reference_rays, want.point_rays, want.cross)
+            );
+            assert_eq!(got.densities, want.densities);
+            assert_eq!(got.rates, want.rates);
+            assert_eq!(got.radius, want.radius);
+            assert_eq!(got.network_ms, want.network_ms);
+            assert_eq!(got.image_frames, ImageFrames::List(vec![0]));
+            assert_eq!(got.backend, Backend::Cpu);
+        }
+    }
+
+    #[test]
+    fn given_options_override_the_defaults() {
+        let s = settings(&[
+            "--full",
+            "--width",
+            "64",
+            "--frames",
+            "3",
+            "--densities",
+            "8,16",
+            "--rates",
+            "30",
+            "--image-frames",
+            "2,0",
+        ]);
+        assert_eq!((s.width, s.height, s.frames), (64, 720, 3));
+        assert_eq!(s.densities, vec![8.0, 16.0]);
+        assert_eq!(s.rates, vec![30]);
+        assert_eq!(s.image_frames, ImageFrames::List(vec![0, 2]));
+        assert!(s.validate().is_ok());
+        let s = settings(&["--frames", "3", "--image-frames", "3"]);
+        let e = s.validate().expect_err("frame 3 of 3").to_string();
+        assert!(e.contains("--image-frames 3"), "{e}");
+        let e = Cli::try_parse_from(["bench", "--image-frames", "1,two"])
+            .err()
+            .expect("`two` is no index")
+            .to_string();
+        assert!(e.contains("`two` is not a frame index"), "{e}");
+    }
 }

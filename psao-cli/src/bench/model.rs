@@ -101,9 +101,29 @@ pub struct Frame {
     pub bvh_ms: f64,
 }
 
-/// The images of the first frame, for the side-by-side picture.
+/// The images of the frames saved (`--image-frames`), for their files and
+/// side-by-side pictures; no other frame's images are kept.
 pub struct Showcase {
-    /// (label, AO image) per method shown.
+    /// One entry per saved frame, by ascending frame index.
+    pub frames: Vec<Shown>,
+}
+
+impl Showcase {
+    /// Adds `label`'s AO image of frame `frame` (dropped if that frame is
+    /// not saved).
+    pub fn add(&mut self, frame: usize, label: String, ao: Vec<f32>) {
+        if let Some(shown) = self.frames.iter_mut().find(|s| s.frame == frame) {
+            shown.images.push((label, ao));
+        }
+    }
+}
+
+/// One saved frame's images.
+pub struct Shown {
+    /// Index of the frame among the measured frames (0-based).
+    pub frame: usize,
+    /// (label, AO image) per method shown, in table order; the reference
+    /// is the frame's own ([`Frame::reference`]).
     pub images: Vec<(String, Vec<f32>)>,
 }
 
@@ -113,9 +133,9 @@ pub struct SceneResult {
     pub name: String,
     /// Rows in table order.
     pub rows: Vec<Row>,
-    /// Frames (the first is the showcase frame).
+    /// Frames, in time order.
     pub frames: Vec<Frame>,
-    /// First-frame images of the shown methods.
+    /// The shown methods' images of the saved frames.
     pub showcase: Showcase,
     /// Mean fraction of pixels covered by geometry.
     pub coverage: f64,

@@ -16,21 +16,20 @@ use psao_scene::{
 /// Where a client connects and how it trusts the server.
 #[derive(clap::Args)]
 pub struct ServerArgs {
-    /// The server.
+    /// The server's address, IP:port (required).
     #[arg(long)]
     pub connect: SocketAddr,
     /// SHA-256 fingerprint of the server's certificate (as `psao serve`
-    /// prints it).
+    /// prints it); this or --ca is needed.
     #[arg(long, conflicts_with = "ca")]
     pub fingerprint: Option<String>,
-    /// PEM file of certificates to trust instead.
+    /// PEM file of certificates to trust instead of --fingerprint.
     #[arg(long)]
     pub ca: Option<PathBuf>,
-    /// With --ca: the name the server's certificate must carry (default
-    /// localhost).
-    #[arg(long, requires = "ca")]
-    pub name: Option<String>,
-    /// Stop after this many seconds (default: until the server closes).
+    /// With --ca: the name the server's certificate must carry.
+    #[arg(long, requires = "ca", default_value = "localhost")]
+    pub name: String,
+    /// Stop after this many seconds [default: until the server closes].
     #[arg(long)]
     pub seconds: Option<f32>,
 }
@@ -43,7 +42,7 @@ impl ServerArgs {
             (Some(f), _) => Ok(Trust::Fingerprint(parse_fingerprint(f)?)),
             (None, Some(ca)) => Ok(Trust::Roots {
                 roots: read_roots(ca)?,
-                name: self.name.clone().unwrap_or_else(|| "localhost".into()),
+                name: self.name.clone(),
             }),
             (None, None) => bail!("give --fingerprint (printed by `psao serve`) or --ca"),
         }

@@ -37,7 +37,7 @@ pub struct Args {
     /// --densities`).
     #[arg(long, default_value_t = 32.0)]
     density: f32,
-    /// AO radius R in scene units (the paper's 0.6 m by default).
+    /// AO radius R in scene units (the default is the paper's, in metres).
     #[arg(long, default_value_t = 0.6)]
     radius: f32,
     /// AO rays per point.

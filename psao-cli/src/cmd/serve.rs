@@ -14,16 +14,17 @@ use super::common::{load_scene, pipeline_config, pipeline_with_progress, seconds
 /// Arguments of `psao serve`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// A scene file: glTF (.gltf, .glb) or OBJ (default: the embedded default scene).
+    /// A scene file: glTF (.gltf, .glb) or OBJ [default: the embedded
+    /// default scene].
     #[arg(long)]
     scene: Option<PathBuf>,
     /// Address to listen on.
     #[arg(long, default_value = "0.0.0.0:4433")]
     bind: SocketAddr,
-    /// PEM certificate chain (default: a generated self-signed one).
+    /// PEM certificate chain [default: a generated self-signed one].
     #[arg(long, requires = "key")]
     cert: Option<PathBuf>,
-    /// PEM private key of --cert.
+    /// PEM private key of --cert (required with it).
     #[arg(long, requires = "cert")]
     key: Option<PathBuf>,
     /// Frames per second.
@@ -39,10 +40,10 @@ pub struct Args {
     /// --densities`).
     #[arg(long, default_value_t = 32.0)]
     density: f32,
-    /// AO radius R in scene units (the paper's 0.6 m by default).
+    /// AO radius R in scene units (the default is the paper's, in metres).
     #[arg(long, default_value_t = 0.6)]
     radius: f32,
-    /// Stop after this many seconds (default: until Ctrl-C).
+    /// Stop after this many seconds [default: until Ctrl-C].
     #[arg(long)]
     seconds: Option<f32>,
     /// Cull to the clients' views: trace only points near what the
