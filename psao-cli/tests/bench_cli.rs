@@ -127,6 +127,18 @@ fn bench_refuses_bad_settings() {
         ),
         (vec!["--image-frames", "1,x"], "`x` is not a frame index"),
         (vec!["--image-frames=-1"], "`-1` is not a frame index"),
+        (vec!["--camera", "1,2,3"], "3 numbers; expected six"),
+        (
+            vec!["--camera", "1,2,3,4,5,x"],
+            "`x` is not a finite number",
+        ),
+        (vec!["--camera", "1,1,1,1,1,1"], "own eye"),
+        (vec!["--fov", "40"], "--camera"),
+        (vec!["--camera-path", "/nonexistent/path.txt"], "path.txt"),
+        (
+            vec!["--camera", "0,0,1,0,0,0", "--camera-path", "p.txt"],
+            "cannot be used with",
+        ),
     ] {
         let out = out_dir("bad");
         let run = Command::new(env!("CARGO_BIN_EXE_psao"))
@@ -202,4 +214,83 @@ fn bench_writes_the_images_of_the_frames_asked_for() {
         assert!(out.join(format!("{scene}-time-error.png")).exists());
     }
     let _ = std::fs::remove_dir_all(&out);
+}
+
+/// A tiny bench of the Cornell box (555 units, a room facing inward) with
+/// the given extra arguments; returns (success, stdout + stderr, bench.md).
+fn cornell(name: &str, extra: &[&str]) -> (bool, String, String) {
+    let out = out_dir(name);
+    let model = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../psao-scene/tests/data/CornellBox.glb"
+    );
+    let run = Command::new(env!("CARGO_BIN_EXE_psao"))
+        .args([
+            "bench",
+            "--only-gltf",
+            "--gltf",
+            model,
+            "--width",
+            "64",
+            "--height",
+            "36",
+            "--frames",
+            "2",
+            "--reference-rays",
+            "8",
+            "--point-rays",
+            "8",
+            "--densities",
+            "0.002",
+            "--rates",
+            "30",
+            "--radius",
+            "60",
+        ])
+        .args(extra)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let text =
+        String::from_utf8_lossy(&run.stdout).into_owned() + &String::from_utf8_lossy(&run.stderr);
+    let md = std::fs::read_to_string(out.join("bench.md")).unwrap_or_default();
+    let _ = std::fs::remove_dir_all(&out);
+    (run.status.success(), text, md)
+}
+
+/// The share of pixels covered that bench.md states.
+fn coverage(md: &str) -> u32 {
+    let at = md.find("% of pixels covered").expect("a coverage line");
+    let digits: String = md[..at]
+        .chars()
+        .rev()
+        .take_while(|c| c.is_ascii_digit())
+        .collect::<Vec<_>>()
+        .into_iter()
+        .rev()
+        .collect();
+    digits.parse().unwrap()
+}
+
+#[test]
+fn bench_sees_a_room_from_inside_or_from_the_camera_it_is_given() {
+    // No camera in the file: the automatic path walks round inside.
+    let (ok, text, md) = cornell("cornell-auto", &[]);
+    assert!(ok, "{text}");
+    assert!(coverage(&md) >= 50, "{md}");
+    // A fixed camera at the open front, looking at the back wall: all room.
+    let (ok, text, md) = cornell("cornell-fixed", &["--camera", "-278,274,-60,-278,200,-559"]);
+    assert!(ok, "{text}");
+    assert!(coverage(&md) >= 90, "{md}");
+    // A camera-path file that looks away from the room: refused, saying so.
+    let file = std::env::temp_dir().join(format!("psao-away-{}.txt", std::process::id()));
+    std::fs::write(
+        &file,
+        "fov 40\n0 -2000 0 0 -3000 0 0\n1 -2000 0 1 -3000 0 1\n",
+    )
+    .unwrap();
+    let (ok, text, _) = cornell("cornell-away", &["--camera-path", file.to_str().unwrap()]);
+    assert!(!ok && text.contains("sees none of the scene"), "{text}");
+    let _ = std::fs::remove_file(&file);
 }

@@ -82,6 +82,9 @@ pub struct Settings {
     pub backend: Backend,
     /// AO radius R in scene units (the reference, PSAO, RTAO and SAO).
     pub radius: f32,
+    /// Buried points take their visible neighbours' AO (else they are
+    /// traced: the baseline).
+    pub fill_buried: bool,
     /// Which measured frames are saved as images.
     pub image_frames: ImageFrames,
 }
@@ -175,6 +178,7 @@ impl Settings {
             network_ms: 0.0,
             backend: Backend::Cpu,
             radius: AoParams::default().radius,
+            fill_buried: true,
             image_frames: ImageFrames::List(vec![0]),
         }
     }
@@ -304,6 +308,10 @@ struct Errors {
     sse_by_instance: std::collections::BTreeMap<u32, f64>,
     /// Squared error in pixels left open where the reference is dark.
     sse_open_where_dark: f64,
+    /// Squared error, and pixels, made dark where the reference is open.
+    sse_dark_where_open: f64,
+    dark_where_open_px: u64,
+    covered: u64,
     sse: f64,
 }
 
@@ -330,6 +338,11 @@ impl Errors {
             if t >= 0.999 && r < 0.9 {
                 self.sse_open_where_dark += e;
             }
+            if r > super::model::OPEN && t < r - super::model::DARKER {
+                self.sse_dark_where_open += e;
+                self.dark_where_open_px += 1;
+            }
+            self.covered += 1;
         }
         Ok(())
     }
@@ -345,6 +358,8 @@ impl Errors {
         Breakdown {
             by_instance,
             open_where_dark: self.sse_open_where_dark / total,
+            dark_where_open: self.sse_dark_where_open / total,
+            dark_where_open_px: self.dark_where_open_px as f64 / self.covered.max(1) as f64,
         }
     }
 
@@ -479,6 +494,19 @@ pub fn measure_scene(
         });
     }
     let reference_s = started.elapsed().as_secs_f64();
+    let pixels = frames.len() * (s.width as usize * s.height as usize);
+    if covered == 0 {
+        anyhow::bail!(
+            "{name}: the camera sees none of the scene in any of the {} frames (check --camera or --camera-path)",
+            frames.len()
+        );
+    }
+    if covered * 2 < pixels {
+        bar.println(format!(
+            "warning: {name}: the camera sees the scene in {:.0}% of pixels (below 50%: the errors measure little of it)",
+            covered as f64 * 100.0 / pixels as f64
+        ));
+    }
     bar.inc(1);
     let mut rows = Vec::new();
     // Only the frames asked for keep their images.
@@ -558,7 +586,6 @@ pub fn measure_scene(
     }
     rows.push(errors.row(Method::Sao, ms / frames.len() as f64));
     bar.inc(1);
-    let pixels = frames.len() * (s.width as usize * s.height as usize);
     let dynamic = scene.dynamic_instances();
     let kinds = scene
         .instances
@@ -603,7 +630,8 @@ fn measure_psao(
     say: &(dyn Fn(&str) + Sync),
 ) -> anyhow::Result<(Row, Vec<KeptImage>)> {
     // `density` counts points kept, as every command's --density does.
-    let config = crate::cmd::common::pipeline_config(density, s.point_rays, s.radius);
+    let mut config = crate::cmd::common::pipeline_config(density, s.point_rays, s.radius);
+    config.fill_buried = s.fill_buried;
     let started = Instant::now();
     say("setup");
     let backend = match s.backend {

@@ -95,6 +95,14 @@ pub struct BenchArgs {
     /// Output folder.
     #[arg(long, default_value = "bench-out")]
     out: PathBuf,
+    /// The camera of the scenes given with --gltf (the default and
+    /// CesiumMan scenes keep theirs).
+    #[command(flatten)]
+    camera: crate::cmd::common::CameraArgs,
+    /// Trace buried points like any other (the baseline) instead of giving
+    /// them their visible neighbours' AO.
+    #[arg(long)]
+    no_fill_buried: bool,
 }
 
 impl BenchArgs {
@@ -127,6 +135,7 @@ impl BenchArgs {
         settings.network_ms = self.network_ms;
         settings.backend = self.backend;
         settings.image_frames = self.image_frames.clone();
+        settings.fill_buried = !self.no_fill_buried;
         settings
     }
 }
@@ -140,9 +149,14 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         scenes.push(("default".into(), default_scene()));
         scenes.push(("cesium-man".into(), cesium_man_scene()));
     }
+    let camera = args.camera.path()?;
     for path in &args.gltf {
         // The error names the file already.
-        let scene = load_scene_file(path).and_then(stage)?;
+        let mut scene = load_scene_file(path)?;
+        if let Some(c) = &camera {
+            scene.camera = Some(c.clone());
+        }
+        let scene = stage(scene)?;
         let name = path
             .file_stem()
             .map(|n| n.to_string_lossy().into_owned())

@@ -80,7 +80,22 @@ pub struct Breakdown {
     /// Share of the squared error in pixels the method left open (AO at
     /// least 0.999) where the reference is dark (below 0.9).
     pub open_where_dark: f64,
+    /// Share of the squared error in pixels the method made dark where
+    /// the reference is open: the reference above [`OPEN`], the method at
+    /// least [`DARKER`] below it (blocks of buried points' AO, say).
+    pub dark_where_open: f64,
+    /// Share of covered pixels that are dark where the reference is open
+    /// (as `dark_where_open`).
+    pub dark_where_open_px: f64,
 }
+
+/// A reference at least this bright counts as open for
+/// [`Breakdown::dark_where_open`].
+pub const OPEN: f32 = 0.85;
+
+/// How much darker than an open reference a pixel must be to count in
+/// [`Breakdown::dark_where_open`].
+pub const DARKER: f32 = 0.4;
 
 /// One frame's inputs, shared by every method.
 pub struct Frame {

@@ -34,7 +34,7 @@ fn opt(v: Option<f64>, digits: usize) -> String {
 /// The CSV: one line per scene and configuration.
 pub fn csv_text(results: &[SceneResult]) -> String {
     let mut t = String::from(
-        "scene,method,label,density,rate_hz,rays_per_pixel,points,server_ms,keeps_rate,client_ms,extra_ms,mbit_s,rmse,psnr_db,ssim,flip,setup_s,keyframe_bytes,unknown_px\n",
+        "scene,method,label,density,rate_hz,rays_per_pixel,points,server_ms,keeps_rate,client_ms,extra_ms,mbit_s,rmse,psnr_db,ssim,flip,setup_s,keyframe_bytes,unknown_px,dark_where_open_px\n",
     );
     for r in results {
         for row in &r.rows {
@@ -47,7 +47,7 @@ pub fn csv_text(results: &[SceneResult]) -> String {
             };
             let _ = writeln!(
                 t,
-                "{},{kind},{},{density},{rate},{rays},{},{},{},{:.4},{},{},{:.6},{:.3},{:.5},{:.5},{},{},{}",
+                "{},{kind},{},{density},{rate},{rays},{},{},{},{:.4},{},{},{:.6},{:.3},{:.5},{:.5},{},{},{},{:.6}",
                 r.name,
                 row.method.label(),
                 row.points.map_or(String::new(), |p| p.to_string()),
@@ -63,6 +63,7 @@ pub fn csv_text(results: &[SceneResult]) -> String {
                 opt(row.setup_s, 3),
                 row.keyframe_bytes.map_or(String::new(), |b| b.to_string()),
                 row.unknown_px,
+                row.breakdown.dark_where_open_px,
             );
         }
     }
@@ -74,7 +75,7 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend; client times are the AO work per frame on {} threads.\n",
+        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}); client times are the AO work per frame on {} threads.\n",
         s.width,
         s.height,
         s.frames,
@@ -84,6 +85,11 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
         match s.backend {
             super::Backend::Cpu => "CPU",
             super::Backend::Gpu => "GPU",
+        },
+        if s.fill_buried {
+            "buried points take their visible neighbours' AO"
+        } else {
+            "buried points traced: --no-fill-buried"
         },
         std::thread::available_parallelism().map_or(1, |n| n.get())
     );
@@ -254,10 +260,14 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
             })
             .collect();
         format!(
-            "{}: {}; {:.0}% in pixels left open where the reference is dark",
+            "{}: {}; {:.0}% in pixels left open where the reference is dark; {:.0}% in the {:.3}% of pixels at least {} darker than an open reference (above {})",
             row.method.label(),
             top.join(", "),
-            row.breakdown.open_where_dark * 100.0
+            row.breakdown.open_where_dark * 100.0,
+            row.breakdown.dark_where_open * 100.0,
+            row.breakdown.dark_where_open_px * 100.0,
+            super::model::DARKER,
+            super::model::OPEN
         )
     };
     if let (Some(p), Some(q)) = (psao, sao) {

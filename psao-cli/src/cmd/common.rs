@@ -10,8 +10,70 @@ use anyhow::{Context as _, bail};
 use psao_proto::tls::parse_fingerprint;
 use psao_proto::{ServerStats, Trust};
 use psao_scene::{
-    Pipeline, PipelineConfig, Scene, SetupProgress, SetupStage, default_scene, load_scene_file,
+    CameraPath, DEFAULT_FOV_DEGREES, Pipeline, PipelineConfig, Scene, SetupProgress, SetupStage,
+    default_scene, load_scene_file,
 };
+
+/// Where the viewer looks from: a fixed camera, a camera-path file, or
+/// (neither given) the scene's own camera, else an automatic one.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct CameraArgs {
+    /// A fixed camera, EYE,TARGET: six numbers `ex,ey,ez,tx,ty,tz` in
+    /// scene units [default: the scene's camera (a glTF camera or its
+    /// animated node), else an automatic path: an orbit round an object,
+    /// a walk round inside a room].
+    #[arg(long, value_parser = parse_eye_target, conflicts_with = "camera_path",
+          allow_hyphen_values = true, value_name = "EYE,TARGET")]
+    pub camera: Option<[f32; 6]>,
+    /// A camera-path file: one key per line, `time ex ey ez tx ty tz`
+    /// (seconds, scene units; spaces or commas), an optional `fov DEGREES`
+    /// line, `#` comments [default: as --camera].
+    #[arg(long, value_name = "FILE")]
+    pub camera_path: Option<PathBuf>,
+    /// Vertical field of view of --camera, degrees.
+    #[arg(long, default_value_t = DEFAULT_FOV_DEGREES, requires = "camera")]
+    pub fov: f32,
+}
+
+impl CameraArgs {
+    /// The camera path these arguments give, if any (read and checked).
+    pub fn path(&self) -> anyhow::Result<Option<CameraPath>> {
+        if let Some(v) = self.camera {
+            if !(self.fov > 0.0 && self.fov < 180.0) {
+                bail!("--fov {} is not in (0, 180) degrees", self.fov);
+            }
+            let eye = glam::Vec3::new(v[0], v[1], v[2]);
+            let target = glam::Vec3::new(v[3], v[4], v[5]);
+            return Ok(Some(
+                CameraPath::fixed(eye, target, self.fov.to_radians()).context("--camera")?,
+            ));
+        }
+        match &self.camera_path {
+            Some(p) => Ok(Some(CameraPath::load(p)?)),
+            None => Ok(None),
+        }
+    }
+}
+
+/// Parses `ex,ey,ez,tx,ty,tz`.
+fn parse_eye_target(s: &str) -> Result<[f32; 6], String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|w| {
+            w.trim()
+                .parse::<f32>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| format!("`{}` is not a finite number", w.trim()))
+        })
+        .collect::<Result<_, _>>()?;
+    <[f32; 6]>::try_from(v.as_slice()).map_err(|_| {
+        format!(
+            "{} numbers; expected six, EYE,TARGET: ex,ey,ez,tx,ty,tz",
+            v.len()
+        )
+    })
+}
 
 /// Where a client connects and how it trusts the server.
 #[derive(clap::Args)]

@@ -18,7 +18,7 @@ use psao_proto::{
 };
 use psao_scene::{Pipeline, PipelineConfig, Scene, ViewerCull, default_scene};
 
-use super::common::{cpu_seconds, pipeline_config, pipeline_with_progress, status};
+use super::common::{CameraArgs, cpu_seconds, pipeline_config, pipeline_with_progress, status};
 use crate::bench::images::{ao_png16, composite};
 
 /// Arguments of `psao demo`.
@@ -54,6 +54,9 @@ pub struct Args {
     /// that send the camera path's pose as they go.
     #[arg(long)]
     cull: bool,
+    /// The camera the images (and, with --cull, the viewers) follow.
+    #[command(flatten)]
+    camera: CameraArgs,
 }
 
 /// Runs the demo: streams, prints, writes images, checks the mirrors.
@@ -68,12 +71,17 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         images,
         out,
         cull,
+        camera,
     } = args;
     if !(seconds > 0.0 && seconds <= 3600.0) {
         bail!("--seconds must be in (0, 3600]");
     }
     let clients = clients as usize;
-    let mut shots = Shots::new(images, out)?;
+    let mut scene = default_scene();
+    if let Some(path) = camera.path()? {
+        scene.camera = Some(path);
+    }
+    let mut shots = Shots::new(images, out, scene.clone())?;
     let identity = Identity::self_signed()?;
     let config = ServerConfig {
         frame_rate: rate,
@@ -85,7 +93,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     };
     println!("psao demo: preparing the default scene (points, grids, first trace)...");
     let t = Instant::now();
-    let pipeline = pipeline_with_progress(default_scene(), pipeline)?;
+    let pipeline = pipeline_with_progress(scene, pipeline)?;
     let server = serve(pipeline, config, &identity).await?;
     println!(
         "server on {} (self-signed certificate, SHA-256 {}), ready in {:.2} s",
@@ -194,8 +202,9 @@ struct Shots {
 const SHOT_SIZE: (u32, u32) = (480, 270);
 
 impl Shots {
-    /// `count` images into `out` (created now, so a bad path fails early).
-    fn new(count: u32, out: PathBuf) -> anyhow::Result<Shots> {
+    /// `count` images of `scene` into `out` (created now, so a bad path
+    /// fails early).
+    fn new(count: u32, out: PathBuf, scene: Scene) -> anyhow::Result<Shots> {
         if count > 0 {
             std::fs::create_dir_all(&out)
                 .with_context(|| format!("cannot create {}", out.display()))?;
@@ -204,7 +213,7 @@ impl Shots {
             count,
             taken: 0,
             out,
-            scene: Arc::new(default_scene()),
+            scene: Arc::new(scene),
         })
     }
 

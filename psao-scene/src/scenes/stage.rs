@@ -3,7 +3,7 @@
 //! and, when the file has no camera path, a camera orbiting it. An
 //! interior (a room whose faces point inward, seen from inside) gets no
 //! floor (it has its own) and a camera that walks round inside it, looking
-//! across the room: from outside, a glTF renderer culls its walls' back
+//! down across the room: from outside, a glTF renderer culls its walls' back
 //! faces and little of it is seen.
 
 use glam::{Affine3A, Vec3, Vec3A};
@@ -100,8 +100,9 @@ pub fn front_share(tris: Vec<[Vec3; 3]>, from: Vec3) -> f32 {
 /// bounds' centre once in [`ORBIT_SECONDS`] at 2.4 times the bounds'
 /// half-diagonal, looking slightly down. An interior gets no floor and,
 /// without a camera path, a camera circling inside in [`ORBIT_SECONDS`]
-/// at a third of the way from the centre to the walls, a little below
-/// the centre, looking across the room at the far side.
+/// at mid height, 60% of the way from the centre to the walls, looking
+/// down across the middle of the room (its floor and what stands there)
+/// at the far side.
 /// A scene without triangles is an error.
 pub fn stage(mut scene: Scene) -> Result<Scene, SceneError> {
     let tris = scene.world_triangles()?;
@@ -145,8 +146,8 @@ pub fn stage(mut scene: Scene) -> Result<Scene, SceneError> {
                         )
                     }
                     Setting::Interior => (
-                        centre + Vec3::new(c * half.x / 3.0, -half.y * 0.15, s * half.z / 3.0),
-                        centre + Vec3::new(-c * half.x, -half.y * 0.4, -s * half.z),
+                        centre + Vec3::new(c * half.x * 0.6, 0.0, s * half.z * 0.6),
+                        centre + Vec3::new(-c * half.x * 0.2, -half.y * 0.6, -s * half.z * 0.2),
                     ),
                 };
                 CameraKey {
