@@ -111,6 +111,9 @@ pub enum NoticeCode {
     EventRefused,
     /// 2: a keyframe follows because the client fell behind.
     FellBehind,
+    /// 4: the server runs below the frame rate its `WELCOME` announced
+    /// (spec/session.md section 6; the text gives the measured rate).
+    BelowRate,
     /// 3 (or any unknown code): something else.
     Other(u8),
 }
@@ -232,6 +235,7 @@ impl Control {
                 body.put_u8(match code {
                     NoticeCode::EventRefused => 1,
                     NoticeCode::FellBehind => 2,
+                    NoticeCode::BelowRate => 4,
                     NoticeCode::Other(c) => *c,
                 });
                 let text = clip_text(text);
@@ -436,6 +440,7 @@ impl Control {
                 let code = match b.get_u8() {
                     1 => NoticeCode::EventRefused,
                     2 => NoticeCode::FellBehind,
+                    4 => NoticeCode::BelowRate,
                     c => NoticeCode::Other(c),
                 };
                 let n = b.get_u8() as usize;

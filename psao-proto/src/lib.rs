@@ -11,7 +11,8 @@
 //!   [`Outbox`] (a client's bounded frame queue, falling behind and
 //!   resynchronizing with a keyframe) and [`Fanout`] (every client's
 //!   outbox, one keyframe per state shared by all who ask, notices,
-//!   views): the server's session logic;
+//!   views) and [`rate::RateWatch`] (whether the server keeps its
+//!   announced frame rate): the server's session logic;
 //! - [`ClientSession`]: the client's session logic around a
 //!   [`psao_codec::Decoder`];
 //! - [`FrameSource`]: what a server streams (a scene that steps and
@@ -39,6 +40,7 @@ pub mod connect;
 pub mod control;
 pub mod fanout;
 pub mod outbox;
+pub mod rate;
 pub mod records;
 #[cfg(feature = "scene")]
 pub mod scene_source;

@@ -116,6 +116,9 @@ pub struct ServerStats {
     pub frame_age: f64,
     /// The largest bytes queued for one client right now.
     pub max_queued: usize,
+    /// Times the server told its clients it runs below its announced
+    /// frame rate (`NOTICE` code 4).
+    pub rate_notices: u64,
 }
 
 /// The I/O side of a client: its writer's wake-up and its frame age.
@@ -140,6 +143,14 @@ impl HubState {
     fn wake_all(&self) {
         for c in self.clients.values() {
             c.wake.notify_one();
+        }
+    }
+
+    /// Queues a notice for every client and wakes their writers.
+    fn notice_all(&mut self, code: NoticeCode, text: &str) {
+        let ids: Vec<ClientId> = self.clients.keys().copied().collect();
+        for id in ids {
+            self.notice(id, code, text);
         }
     }
 
@@ -350,6 +361,7 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
     let dt = 1.0 / hub.config.frame_rate as f32;
     let period = Duration::from_secs_f64(1.0 / hub.config.frame_rate as f64);
     let mut next = Instant::now() + period;
+    let mut watch = crate::rate::RateWatch::new(hub.config.frame_rate);
     while !hub.stop.load(Ordering::SeqCst) {
         // Scene events first, so the frame carries them.
         let moves = std::mem::take(&mut hub.lock().moves);
@@ -413,6 +425,13 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
             }
         }
         let now = Instant::now();
+        if let Some(hz) = watch.tick(now) {
+            let text = crate::rate::rate_text(hz, watch.rate());
+            warn!("running below the announced frame rate: {text}");
+            let mut s = hub.lock();
+            s.stats.rate_notices += 1;
+            s.notice_all(NoticeCode::BelowRate, &text);
+        }
         if next > now {
             std::thread::sleep(next - now);
             next += period;

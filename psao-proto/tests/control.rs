@@ -72,6 +72,10 @@ fn described(name: &str) -> Control {
             code: NoticeCode::FellBehind,
             text: "behind".into(),
         },
+        "NOTICE-BELOW-RATE" => Control::Notice {
+            code: NoticeCode::BelowRate,
+            text: "41.2 of 60 Hz".into(),
+        },
         other => panic!("no description for example {other}"),
     }
 }
@@ -89,7 +93,8 @@ fn the_spec_examples_match_the_code() {
             "ACK",
             "KEYFRAME_REQUEST",
             "MOVE_INSTANCE",
-            "NOTICE"
+            "NOTICE",
+            "NOTICE-BELOW-RATE"
         ],
         "every message type has an example"
     );
@@ -303,7 +308,7 @@ proptest! {
             Control::KeyframeRequest { sequence: seq, reason: KeyframeReason::DecodeError },
             Control::MoveInstance { instance: inst, transform: Affine3A::from_cols_array(&f) },
             Control::Notice {
-                code: match code { 1 => NoticeCode::EventRefused, 2 => NoticeCode::FellBehind, c => NoticeCode::Other(c) },
+                code: match code { 1 => NoticeCode::EventRefused, 2 => NoticeCode::FellBehind, 4 => NoticeCode::BelowRate, c => NoticeCode::Other(c) },
                 text: text.clone(),
             },
             Control::Welcome(Welcome {

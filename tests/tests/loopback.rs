@@ -32,8 +32,8 @@ fn source(cull: Option<ViewerCull>) -> Pipeline {
     Pipeline::new(sliding_box(), config).expect("the pipeline builds")
 }
 
-async fn client(
-    server: &ServerHandle<Pipeline>,
+async fn client<S: FrameSource>(
+    server: &ServerHandle<S>,
     addr: Option<std::net::SocketAddr>,
 ) -> ClientHandle {
     connect(
@@ -374,4 +374,82 @@ async fn a_culling_server_traces_what_its_viewers_see() {
         in_sync(&viewer, &p),
         "the viewer's mirror still equals the tables"
     );
+}
+
+/// A pipeline whose every step takes at least `delay`: a server too slow
+/// for the rate it announces.
+struct Slow {
+    inner: Pipeline,
+    delay: Duration,
+}
+
+impl FrameSource for Slow {
+    fn info(&self) -> SourceInfo {
+        self.inner.info()
+    }
+    fn step(
+        &mut self,
+        dt: f32,
+    ) -> Result<(Option<psao_codec::EncodedFrame>, StepReport), SourceError> {
+        std::thread::sleep(self.delay);
+        FrameSource::step(&mut self.inner, dt)
+    }
+    fn keyframe(&mut self) -> Result<psao_codec::EncodedFrame, SourceError> {
+        FrameSource::keyframe(&mut self.inner)
+    }
+    fn place(&mut self, instance: u32, transform: Affine3A) -> Result<(), SourceError> {
+        FrameSource::place(&mut self.inner, instance, transform)
+    }
+}
+
+/// Whether `c` gets a below-rate notice within `wait`; its text.
+async fn rate_notice(c: &ClientHandle, wait: Duration) -> Option<String> {
+    let mut text = None;
+    c.wait_for(wait, |s| {
+        for e in std::iter::from_fn(|| s.poll_event()) {
+            if let ClientEvent::Notice {
+                code: control::NoticeCode::BelowRate,
+                text: t,
+            } = e
+            {
+                text = Some(t);
+            }
+        }
+        text.is_some()
+    })
+    .await;
+    text
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_server_below_its_announced_rate_tells_its_clients() {
+    let id = Identity::self_signed().unwrap();
+    // 60 Hz announced, at most 1 / 40 ms = 25 Hz delivered.
+    let slow = Slow {
+        inner: source(None),
+        delay: Duration::from_millis(40),
+    };
+    let server = serve(slow, config(1 << 20), &id).await.unwrap();
+    let c = client(&server, None).await;
+    let text = rate_notice(&c, Duration::from_secs(6)).await;
+    let text = text.expect("a below-rate notice");
+    let hz: f64 = text.split(' ').next().unwrap().parse().unwrap();
+    assert!(hz < 54.0 && text.ends_with("of 60 Hz"), "{text}");
+    assert!(server.stats().rate_notices >= 1);
+    server.shutdown(Duration::from_secs(1)).await.unwrap();
+    // A server that keeps its rate (10 Hz, a light scene) says nothing.
+    let server = serve(
+        source(None),
+        ServerConfig {
+            frame_rate: 10,
+            ..config(1 << 20)
+        },
+        &id,
+    )
+    .await
+    .unwrap();
+    let c = client(&server, None).await;
+    assert_eq!(rate_notice(&c, Duration::from_secs(3)).await, None);
+    assert_eq!(server.stats().rate_notices, 0);
+    server.shutdown(Duration::from_secs(1)).await.unwrap();
 }

@@ -3,7 +3,8 @@
 
 use std::time::{Duration, Instant};
 
-use psao_proto::{ClientConfig, Ended, connect};
+use psao_proto::control::NoticeCode;
+use psao_proto::{ClientConfig, ClientEvent, Ended, connect};
 
 use super::common::{ServerArgs, human_bytes, seconds_of};
 
@@ -45,10 +46,25 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     let mut prev = (h.with_session(|s| s.stats()), Instant::now());
     let ended = loop {
         tokio::time::sleep(Duration::from_secs(1)).await;
-        let (s, seq) = h.with_session(|s| {
-            while s.poll_event().is_some() {}
-            (s.stats(), s.mirror().sequence())
+        let (s, seq, notices) = h.with_session(|s| {
+            let mut notices = Vec::new();
+            while let Some(e) = s.poll_event() {
+                if let ClientEvent::Notice { code, text } = e {
+                    notices.push((code, text));
+                }
+            }
+            (s.stats(), s.mirror().sequence(), notices)
         });
+        // The server's notices, as it words them.
+        for (code, text) in notices {
+            let what = match code {
+                NoticeCode::BelowRate => "the server runs below its announced rate",
+                NoticeCode::FellBehind => "fell behind; a keyframe follows",
+                NoticeCode::EventRefused => "a scene event was refused",
+                _ => "notice",
+            };
+            println!("server notice: {what}: {text}");
+        }
         let dt = prev.1.elapsed().as_secs_f64();
         let applied = s.applied - prev.0.applied;
         // A still scene sends no frames: in sync, not stalled.
