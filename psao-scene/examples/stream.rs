@@ -86,11 +86,29 @@ fn main() {
         ..PipelineConfig::default()
     };
     let t = Instant::now();
-    let mut server = Pipeline::new(scene, config).unwrap_or_else(|e| {
+    // When each stage of setup started.
+    let stages = std::sync::Mutex::new(Vec::<(SetupStage, Instant)>::new());
+    let mut server = Pipeline::with_progress(scene, config, None, &|p: SetupProgress| {
+        let mut s = stages.lock().unwrap();
+        if s.last().is_none_or(|l| l.0 != p.stage) {
+            s.push((p.stage, Instant::now()));
+        }
+    })
+    .unwrap_or_else(|e| {
         eprintln!("error: {e}");
         std::process::exit(2)
     });
     let setup = t.elapsed();
+    let end = t + setup;
+    let stages = stages.into_inner().unwrap();
+    let split: Vec<String> = stages
+        .iter()
+        .enumerate()
+        .map(|(k, (stage, at))| {
+            let until = stages.get(k + 1).map_or(end, |n| n.1);
+            format!("{stage:?} {:.2} s", (until - *at).as_secs_f64())
+        })
+        .collect();
     let mut client = Decoder::new(Limits::default());
     let kf = server.keyframe().expect("keyframe");
     client.receive(&kf.bytes).expect("keyframe applies");
@@ -108,6 +126,11 @@ fn main() {
         server.instance_count(),
         setup.as_secs_f64(),
         kf.bytes.len()
+    );
+    println!(
+        "  setup stages       {}; {} buried points (not traced)",
+        split.join(", "),
+        server.buried_points()
     );
     let held = server.memory_bytes();
     println!(

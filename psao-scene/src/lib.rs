@@ -56,6 +56,7 @@
 mod error;
 mod import;
 mod model;
+mod morton;
 mod pipeline;
 mod points;
 mod precision;
@@ -81,11 +82,14 @@ pub use model::node::{Node, Trs, compose};
 pub use model::pose::{Pose, normal_matrix};
 pub use model::scene::{Instance, MIN_TRANSFORM_RATIO, Scene, invertible};
 pub use model::skin::{Skin, SkinWeights};
+pub use morton::morton_order;
 pub use pipeline::backend::AoBackend;
 pub use pipeline::config::{PipelineConfig, ViewerCull, Views};
 pub use pipeline::report::FrameReport;
 pub use pipeline::{Pipeline, SetupProgress, SetupStage};
-pub use points::generate::{Anchor, MAX_SPAWNED_POINTS, PointSet, eliminate, generate_points};
+pub use points::generate::{
+    Anchor, MAX_SPAWNED_POINTS, PointSet, TILE_POINTS, eliminate, generate_points,
+};
 pub use points::layout::{LayoutParams, layout};
 pub use precision::{
     MAX_ULP_PER_AO_RADIUS, MAX_ULP_PER_POINT_SPACING, check_precision, f32_spacing,
@@ -98,7 +102,6 @@ pub use scenes::stage::{
     front_share, setting, stage,
 };
 pub use trace::ao::{
-    AoParams, AoResult, AoTracer, ChangedPoints, Estimator, MAX_RAYS, RAY_SUM_LANES, morton_order,
-    ray_offset,
+    AoParams, AoResult, AoTracer, ChangedPoints, Estimator, MAX_RAYS, RAY_SUM_LANES, ray_offset,
 };
 pub use trace::geometry::{Geometry, Layer, TriangleBvh, TriangleMask, barycentric};

@@ -80,6 +80,75 @@ fn elimination_spreads_points_apart() {
     );
 }
 
+/// Nearest-neighbour distances through a grid of cell `cell` (at least
+/// the largest distance of interest).
+fn nearest_grid(points: &[Vec3], cell: f32) -> Vec<f32> {
+    let key = |p: Vec3| (p / cell).floor().as_ivec3();
+    let mut grid: std::collections::HashMap<glam::IVec3, Vec<usize>> = Default::default();
+    for (i, p) in points.iter().enumerate() {
+        grid.entry(key(*p)).or_default().push(i);
+    }
+    points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let c = key(*p);
+            let mut best = f32::INFINITY;
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    if let Some(l) = grid.get(&(c + glam::IVec3::new(dx, dy, 0))) {
+                        for &j in l {
+                            if j != i {
+                                best = best.min(p.distance(points[j]));
+                            }
+                        }
+                    }
+                }
+            }
+            best
+        })
+        .collect()
+}
+
+#[test]
+fn large_meshes_are_eliminated_in_tiles_as_evenly_as_small_ones() {
+    // 8 m^2 at 75,000 per m^2: 600,000 spawned, in 10 tiles of 65,536
+    // eliminated in parallel; the spread matches a small mesh's.
+    let m = plane();
+    let big = generate_points(&m, 75_000.0, 5).unwrap();
+    assert_eq!(big.len(), 300_000);
+    const { assert!(600_000 > 2 * TILE_POINTS, "the big mesh is tiled") };
+    let small = generate_points(&m, 2_000.0, 5).unwrap();
+    let share = |p: &PointSet| {
+        let nn = nearest_grid(&p.positions, p.radius);
+        let close = nn.iter().filter(|&&d| d < 0.375 * p.radius).count() as f64;
+        let mean = nn.iter().map(|&d| d as f64).sum::<f64>() / nn.len() as f64;
+        (close / nn.len() as f64, mean / p.radius as f64)
+    };
+    let ((close_big, mean_big), (close_small, mean_small)) = (share(&big), share(&small));
+    assert!(
+        close_big < 0.05,
+        "{close_big} of the points closer than 0.75 r_max"
+    );
+    assert!(
+        close_big < close_small + 0.01 && (mean_big - mean_small).abs() < 0.03,
+        "tiled: {close_big} close, mean {mean_big}; whole: {close_small}, {mean_small}"
+    );
+    // Every region keeps its share: 16 strips across the tiles' seams
+    // hold the same number of points within 5%.
+    let mut strips = [0u32; 16];
+    for p in &big.positions {
+        strips[((p.x / 4.0 * 16.0) as usize).min(15)] += 1;
+    }
+    let expect = big.len() as f64 / 16.0;
+    assert!(
+        strips
+            .iter()
+            .all(|&c| (c as f64 - expect).abs() < 0.05 * expect),
+        "{strips:?}"
+    );
+}
+
 #[test]
 fn generation_is_deterministic_and_checks_its_input() {
     let m = plane();

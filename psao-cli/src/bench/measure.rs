@@ -434,6 +434,7 @@ pub fn measured_frames(duration: f32, frames: u32) -> usize {
 pub fn setup_message(p: SetupProgress) -> String {
     let stage = match p.stage {
         SetupStage::Points => "points and grids",
+        SetupStage::Buried => "buried points",
         SetupStage::Trace => "tracing",
         _ => "preparing",
     };

@@ -141,6 +141,7 @@ pub fn pipeline_with_progress(scene: Scene, config: PipelineConfig) -> anyhow::R
     let pipeline = Pipeline::with_progress(scene, config, None, &|p: SetupProgress| {
         let what = match p.stage {
             SetupStage::Points => "points, grids",
+            SetupStage::Buried => "buried points",
             _ => "first trace",
         };
         if bar.message() != what {

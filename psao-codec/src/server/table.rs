@@ -163,7 +163,11 @@ impl DirtySet {
 
 const ABSENT: u32 = u32::MAX;
 
+/// Where a point is. Packed to 5 bytes (one per point of the server's
+/// points: 8 with padding); its fields are read and written by value only
+/// (a reference to a packed field does not compile).
 #[derive(Clone, Copy, Debug)]
+#[repr(C, packed)]
 struct Loc {
     /// Cell index, [`ABSENT`], or `ABSENT - 1 - reason` for a dropped point.
     cell: u32,
@@ -172,7 +176,8 @@ struct Loc {
 
 impl Loc {
     fn placement(self) -> Placement {
-        match self.cell {
+        let (cell, slot) = (self.cell, self.slot);
+        match cell {
             ABSENT => Placement::Absent,
             c if c >= ABSENT - 4 => Placement::Dropped(match ABSENT - 1 - c {
                 0 => DropReason::OutOfGrid,
@@ -180,10 +185,7 @@ impl Loc {
                 2 => DropReason::CellFull,
                 _ => DropReason::PoolExhausted,
             }),
-            cell => Placement::Stored {
-                cell,
-                slot: self.slot,
-            },
+            cell => Placement::Stored { cell, slot },
         }
     }
 
@@ -309,6 +311,16 @@ impl GridTable {
             + bytes(self.dirty_buckets.capacity(), 4)
             + bytes(self.cell_dirty.capacity(), 1)
             + bytes(self.dirty_cells.capacity(), size_of::<DirtyCell>())
+    }
+
+    /// Releases spare capacity: after a bulk load (the first trace sets
+    /// every point), the free-cell list and the point records keep room
+    /// they no longer need. The table's content does not change.
+    pub fn shrink_to_fit(&mut self) {
+        self.free.shrink_to_fit();
+        self.points.shrink_to_fit();
+        self.dirty_buckets.shrink_to_fit();
+        self.dirty_cells.shrink_to_fit();
     }
 
     /// Counters.

@@ -27,7 +27,7 @@ use psao_codec::{PointWord, WeightParams, weight};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
-use super::Pipeline;
+use super::{Pipeline, SetupProgress, SetupStage};
 use crate::error::SceneError;
 use crate::model::pose::normal_matrix;
 use crate::random::uniform;
@@ -120,7 +120,16 @@ impl Pipeline {
     /// Finds every rigid instance's buried points and their donors (see
     /// the module). Deterministic: each point's probe depends on its id and
     /// the seed alone.
-    pub(super) fn find_buried(&mut self) -> Result<(), SceneError> {
+    pub(super) fn find_buried(
+        &mut self,
+        progress: &(dyn Fn(SetupProgress) + Sync),
+    ) -> Result<(), SceneError> {
+        let total = self.instances.len() as u64;
+        progress(SetupProgress {
+            stage: SetupStage::Buried,
+            done: 0,
+            total,
+        });
         let seed = self.config.seed ^ 0xB0B1_ED00;
         let bias = self.config.ao.bias;
         let deforms: Vec<bool> = (0..self.instances.len())
@@ -174,6 +183,11 @@ impl Pipeline {
         }
         let mut base = 0u32;
         for (i, probe) in probes.into_iter().enumerate() {
+            progress(SetupProgress {
+                stage: SetupStage::Buried,
+                done: i as u64,
+                total,
+            });
             let s = &self.instances[i];
             let first_id = base;
             base += s.points.len() as u32;

@@ -158,6 +158,8 @@ const TRACE_BATCH: u32 = 1 << 16;
 pub enum SetupStage {
     /// Points, sample elimination and grid layout, per instance.
     Points,
+    /// Probing for buried points, per instance.
+    Buried,
     /// The first trace of every point, per point.
     Trace,
 }
@@ -419,7 +421,7 @@ impl Pipeline {
             views: Views::CameraPath,
         };
         if pipeline.config.fill_buried {
-            pipeline.find_buried()?;
+            pipeline.find_buried(progress)?;
         }
         // The first trace, in batches so that progress can be told (each
         // point's AO depends on its id alone: the same in any batching).
@@ -478,6 +480,7 @@ impl Pipeline {
         }
         for s in &mut pipeline.instances {
             s.table.take_dirty();
+            s.table.shrink_to_fit();
         }
         Ok(pipeline)
     }
