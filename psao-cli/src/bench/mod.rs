@@ -166,6 +166,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     if scenes.is_empty() {
         anyhow::bail!("no scene to bench: --only-gltf needs --gltf FILE");
     }
+    let densest = settings.densities.iter().copied().fold(0.0, f32::max);
+    for (name, scene) in &scenes {
+        for w in crate::cmd::common::scale_warnings(scene, densest, settings.radius)? {
+            eprintln!("warning: {name}: {w}");
+        }
+    }
     // Before any work: every scene has a camera path giving each frame
     // --image-frames asks for (frame times that coincide count once).
     for (name, scene) in &scenes {

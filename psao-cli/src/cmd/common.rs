@@ -55,6 +55,48 @@ impl CameraArgs {
     }
 }
 
+/// Points kept above which [`scale_warnings`] warns.
+pub const MANY_POINTS: f64 = 20e6;
+
+/// What a user should hear before a long setup: a `density` (points kept
+/// per square unit) that gives more than [`MANY_POINTS`] points (a scene
+/// in centimetres or millimetres read as metres), or an AO `radius` above
+/// half the scene's largest extent (everything occludes everything) or
+/// below 1/10,000 of it (AO open everywhere). Each line names the scene's
+/// size and the option to change.
+pub fn scale_warnings(scene: &Scene, density: f32, radius: f32) -> anyhow::Result<Vec<String>> {
+    let tris = scene.world_triangles()?;
+    let area: f64 = tris
+        .iter()
+        .map(|t| (t[1] - t[0]).cross(t[2] - t[0]).length() as f64 * 0.5)
+        .sum();
+    let (lo, hi) = tris.iter().flatten().fold(
+        (glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY),
+        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+    );
+    let extent = (hi - lo).max_element().max(0.0);
+    let mut out = Vec::new();
+    let points = area * density as f64;
+    if points > MANY_POINTS {
+        out.push(format!(
+            "--density {density} gives about {:.1} million points: the scene is {extent:.4} units across and {area:.4e} square units of surface (are its units metres?); a lower --density sets up faster",
+            points / 1e6
+        ));
+    }
+    if extent > 0.0 && radius > 0.5 * extent {
+        out.push(format!(
+            "AO radius {radius} is more than half the scene ({extent:.4} units across): everything occludes everything; try --radius {:.3}",
+            extent / 10.0
+        ));
+    } else if extent > 0.0 && radius < 1e-4 * extent {
+        out.push(format!(
+            "AO radius {radius} is below 1/10,000 of the scene ({extent:.4} units across): AO is open nearly everywhere; try --radius {:.3}",
+            extent / 100.0
+        ));
+    }
+    Ok(out)
+}
+
 /// Parses `ex,ey,ez,tx,ty,tz`.
 fn parse_eye_target(s: &str) -> Result<[f32; 6], String> {
     let v: Vec<f32> = s
@@ -218,4 +260,41 @@ pub fn cpu_seconds() -> Option<f64> {
     let f: Vec<&str> = rest.split_whitespace().collect();
     let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
     Some(ticks / 100.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::{Affine3A, Vec3};
+    use psao_scene::Mesh;
+
+    fn cube(side: f32) -> Scene {
+        let mut s = Scene::default();
+        s.add(
+            Mesh::cuboid(Vec3::ZERO, Vec3::splat(side)),
+            Affine3A::IDENTITY,
+        );
+        s
+    }
+
+    #[test]
+    fn scale_warnings_name_the_size_and_the_option() {
+        // A 2 m cube at the defaults: nothing to say.
+        assert!(scale_warnings(&cube(2.0), 1024.0, 0.6).unwrap().is_empty());
+        // A 7 cm model at the paper's radius.
+        let w = scale_warnings(&cube(0.07), 1024.0, 0.6).unwrap();
+        assert!(
+            w.len() == 1 && w[0].contains("more than half") && w[0].contains("--radius 0.007"),
+            "{w:?}"
+        );
+        // A room in centimetres read as metres: 6 faces of 555 x 555.
+        let w = scale_warnings(&cube(555.0), 16.0, 0.6).unwrap();
+        assert!(
+            w.len() == 1 && w[0].contains("29.6 million points") && w[0].contains("--density"),
+            "{w:?}"
+        );
+        // A radius lost in a city.
+        let w = scale_warnings(&cube(10_000.0), 1e-6, 0.6).unwrap();
+        assert!(w.len() == 1 && w[0].contains("1/10,000"), "{w:?}");
+    }
 }

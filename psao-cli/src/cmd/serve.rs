@@ -96,6 +96,9 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         cull: args.cull.then(ViewerCull::default),
         ..pipeline_config(args.density, 64, args.radius)
     };
+    for w in super::common::scale_warnings(&scene, args.density, args.radius)? {
+        eprintln!("warning: {w}");
+    }
     println!("preparing the scene (points, grids, first trace)...");
     let started = Instant::now();
     let mut pipeline = pipeline_with_progress(scene, pipeline)?;
