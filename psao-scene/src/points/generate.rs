@@ -414,51 +414,69 @@ impl WeightHeap {
     }
 }
 
-/// Neighbours within `reach` of every point, in CSR form.
+/// Neighbours within `reach` of every point: per chunk of
+/// [`NEIGHBOUR_CHUNK`] points (listed in parallel), where each list starts
+/// and the lists one after another.
 struct Neighbours {
-    start: Vec<usize>,
-    items: Vec<(u32, f32)>,
+    chunks: Vec<NeighbourChunk>,
 }
 
 impl Neighbours {
     fn of(&self, i: usize) -> &[(u32, f32)] {
-        &self.items[self.start[i]..self.start[i + 1]]
+        let (starts, items) = &self.chunks[i / NEIGHBOUR_CHUNK];
+        let k = i % NEIGHBOUR_CHUNK;
+        &items[starts[k] as usize..starts[k + 1] as usize]
     }
 }
 
-/// One parallel task's lists: their lengths, and their items one after
-/// another.
-type NeighbourChunk = (Vec<usize>, Vec<(u32, f32)>);
+/// One parallel task's lists: where each starts (one more than its
+/// points), and their items one after another.
+type NeighbourChunk = (Vec<u32>, Vec<(u32, f32)>);
 
 /// Points whose neighbours one parallel task lists.
 const NEIGHBOUR_CHUNK: usize = 1 << 12;
 
 fn neighbour_lists(points: &[Vec3], normals: &[Vec3], reach: f32) -> Neighbours {
     let cell = |p: Vec3| (p / reach).floor().as_ivec3();
-    let mut grid: FxHashMap<IVec3, Vec<u32>> = FxHashMap::default();
-    for (i, &p) in points.iter().enumerate() {
-        grid.entry(cell(p)).or_default().push(i as u32);
+    // Points by cell: sorted in parallel (the index breaks ties, so the
+    // order is one whatever the threads), then each cell's run indexed.
+    let mut by_cell: Vec<(IVec3, u32)> = points
+        .par_iter()
+        .enumerate()
+        .map(|(i, &p)| (cell(p), i as u32))
+        .collect();
+    by_cell.par_sort_unstable_by_key(|&(c, i)| (c.x, c.y, c.z, i));
+    let mut grid: FxHashMap<IVec3, (u32, u32)> = FxHashMap::default();
+    let mut at = 0;
+    while at < by_cell.len() {
+        let c = by_cell[at].0;
+        let mut end = at + 1;
+        while end < by_cell.len() && by_cell[end].0 == c {
+            end += 1;
+        }
+        grid.insert(c, (at as u32, end as u32));
+        at = end;
     }
     // Each point's list depends on the grid alone: listed in parallel, in
     // chunks kept in order.
-    let lists: Vec<NeighbourChunk> = (0..points.len().div_ceil(NEIGHBOUR_CHUNK))
+    let chunks: Vec<NeighbourChunk> = (0..points.len().div_ceil(NEIGHBOUR_CHUNK))
         .into_par_iter()
         .map(|c| {
             let (lo, hi) = (
                 c * NEIGHBOUR_CHUNK,
                 ((c + 1) * NEIGHBOUR_CHUNK).min(points.len()),
             );
-            let (mut lens, mut items) = (Vec::with_capacity(hi - lo), Vec::new());
+            let (mut starts, mut items) = (Vec::with_capacity(hi - lo + 1), Vec::new());
+            starts.push(0u32);
             for i in lo..hi {
-                let before = items.len();
                 let (p, c) = (points[i], cell(points[i]));
                 for dz in -1..=1 {
                     for dy in -1..=1 {
                         for dx in -1..=1 {
-                            let Some(list) = grid.get(&(c + IVec3::new(dx, dy, dz))) else {
+                            let Some(&(a, b)) = grid.get(&(c + IVec3::new(dx, dy, dz))) else {
                                 continue;
                             };
-                            for &j in list {
+                            for &(_, j) in &by_cell[a as usize..b as usize] {
                                 let d = points[j as usize].distance(p);
                                 let facing = normals[j as usize].dot(normals[i]) > 0.0;
                                 if j as usize != i && d < reach && facing {
@@ -468,21 +486,10 @@ fn neighbour_lists(points: &[Vec3], normals: &[Vec3], reach: f32) -> Neighbours 
                         }
                     }
                 }
-                lens.push(items.len() - before);
+                starts.push(items.len() as u32);
             }
-            (lens, items)
+            (starts, items)
         })
         .collect();
-    let mut start = Vec::with_capacity(points.len() + 1);
-    let mut items = Vec::with_capacity(lists.iter().map(|l| l.1.len()).sum());
-    for (lens, chunk) in lists {
-        let mut at = items.len();
-        for len in lens {
-            start.push(at);
-            at += len;
-        }
-        items.extend(chunk);
-    }
-    start.push(items.len());
-    Neighbours { start, items }
+    Neighbours { chunks }
 }
