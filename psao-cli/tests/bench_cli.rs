@@ -127,6 +127,7 @@ fn bench_refuses_bad_settings() {
         ),
         (vec!["--image-frames", "1,x"], "`x` is not a frame index"),
         (vec!["--image-frames=-1"], "`-1` is not a frame index"),
+        (vec!["--scenes", "default,bogus"], "invalid value 'bogus'"),
         (vec!["--camera", "1,2,3"], "3 numbers; expected six"),
         (
             vec!["--camera", "1,2,3,4,5,x"],

@@ -16,9 +16,22 @@ use std::path::PathBuf;
 
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressStyle};
-use psao_scene::{AoParams, Scene, cesium_man_scene, default_scene, load_scene_file, stage};
+use psao_scene::{
+    AoParams, Scene, cesium_man_scene, default_scene, hall_scene, load_scene_file, stage,
+};
 
 pub use measure::{ImageFrames, Settings};
+
+/// The scenes `psao bench` carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Embedded {
+    /// The codec demo's scene: floor, trellis, a sliding box, a walker.
+    Default,
+    /// CesiumMan walking on a floor.
+    CesiumMan,
+    /// The procedural hall (`psao_scene::hall_scene`).
+    Hall,
+}
 
 /// Where PSAO servers trace.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -39,12 +52,24 @@ pub struct BenchArgs {
     #[arg(long)]
     full: bool,
     /// Scene files (glTF .gltf/.glb, or OBJ) to bench as well, repeatable
-    /// (each staged on a floor, with an orbiting camera when it has no
-    /// camera path) [default: none].
+    /// (an object staged on a floor, a room seen from inside; with an
+    /// automatic camera when the file has none) [default: none].
     #[arg(long = "gltf")]
     gltf: Vec<PathBuf>,
-    /// Only the scenes passed with --gltf (skip the default and CesiumMan
-    /// scenes).
+    /// The embedded scenes to bench, comma-separated: `default` (the
+    /// codec demo's), `cesium-man` (a skinned figure on a floor), `hall`
+    /// (207 instances: 160 sliding props, 4 walking figures; 2.5 million
+    /// points at N = 2048 and every prop moving every tick: give it fewer
+    /// densities, rates and rays, it takes long at the defaults).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        value_enum,
+        default_value = "default,cesium-man",
+        hide_possible_values = true
+    )]
+    scenes: Vec<Embedded>,
+    /// Only the scenes passed with --gltf (none of --scenes).
     #[arg(long)]
     only_gltf: bool,
     /// Image width [default: 320; with --full: 1280].
@@ -146,8 +171,18 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     settings.validate()?;
     let mut scenes: Vec<(String, Scene)> = Vec::new();
     if !args.only_gltf {
-        scenes.push(("default".into(), default_scene()));
-        scenes.push(("cesium-man".into(), cesium_man_scene()));
+        let mut seen = Vec::new();
+        for &e in &args.scenes {
+            if seen.contains(&e) {
+                continue;
+            }
+            seen.push(e);
+            scenes.push(match e {
+                Embedded::Default => ("default".into(), default_scene()),
+                Embedded::CesiumMan => ("cesium-man".into(), cesium_man_scene()),
+                Embedded::Hall => ("hall".into(), hall_scene()),
+            });
+        }
     }
     let camera = args.camera.path()?;
     for path in &args.gltf {
