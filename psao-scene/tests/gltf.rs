@@ -399,6 +399,14 @@ fn animated_morph_weights_deform_the_mesh_like_a_skin() {
     }
     // Streamed, the mesh deforms tick after tick and the mirror keeps up.
     let staged = stage(s).unwrap();
+    // Its mesh is 2 cm under a node that scales it by 100: 1024 points kept
+    // per world square metre are 2 * 1024 * 100^2 spawned per mesh unit
+    // (once refused as above 1e7).
+    let dense = Pipeline::new(
+        staged.clone(),
+        PipelineConfig::with_density_and_rays(2048.0, 2),
+    );
+    assert!(dense.is_ok(), "{:?}", dense.err());
     let config = PipelineConfig {
         density: 64.0,
         ao: AoParams {

@@ -102,12 +102,15 @@ pub const MAX_SPAWNED_POINTS: usize = 1 << 26;
 /// alpha-mask holes, then eliminates half of the rest per side by weighted
 /// sample elimination. Deterministic for a seed.
 pub fn generate_points(mesh: &Mesh, density: f32, seed: u64) -> Result<PointSet, SceneError> {
+    // Any positive density: the mesh's own units may be millimetres under
+    // a node that scales them up (or metres for a model 7 mm across); the
+    // spawned count below is what is bounded.
     check_param(
         "density",
         density as f64,
-        1e-6,
-        1e7,
-        "points per unit area in (0, 1e7]",
+        f32::MIN_POSITIVE as f64,
+        f32::MAX as f64,
+        "points per unit area, positive and finite",
     )?;
     mesh.validate(0)?;
     let area = mesh.area();
