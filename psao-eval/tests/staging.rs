@@ -133,3 +133,26 @@ fn camera_paths_read_from_text_and_fixed_cameras_are_checked() {
     assert!(e.contains("missing.txt"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_panel_facing_one_way_is_seen_from_its_front() {
+    // A 4 x 3 m single-sided panel facing +Z: from behind it is culled.
+    let mut s = Scene::default();
+    s.add(
+        Mesh::quad(Vec3::new(-2.0, 0.0, 0.0), Vec3::X * 4.0, Vec3::Y * 3.0),
+        Affine3A::IDENTITY,
+    );
+    let staged = stage(s).unwrap();
+    let path = staged.camera.clone().unwrap();
+    assert!(path.keys.iter().all(|k| k.eye.z > 0.5), "{:?}", path.keys);
+    let cov = path_coverage(&staged, &key_times(&staged), 64, 36).unwrap();
+    assert!(cov.iter().all(|&c| c >= 0.5), "{cov:?}");
+    // Mirrored by a node (det < 0), the panel faces -Z: seen from there.
+    let mut m = Scene::default();
+    m.add(
+        Mesh::quad(Vec3::new(-2.0, 0.0, 0.0), Vec3::X * 4.0, Vec3::Y * 3.0),
+        Affine3A::from_scale(Vec3::new(1.0, 1.0, -1.0)),
+    );
+    let path = stage(m).unwrap().camera.unwrap();
+    assert!(path.keys.iter().all(|k| k.eye.z < -0.5), "{:?}", path.keys);
+}

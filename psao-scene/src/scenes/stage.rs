@@ -1,6 +1,7 @@
 //! Staging an imported model for streaming and benchmarks. An object gets
 //! a floor under it (so it has something to occlude and be occluded by)
-//! and, when the file has no camera path, a camera orbiting it. An
+//! and, when the file has no camera path, a camera swinging round its
+//! front. An
 //! interior (a room whose faces point inward, seen from inside) gets no
 //! floor (it has its own) and a camera that walks round inside it, looking
 //! down across the room: from outside, a glTF renderer culls its walls' back
@@ -15,13 +16,18 @@ use crate::model::mesh::{Mesh, bounds_of};
 use crate::model::scene::Scene;
 use crate::trace::geometry::{Geometry, TriangleBvh};
 
-/// Margin around the model's bounds covered by the floor, in scene units,
-/// at most [`FLOOR_MARGIN_EXTENTS`] times the model's largest extent (a
-/// 7 cm model gets a floor of its own size, not metres of it).
-pub const FLOOR_MARGIN: f32 = 2.0;
+/// Margin around the model's bounds covered by the floor, in units of the
+/// model's largest extent (a 7 cm car gets 7 cm of floor on each side, a
+/// 155-unit fox 155 units): scale-free.
+pub const FLOOR_MARGIN_EXTENTS: f32 = 1.0;
 
-/// The floor margin's cap, in units of the model's largest extent.
-pub const FLOOR_MARGIN_EXTENTS: f32 = 1.5;
+/// Azimuths [`stage`] weighs to find the side an object is meant to be
+/// seen from.
+pub const AZIMUTHS: usize = 16;
+
+/// How far the staged orbit swings to either side of that side, radians
+/// (45 degrees).
+pub const SWING: f32 = std::f32::consts::FRAC_PI_4;
 
 /// Seconds the staged camera takes for one orbit.
 pub const ORBIT_SECONDS: f32 = 20.0;
@@ -93,12 +99,57 @@ pub fn front_share(tris: Vec<[Vec3; 3]>, from: Vec3) -> f32 {
     front as f32 / PROBE_RAYS as f32
 }
 
+/// The azimuth (about +Y, from +X towards +Z, of the eye around the
+/// centre) of the [`AZIMUTHS`] from which the most surface faces the
+/// viewer: per triangle its area times the cosine towards the eye, front
+/// faces only for single-sided materials (a mirrored instance's winding
+/// flipped), either face for double-sided ones. Occlusion is not counted.
+fn front_azimuth(scene: &Scene, tris: &[[Vec3; 3]]) -> f32 {
+    // Per triangle, in world_triangles' order: the sign that turns its
+    // winding normal into its front, 0 for double-sided.
+    let pose = scene.pose(0.0);
+    let mut signs = Vec::with_capacity(tris.len());
+    for (i, inst) in scene.instances.iter().enumerate() {
+        let m = &scene.meshes[inst.mesh];
+        let sign = if m.double_sided {
+            0.0
+        } else if pose.instances[i].matrix3.determinant() < 0.0 {
+            -1.0
+        } else {
+            1.0
+        };
+        signs.extend(std::iter::repeat_n(sign, m.triangle_count()));
+    }
+    let best = (0..AZIMUTHS)
+        .map(|k| {
+            let a = std::f32::consts::TAU * k as f32 / AZIMUTHS as f32;
+            let to_eye = Vec3::new(a.cos(), 0.35, a.sin()).normalize();
+            let seen: f64 = tris
+                .iter()
+                .zip(&signs)
+                .map(|(t, &sign)| {
+                    let n = (t[1] - t[0]).cross(t[2] - t[0]) * 0.5;
+                    let c = n.dot(to_eye);
+                    (if sign == 0.0 {
+                        c.abs()
+                    } else {
+                        (c * sign).max(0.0)
+                    }) as f64
+                })
+                .sum();
+            (k, seen)
+        })
+        .fold((0, f64::MIN), |b, x| if x.1 > b.1 { x } else { b });
+    std::f32::consts::TAU * best.0 as f32 / AZIMUTHS as f32
+}
+
 /// Stages `scene` as [`setting`] finds it. An object gets a floor quad
-/// (facing +Y) at the bottom of its bounds at rest, [`FLOOR_MARGIN`] wider
-/// on each side (capped at [`FLOOR_MARGIN_EXTENTS`] of its largest
-/// extent), and, when the scene has no camera path, a camera orbiting the
-/// bounds' centre once in [`ORBIT_SECONDS`] at 2.4 times the bounds'
-/// half-diagonal, looking slightly down. An interior gets no floor and,
+/// (facing +Y) at the bottom of its bounds at rest, wider by
+/// [`FLOOR_MARGIN_EXTENTS`] of its largest extent on each side, and, when
+/// the scene has no camera path, a camera that swings [`SWING`] to either
+/// side of the object's front (the side most of its surface faces, see
+/// `front_azimuth`) and back in [`ORBIT_SECONDS`], looking slightly down
+/// from where the model's box fills the view. An interior gets no floor and,
 /// without a camera path, a camera circling inside in [`ORBIT_SECONDS`]
 /// at mid height, 60% of the way from the centre to the walls, looking
 /// down across the middle of the room (its floor and what stands there)
@@ -114,9 +165,10 @@ pub fn stage(mut scene: Scene) -> Result<Scene, SceneError> {
     };
     let centre = (lo + hi) * 0.5;
     let half = (hi - lo) * 0.5;
+    let front = front_azimuth(&scene, &tris);
     let setting = setting_of(tris, centre);
     if setting == Setting::Object {
-        let margin = FLOOR_MARGIN.min((hi - lo).max_element() * FLOOR_MARGIN_EXTENTS);
+        let margin = (hi - lo).max_element() * FLOOR_MARGIN_EXTENTS;
         let (flo, fhi) = (lo - Vec3::splat(margin), hi + Vec3::splat(margin));
         let size = fhi - flo;
         scene.add(
@@ -137,9 +189,13 @@ pub fn stage(mut scene: Scene) -> Result<Scene, SceneError> {
                 let (c, s) = (a.cos(), a.sin());
                 let (eye, target) = match setting {
                     Setting::Object => {
-                        // Far enough that the whole model stays in view
-                        // at 50 degrees.
-                        let reach = half.length().max(1e-3) * 2.4;
+                        // Swinging to and fro about the front, far enough
+                        // that the model's box (its widest horizontal
+                        // diagonal, or its height) fills the 50-degree view.
+                        let swing = front + SWING * a.sin();
+                        let (c, s) = (swing.cos(), swing.sin());
+                        let size = Vec3::new(half.x, 0.0, half.z).length().max(half.y);
+                        let reach = size.max(1e-3) / 25f32.to_radians().tan() * 1.15;
                         (
                             centre + Vec3::new(c * reach, half.y + reach * 0.35, s * reach),
                             centre - Vec3::Y * (half.y * 0.3),
