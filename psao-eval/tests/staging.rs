@@ -111,6 +111,7 @@ fn camera_paths_read_from_text_and_fixed_cameras_are_checked() {
         ("1 0 0 1 0 0 0\n0 0 0 2 0 0 0\n", "increase strictly"),
         ("0 1 1 1 1 1 1\n", "own eye"),
         ("# nothing\n", "no keys"),
+        (", ,\n,\n", "no keys"),
     ] {
         let e = CameraPath::parse(bad).unwrap_err().to_string();
         assert!(e.contains(why), "{bad:?}: {e}");
@@ -131,6 +132,9 @@ fn camera_paths_read_from_text_and_fixed_cameras_are_checked() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("missing.txt"), "{e}");
+    // A folder (as a pipe or a device) is not a regular file.
+    let e = CameraPath::load(&dir).unwrap_err().to_string();
+    assert!(e.contains("not a regular file"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -40,7 +40,7 @@ fn obj_error(file: &str, element: &str, reason: String) -> SceneError {
 
 /// Reads at most `cap` bytes of the regular file `path`, or says why not
 /// (a device or a pipe is not read: it might never end).
-fn read_capped(path: &Path, cap: u64) -> Result<Vec<u8>, String> {
+pub(crate) fn read_capped(path: &Path, cap: u64) -> Result<Vec<u8>, String> {
     if !std::fs::metadata(path)
         .map_err(|e| e.to_string())?
         .is_file()

@@ -200,7 +200,11 @@ impl CameraPath {
                 .split(|c: char| c.is_whitespace() || c == ',')
                 .filter(|w| !w.is_empty())
                 .collect();
-            if words[0].eq_ignore_ascii_case("fov") {
+            // A line of commas alone has no words.
+            let Some(first) = words.first() else {
+                continue;
+            };
+            if first.eq_ignore_ascii_case("fov") {
                 if fov.is_some() {
                     return Err(bad(line, "a second fov line".into()));
                 }
@@ -255,21 +259,15 @@ impl CameraPath {
         Ok(path)
     }
 
-    /// Reads and [`parse`](Self::parse)s a camera-path file of at most
-    /// [`MAX_CAMERA_PATH_BYTES`]; errors name the file.
+    /// Reads and [`parse`](Self::parse)s a camera-path file: a regular
+    /// file (a pipe or a device is not read) of at most
+    /// [`MAX_CAMERA_PATH_BYTES`], in UTF-8; errors name the file.
     pub fn load(path: &std::path::Path) -> Result<CameraPath, SceneError> {
-        use std::io::Read as _;
         let named = |reason: String| SceneError::Camera {
             reason: format!("{}: {reason}", path.display()),
         };
-        let file = std::fs::File::open(path).map_err(|e| named(e.to_string()))?;
-        let mut text = String::new();
-        file.take(MAX_CAMERA_PATH_BYTES + 1)
-            .read_to_string(&mut text)
-            .map_err(|e| named(e.to_string()))?;
-        if text.len() as u64 > MAX_CAMERA_PATH_BYTES {
-            return Err(named(format!("larger than {MAX_CAMERA_PATH_BYTES} bytes")));
-        }
+        let bytes = crate::import::obj::read_capped(path, MAX_CAMERA_PATH_BYTES).map_err(named)?;
+        let text = String::from_utf8(bytes).map_err(|_| named("not UTF-8 text".into()))?;
         CameraPath::parse(&text).map_err(|e| match e {
             SceneError::Camera { reason } => named(reason),
             e => e,
