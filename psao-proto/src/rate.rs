@@ -40,8 +40,8 @@ impl RateWatch {
     /// Records a tick at `now` (times must not go back). Returns the rate
     /// measured over the last [`RATE_WINDOW`], in Hz, when a notice is due:
     /// the window is whole, holds fewer than [`RATE_SHARE`] of the ticks
-    /// the announced rate gives it, and no notice was due in the last
-    /// [`NOTICE_EVERY`].
+    /// the announced rate gives it, and this watch returned no rate in the
+    /// last [`NOTICE_EVERY`].
     pub fn tick(&mut self, now: Instant) -> Option<f64> {
         let start = *self.start.get_or_insert(now);
         self.ticks.push_back(now);
@@ -76,7 +76,7 @@ impl RateWatch {
     }
 }
 
-/// The text of a rate notice: `41.2 of 60 Hz`.
+/// The text of a rate notice: `41.5 of 60 Hz`.
 pub fn rate_text(measured: f64, rate: u16) -> String {
     format!("{measured:.1} of {rate} Hz")
 }

@@ -429,8 +429,10 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
             let text = crate::rate::rate_text(hz, watch.rate());
             warn!("running below the announced frame rate: {text}");
             let mut s = hub.lock();
-            s.stats.rate_notices += 1;
-            s.notice_all(NoticeCode::BelowRate, &text);
+            if !s.clients.is_empty() {
+                s.stats.rate_notices += 1;
+                s.notice_all(NoticeCode::BelowRate, &text);
+            }
         }
         if next > now {
             std::thread::sleep(next - now);

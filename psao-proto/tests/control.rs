@@ -74,7 +74,7 @@ fn described(name: &str) -> Control {
         },
         "NOTICE-BELOW-RATE" => Control::Notice {
             code: NoticeCode::BelowRate,
-            text: "41.2 of 60 Hz".into(),
+            text: "41.5 of 60 Hz".into(),
         },
         other => panic!("no description for example {other}"),
     }

@@ -67,8 +67,8 @@ mod trace;
 pub use error::{SceneError, check_param};
 pub use import::obj::{MAX_MTL_BYTES, MAX_MTL_FILES, MAX_OBJ_BYTES, load_obj, load_obj_slice};
 pub use import::{
-    MAX_ACCESSOR_BYTES, MAX_BUFFER_BYTES, MAX_INSTANCES, MAX_SKINNED_VERTICES, load_gltf,
-    load_gltf_slice, load_scene_file,
+    MAX_ACCESSOR_BYTES, MAX_BUFFER_BYTES, MAX_INSTANCES, MAX_MORPH_BYTES, MAX_MORPH_TARGETS,
+    MAX_SKINNED_VERTICES, load_gltf, load_gltf_slice, load_scene_file,
 };
 pub use model::alpha::{AlphaMask, AlphaTexture};
 pub use model::animation::{Animation, Channel, Interpolation, Keys};

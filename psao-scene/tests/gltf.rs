@@ -461,3 +461,30 @@ fn the_first_perspective_camera_becomes_the_scene_camera_and_staging_keeps_it() 
             .is_none()
     );
 }
+
+#[test]
+fn morph_targets_are_capped_per_primitive() {
+    // One triangle whose primitive lists `n` targets, each moving POSITION
+    // by the triangle's own positions (accessor 0).
+    let doc = |n: usize| {
+        let targets = vec![r#"{"POSITION": 0}"#; n].join(",");
+        format!(
+            r#"{{
+        "asset": {{"version": "2.0"}},
+        "buffers": [{{"uri": "data:application/octet-stream;base64,{BUFFER_B64}", "byteLength": 104}}],
+        "bufferViews": [{{"buffer": 0, "byteLength": 36}}],
+        "accessors": [{{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0,0,0], "max": [1,1,0]}}],
+        "meshes": [{{"primitives": [{{"attributes": {{"POSITION": 0}}, "targets": [{targets}]}}]}}],
+        "nodes": [{{"mesh": 0}}],
+        "scenes": [{{"nodes": [0]}}]
+    }}"#
+        )
+    };
+    let load = |json: String| load_gltf_slice(json.as_bytes(), "morph.gltf", None);
+    assert!(load(doc(MAX_MORPH_TARGETS)).is_ok());
+    let e = load(doc(MAX_MORPH_TARGETS + 1)).unwrap_err().to_string();
+    assert!(
+        e.contains("257 morph targets, above 256") && e.contains("mesh 0 primitive 0"),
+        "{e}"
+    );
+}

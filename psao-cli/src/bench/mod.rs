@@ -58,7 +58,7 @@ pub struct BenchArgs {
     gltf: Vec<PathBuf>,
     /// The embedded scenes to bench, comma-separated: `default` (the
     /// codec demo's), `cesium-man` (a skinned figure on a floor), `hall`
-    /// (207 instances: 160 sliding props, 4 walking figures; 2.5 million
+    /// (207 instances: 160 sliding props, 4 walking figures; 5.1 million
     /// points at N = 2048 and every prop moving every tick: give it fewer
     /// densities, rates and rays, it takes long at the defaults).
     #[arg(

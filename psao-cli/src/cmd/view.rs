@@ -63,7 +63,9 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
                 NoticeCode::EventRefused => "a scene event was refused",
                 _ => "notice",
             };
-            println!("server notice: {what}: {text}");
+            // The server's text is shown escaped: it may hold control
+            // characters (a terminal would obey escape sequences).
+            println!("server notice: {what}: {}", text.escape_debug());
         }
         let dt = prev.1.elapsed().as_secs_f64();
         let applied = s.applied - prev.0.applied;

@@ -11,16 +11,25 @@ use super::material::alpha_mask;
 use crate::error::SceneError;
 use crate::model::mesh::Mesh;
 use crate::model::morph::MorphTargets;
+
+/// Most morph targets a primitive may have.
+pub const MAX_MORPH_TARGETS: usize = 256;
+
+/// Most bytes of animated morph target offsets over a whole file.
+pub const MAX_MORPH_BYTES: usize = 1 << 30;
 use crate::model::skin::SkinWeights;
 
 /// The [`Mesh`] of a primitive, its morph targets applied with `weights`
 /// (a missing weight is 0); with `animated`, the targets are kept as well
 /// ([`MorphTargets`], rest weights `weights`) for an animation to drive.
-/// `element` names it in errors.
+/// `element` names it in errors. At most [`MAX_MORPH_TARGETS`] targets;
+/// the targets kept draw on `morph_budget` (bytes left of
+/// [`MAX_MORPH_BYTES`]), each at least 64 bytes however empty.
 pub(super) fn primitive_mesh(
     prim: &gltf::Primitive<'_>,
     weights: &[f32],
     animated: bool,
+    morph_budget: &mut usize,
     buffers: &Buffers,
     name: &str,
     element: &str,
@@ -88,6 +97,29 @@ pub(super) fn primitive_mesh(
             }
             Ok(Some(v))
         };
+    let targets = prim.morph_targets().len();
+    if targets > MAX_MORPH_TARGETS {
+        return Err(gltf_error(
+            name,
+            element,
+            format!("{targets} morph targets, above {MAX_MORPH_TARGETS}"),
+        ));
+    }
+    if animated {
+        // Offsets kept per target: a position and a normal per vertex at
+        // most (checked before anything is read).
+        let cost = targets.saturating_mul((vertex_count.saturating_mul(24)).max(64));
+        if cost > *morph_budget {
+            return Err(gltf_error(
+                name,
+                element,
+                format!(
+                    "its animated morph targets would take {cost} bytes, above what is left of {MAX_MORPH_BYTES}"
+                ),
+            ));
+        }
+        *morph_budget -= cost;
+    }
     for (k, target) in prim.morph_targets().enumerate() {
         let w = weights.get(k).copied().unwrap_or(0.0);
         if !w.is_finite() {
@@ -103,9 +135,7 @@ pub(super) fn primitive_mesh(
             for (q, d) in positions.iter_mut().zip(&p) {
                 *q += w * *d;
             }
-            if !n.is_empty() && w != 0.0 {
-                normal_deltas.push((w, n.clone()));
-            }
+            // Normal offsets are applied from `morph.normals` below.
             morph.rest_weights.push(w);
             morph.positions.push(p);
             morph.normals.push(n);
@@ -154,7 +184,8 @@ pub(super) fn primitive_mesh(
     let normals: Vec<Vec3> = match prim.get(&Semantic::Normals) {
         Some(a) if a.data_type() == DataType::F32 && a.dimensions() == Dimensions::Vec3 => {
             let mut n = read(a, "NORMAL")?.vec3();
-            for (w, d) in &normal_deltas {
+            let kept = morph.rest_weights.iter().zip(&morph.normals);
+            for (w, d) in normal_deltas.iter().map(|(w, d)| (w, d)).chain(kept) {
                 for (n, d) in n.iter_mut().zip(d) {
                     *n += *w * *d;
                 }

@@ -23,7 +23,9 @@
 //! primitives other than triangle lists. Any problem is a
 //! [`SceneError::Gltf`] naming the file and the element. Work is bounded:
 //! every buffer is read once, at most [`MAX_BUFFER_BYTES`] in all, and the
-//! accessors read from them at most [`MAX_ACCESSOR_BYTES`] in all.
+//! accessors read from them at most [`MAX_ACCESSOR_BYTES`] in all; a
+//! primitive has at most [`MAX_MORPH_TARGETS`] morph targets, and the
+//! animated ones kept take at most [`MAX_MORPH_BYTES`].
 //!
 //! Here are the entry points and the limits; [`buffers`] reads the bytes
 //! (buffers and accessors), [`nodes`] the node hierarchy, the instances on
@@ -33,6 +35,7 @@
 mod buffers;
 mod material;
 mod mesh;
+pub use mesh::{MAX_MORPH_BYTES, MAX_MORPH_TARGETS};
 mod nodes;
 pub(crate) mod obj;
 

@@ -91,7 +91,8 @@ pub(super) fn read_nodes<'a>(
 /// Every primitive of the mesh of each of `visited` becomes an
 /// [`Instance`] hanging from the node, with the node's skin (if any, and
 /// if the primitive carries joints). Each mesh primitive and each skin is
-/// read once, whatever the number of nodes that use it. At most
+/// read once, whatever the number of nodes that use it, except that a
+/// node with weights of its own (or animated ones) gets its own copy. At most
 /// [`MAX_INSTANCES`].
 pub(super) fn read_instances(
     visited: &[gltf::Node<'_>],
@@ -103,6 +104,7 @@ pub(super) fn read_instances(
 ) -> Result<(), SceneError> {
     let mut skins: HashMap<usize, usize> = HashMap::new();
     let mut meshes: HashMap<(usize, usize, Option<usize>), usize> = HashMap::new();
+    let mut morph_budget = super::mesh::MAX_MORPH_BYTES;
     for node in visited {
         let here = node_of(node.index(), "scene")?;
         let Some(mesh) = node.mesh() else { continue };
@@ -132,7 +134,15 @@ pub(super) fn read_instances(
                 Some(&id) => id,
                 None => {
                     let element = format!("mesh {} primitive {}", mesh.index(), prim.index());
-                    let m = primitive_mesh(&prim, weights, animated, buffers, name, &element)?;
+                    let m = primitive_mesh(
+                        &prim,
+                        weights,
+                        animated,
+                        &mut morph_budget,
+                        buffers,
+                        name,
+                        &element,
+                    )?;
                     out.meshes.push(m);
                     meshes.insert(key, out.meshes.len() - 1);
                     out.meshes.len() - 1

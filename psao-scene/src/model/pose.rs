@@ -100,32 +100,27 @@ impl Scene {
     pub fn deform_into(&self, i: usize, pose: &Pose, out_p: &mut Vec<Vec3>, out_n: &mut Vec<Vec3>) {
         let inst = &self.instances[i];
         let m = &self.meshes[inst.mesh];
-        let morphed = match (&m.morph, pose.weights.get(i)) {
-            (Some(t), Some(w)) => {
-                let (mut p, mut n) = (Vec::new(), Vec::new());
-                t.apply(w, &m.positions, &m.normals, &mut p, &mut n);
-                Some((p, n))
-            }
+        let morph = m.morph.as_ref().zip(pose.weights.get(i));
+        let skin = match (&m.skin, pose.joints.get(i)) {
+            (Some(w), Some(j)) if inst.skin.is_some() => Some((w, j)),
             _ => None,
         };
-        let (base_p, base_n) = match &morphed {
-            Some((p, n)) => (p.as_slice(), n.as_slice()),
-            None => (m.positions.as_slice(), m.normals.as_slice()),
-        };
-        match (&m.skin, pose.joints.get(i)) {
-            (Some(w), Some(j)) if inst.skin.is_some() => w.skin(base_p, base_n, j, out_p, out_n),
-            _ => match morphed {
-                Some((p, n)) => {
-                    *out_p = p;
-                    *out_n = n;
-                }
-                None => {
-                    out_p.clear();
-                    out_p.extend_from_slice(base_p);
-                    out_n.clear();
-                    out_n.extend_from_slice(base_n);
-                }
-            },
+        match (morph, skin) {
+            // Morphed straight into the caller's buffers.
+            (Some((t, w)), None) => t.apply(w, &m.positions, &m.normals, out_p, out_n),
+            (None, Some((w, j))) => w.skin(&m.positions, &m.normals, j, out_p, out_n),
+            // Both: the morphed mesh is the skin's input.
+            (Some((t, wt)), Some((w, j))) => {
+                let (mut p, mut n) = (Vec::new(), Vec::new());
+                t.apply(wt, &m.positions, &m.normals, &mut p, &mut n);
+                w.skin(&p, &n, j, out_p, out_n);
+            }
+            (None, None) => {
+                out_p.clear();
+                out_p.extend_from_slice(&m.positions);
+                out_n.clear();
+                out_n.extend_from_slice(&m.normals);
+            }
         }
     }
 

@@ -220,6 +220,11 @@ impl Pipeline {
             );
             self.instances[i].buried = found;
         }
+        progress(SetupProgress {
+            stage: SetupStage::Buried,
+            done: total,
+            total,
+        });
         Ok(())
     }
 

@@ -8,7 +8,8 @@
 //! [`HallParams::figures`] CesiumMan figures walking up and down the
 //! aisles. A camera path of 30 s walks the length of the hall at eye
 //! height. It measures what many moving instances and millions of points
-//! cost (at 1024 points per m^2 it holds about 3 million points).
+//! cost (1.28 million points at 1024 spawned per m^2, the bench's N = 512;
+//! 5.1 million at 4096, N = 2048).
 
 use glam::{Affine3A, Quat, Vec3};
 
