@@ -265,18 +265,15 @@ impl Pipeline {
         )
     }
 
-    /// Gives the buried points of every instance with a point in `which`
-    /// the AO of their donors as clients hold it (set whatever it was with
-    /// `force`, else when past the thresholds). Returns how many were set.
-    pub(super) fn fill_buried(
-        &mut self,
-        which: &[Vec<u32>],
-        force: bool,
-    ) -> Result<u64, SceneError> {
+    /// Gives the buried points of every `touched` instance the AO of
+    /// their donors as clients hold it (set whatever it was with `force`,
+    /// else when past the thresholds). Returns how many were set.
+    pub(super) fn fill_buried(&mut self, touched: &[bool], force: bool) -> Result<u64, SceneError> {
         let th = self.config.thresholds;
         let mut set = 0u64;
-        for (s, list) in self.instances.iter_mut().zip(which) {
-            if s.buried.ids.is_empty() || list.is_empty() {
+        let mut held: Vec<(Vec3, Vec3, f32)> = Vec::new();
+        for (s, &touched) in self.instances.iter_mut().zip(touched) {
+            if s.buried.ids.is_empty() || !touched {
                 continue;
             }
             let params = WeightParams::of(s.table.def());
@@ -284,14 +281,12 @@ impl Pipeline {
             let mut values = Vec::with_capacity(s.buried.ids.len());
             for (&k, donors) in s.buried.ids.iter().zip(&s.buried.donors) {
                 let (x, nx) = (positions[k as usize], normals[k as usize]);
-                let held: Vec<(Vec3, Vec3, f32)> = donors
-                    .iter()
-                    .filter_map(|&d| {
-                        let (p, n) = (positions[d as usize], normals[d as usize]);
-                        let word: PointWord = s.table.sent(d, p, n).word;
-                        word.is_allocated().then(|| (p, n, word.ao()))
-                    })
-                    .collect();
+                held.clear();
+                held.extend(donors.iter().filter_map(|&d| {
+                    let (p, n) = (positions[d as usize], normals[d as usize]);
+                    let word: PointWord = s.table.sent(d, p, n).word;
+                    word.is_allocated().then(|| (p, n, word.ao()))
+                }));
                 values.push(blend(&held, x, nx, &params));
             }
             for (&k, value) in s.buried.ids.iter().zip(values) {

@@ -29,8 +29,9 @@ struct Batch {
 impl Pipeline {
     /// Traces the listed points of each instance (world space) and sets the
     /// ones past the thresholds (all of them with `force`); buried points
-    /// are not traced but take their donors' AO. Returns (traced, rays,
-    /// updated).
+    /// are not traced, and without `force` take their donors' AO now (the
+    /// first trace, forced in batches, fills them once at its end).
+    /// Returns (traced, rays, updated).
     pub(super) fn trace_and_update(
         &mut self,
         tracer: Option<&AoTracer>,
@@ -41,8 +42,9 @@ impl Pipeline {
         let batch = self.batch(traced.as_deref().unwrap_or(which), force);
         let result = self.trace_batch(tracer, &batch, force)?;
         self.apply(&batch.owner, &result)?;
-        let filled = if traced.is_some() {
-            self.fill_buried(which, force)?
+        let filled = if traced.is_some() && !force {
+            let touched: Vec<bool> = which.iter().map(|w| !w.is_empty()).collect();
+            self.fill_buried(&touched, false)?
         } else {
             0
         };

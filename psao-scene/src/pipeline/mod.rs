@@ -478,6 +478,8 @@ impl Pipeline {
                 room = TRACE_BATCH;
             }
         }
+        // Buried points take their donors' AO once every point is traced.
+        pipeline.fill_buried(&vec![true; counts.len()], true)?;
         for s in &mut pipeline.instances {
             s.table.take_dirty();
             s.table.shrink_to_fit();
