@@ -71,6 +71,7 @@ impl PosedScene {
             }
             let nm = normal_matrix(&to_world);
             let mesh = &scene.meshes[inst.mesh];
+            let front = scene.front_sign(i, &to_world);
             let (pos, nrm) = scene.deformed(i, &pose);
             let world: Vec<Vec3> = pos.iter().map(|&p| to_world.transform_point3(p)).collect();
             if let Some(v) = world.iter().position(|p| !p.is_finite()) {
@@ -89,13 +90,7 @@ impl PosedScene {
                 g.masks.push(masks[inst.mesh].clone().map(|m| (m, idx)));
                 normals.push(idx.map(|k| (nm * nrm[k as usize]).normalize_or_zero()));
                 owners.push((i as u32, tri as u32));
-                facing.push(if mesh.double_sided {
-                    0
-                } else if det < 0.0 {
-                    -1
-                } else {
-                    1
-                });
+                facing.push(front as i8);
             }
         }
         let corners = g.triangles.clone();

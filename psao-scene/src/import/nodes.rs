@@ -319,7 +319,7 @@ pub(super) fn read_animation(
 }
 
 /// Most keys sampled from an animated camera node.
-const MAX_CAMERA_KEYS: usize = 1800;
+const MAX_CAMERA_SAMPLES: usize = 1800;
 
 /// The scene's camera: the first node in scene order holding a
 /// perspective camera (glTF names no active camera; orthographic ones are
@@ -347,7 +347,7 @@ pub(super) fn read_camera(
         .fold(0.0f32, f32::max)
         .min(60.0);
     let samples = if span > 0.0 {
-        ((span * 30.0).ceil() as usize).clamp(1, MAX_CAMERA_KEYS)
+        ((span * 30.0).ceil() as usize).clamp(1, MAX_CAMERA_SAMPLES)
     } else {
         0
     };

@@ -45,6 +45,21 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// The sign that turns the winding normal of instance `i`'s triangles
+    /// (counter-clockwise, in world space under `world`, its transform now)
+    /// into the normal of their front: +1, -1 when `world` mirrors
+    /// (negative determinant: glTF flips the winding), 0 for a
+    /// double-sided mesh, which has no back. The scene must be valid.
+    pub fn front_sign(&self, i: usize, world: &Affine3A) -> f32 {
+        if self.meshes[self.instances[i].mesh].double_sided {
+            0.0
+        } else if world.matrix3.determinant() < 0.0 {
+            -1.0
+        } else {
+            1.0
+        }
+    }
+
     /// Adds a mesh with one instance at `transform`; returns the instance index.
     pub fn add(&mut self, mesh: Mesh, transform: Affine3A) -> usize {
         self.meshes.push(mesh);

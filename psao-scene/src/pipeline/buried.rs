@@ -229,17 +229,15 @@ impl Pipeline {
     }
 
     /// The sign that turns instance `i`'s triangle windings (in world
-    /// space with `world`) into front normals, or 0 when its mesh is
-    /// double-sided.
+    /// space with `world`, else its own) into front normals
+    /// ([`Scene::front_sign`](crate::Scene::front_sign)).
     fn face_sign(&self, i: usize, world: bool) -> f32 {
-        let mesh = &self.scene.meshes[self.scene.instances[i].mesh];
-        if mesh.double_sided {
-            0.0
-        } else if world && self.instances[i].transform.matrix3.determinant() < 0.0 {
-            -1.0
+        let at = if world {
+            self.instances[i].transform
         } else {
-            1.0
-        }
+            Affine3A::IDENTITY
+        };
+        self.scene.front_sign(i, &at)
     }
 
     /// Points of `which` that are traced: buried ones are left out.

@@ -110,15 +110,11 @@ fn front_azimuth(scene: &Scene, tris: &[[Vec3; 3]]) -> f32 {
     let pose = scene.pose(0.0);
     let mut signs = Vec::with_capacity(tris.len());
     for (i, inst) in scene.instances.iter().enumerate() {
-        let m = &scene.meshes[inst.mesh];
-        let sign = if m.double_sided {
-            0.0
-        } else if pose.instances[i].matrix3.determinant() < 0.0 {
-            -1.0
-        } else {
-            1.0
-        };
-        signs.extend(std::iter::repeat_n(sign, m.triangle_count()));
+        let sign = scene.front_sign(i, &pose.instances[i]);
+        signs.extend(std::iter::repeat_n(
+            sign,
+            scene.meshes[inst.mesh].triangle_count(),
+        ));
     }
     let best = (0..AZIMUTHS)
         .map(|k| {
