@@ -15,8 +15,9 @@
 //!   `cesium-man` (CesiumMan alone on a floor);
 //! - `--gltf PATH`: stream a scene file instead (glTF or OBJ), standing
 //!   on a floor;
-//! - `--frames N`, `--density D`, `--rays N`, `--lk` (Laine-Karras
-//!   estimator).
+//! - `--frames N`, `--density D` (points spawned per square metre, half
+//!   kept: `psao`'s `--density` is D / 2), `--rays N`, `--lk`
+//!   (Laine-Karras estimator).
 //!
 //! `cargo run --release -p psao-scene --example stream`
 

@@ -55,19 +55,20 @@ use config::{PipelineConfig, Views};
 struct InstanceState {
     /// Points in the mesh's bind pose.
     points: PointSet,
-    /// Points now (instance-local), for a skinned instance, which moves
-    /// them; empty for a rigid one, whose points are `points`' own (see
+    /// Points now (instance-local), for a deforming (skinned or morphing)
+    /// instance, which moves them; empty for a rigid one, whose points are `points`' own (see
     /// [`InstanceState::now`]).
     positions: Vec<Vec3>,
     /// Point normals now (empty for a rigid instance, as `positions`).
     normals: Vec<Vec3>,
-    /// Skinned vertex positions and normals now (empty: the mesh's own).
+    /// Deformed vertex positions and normals now (empty: the mesh's own).
     vertices: Vec<Vec3>,
     vertex_normals: Vec<Vec3>,
     /// Room to skin into before the new pose is known to be sound.
     scratch_vertices: Vec<Vec3>,
     scratch_normals: Vec<Vec3>,
-    /// Joint matrices of the current pose (skinned instances).
+    /// Joint matrices of the current pose (skinned instances; with
+    /// `weights`, what `vertices` were deformed with).
     joints: Vec<Affine3A>,
     /// The morph weights `vertices` were made with (empty without
     /// animated morph targets).
