@@ -522,6 +522,8 @@ impl Pipeline {
     }
 
     /// The points of instance `i` in its mesh's bind pose (local space).
+    /// Only deforming instances keep their anchors (`PointSet::anchors` is
+    /// empty for a rigid one: nothing follows its mesh).
     pub fn points(&self, i: usize) -> Option<&PointSet> {
         self.instances.get(i).map(|s| &s.points)
     }

@@ -29,7 +29,8 @@ pub const AZIMUTHS: usize = 16;
 /// (45 degrees).
 pub const SWING: f32 = std::f32::consts::FRAC_PI_4;
 
-/// Seconds the staged camera takes for one orbit.
+/// Seconds the staged camera takes for one loop of its path (a swing to
+/// either side of an object's front and back, or a walk round a room).
 pub const ORBIT_SECONDS: f32 = 20.0;
 
 /// Rays cast from the centre of the bounds to tell an interior.
