@@ -1,6 +1,6 @@
 //! Any bytes as a glTF document: never panics; a model that loads is valid
 //! (its scene passes validation and its triangles are finite), and its
-//! animations and skins evaluate at any time without panicking.
+//! animations, morphs and skins evaluate at any time without panicking.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
@@ -14,7 +14,7 @@ fuzz_target!(|data: &[u8]| {
         for t in [0.0, 0.37, 1e3, -1.0] {
             let pose = scene.pose(t);
             for i in 0..scene.instances.len() {
-                let _ = scene.skinned(i, &pose);
+                let _ = scene.deformed(i, &pose);
             }
         }
     }
