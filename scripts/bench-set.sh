@@ -25,6 +25,8 @@ for m in AnimatedMorphCube/AnimatedMorphCube.glb AnimatedTriangle/AnimatedTriang
   metre+=(--gltf "$shared/$m")
 done
 run metre --scenes default,cesium-man --densities 256,1024 --radius 0.6 "${metre[@]}" "$@"
+# The Cameras sample again, with the automatic camera instead of its own.
+run cameras-auto --only-gltf --gltf "$shared/Cameras/Cameras.gltf" --auto-camera --densities 256,1024 --radius 0.6 "$@"
 run hall --scenes hall --densities 64,256 --radius 0.6 "$@"
 # A 0.7 m helmet: 5 cm.
 run helmet --only-gltf --gltf "$shared/FlightHelmet/FlightHelmet.gltf" --densities 16384,65536 --radius 0.05 "$@"

@@ -15,6 +15,7 @@
 
 mod bench;
 mod cmd;
+mod memory;
 
 use std::process::ExitCode;
 

@@ -89,6 +89,25 @@ fn the_cornell_box_is_an_interior_and_its_camera_fills_the_picture() {
     assert!(cov.iter().all(|&c| c >= 0.5), "{cov:?}");
 }
 
+/// The Cameras sample frames its 1 m square from 3 m away: its own camera
+/// covers well under half the picture, as its author chose. Without it
+/// (`psao bench --auto-camera`) the automatic camera fills at least half.
+#[test]
+fn a_file_camera_is_kept_as_authored_and_the_automatic_one_fills_half() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../psao-scene/tests/data/Cameras.gltf");
+    let s = load_gltf(&path).unwrap();
+    assert!(s.camera.is_some(), "the file's camera is imported");
+    let own = stage(s.clone()).unwrap();
+    let cov = path_coverage(&own, &[0.0], 64, 36).unwrap()[0];
+    assert!(cov > 0.05 && cov < 0.5, "{cov}");
+    let mut auto = s;
+    auto.camera = None;
+    let auto = stage(auto).unwrap();
+    let cov = path_coverage(&auto, &key_times(&auto), 64, 36).unwrap();
+    assert!(cov.iter().all(|&c| c >= 0.5), "{cov:?}");
+}
+
 #[test]
 fn camera_paths_read_from_text_and_fixed_cameras_are_checked() {
     let text = "# a path\nfov 40\n0 1,2,3 0 0 0\n2.5\t4 5 6  0 1 0 # look up\n\n";

@@ -100,6 +100,8 @@ fn main() {
         std::process::exit(2)
     });
     let setup = t.elapsed();
+    // The server's process memory, before the in-process client exists.
+    let server_memory = memory_kb();
     let end = t + setup;
     let stages = stages.into_inner().unwrap();
     let split: Vec<String> = stages
@@ -139,12 +141,13 @@ fn main() {
         held as f64 / 1e6,
         held as f64 / points.max(1) as f64
     );
-    if let Some((rss, peak)) = memory_kb() {
+    if let (Some((rss, peak)), Some((with_client, _))) = (server_memory, memory_kb()) {
         println!(
-            "  process memory     {:.0} MB resident after setup ({:.0} bytes per point, with what the allocator keeps), {:.0} MB peak during setup",
+            "  process memory     {:.0} MB resident after setup ({:.0} bytes per point, with what the allocator keeps), {:.0} MB peak during setup; {:.0} MB once the in-process client holds the keyframe",
             rss as f64 * 1024.0 / 1e6,
             rss as f64 * 1024.0 / points.max(1) as f64,
-            peak as f64 * 1024.0 / 1e6
+            peak as f64 * 1024.0 / 1e6,
+            with_client as f64 * 1024.0 / 1e6
         );
     }
     let mut sum = FrameReport::default();

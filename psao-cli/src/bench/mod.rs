@@ -124,6 +124,11 @@ pub struct BenchArgs {
     /// CesiumMan scenes keep theirs).
     #[command(flatten)]
     camera: crate::cmd::common::CameraArgs,
+    /// Look at the --gltf scenes with the automatic camera path even where
+    /// a file has a camera of its own (whose framing is its author's: the
+    /// Cameras sample's covers about a fifth of the picture).
+    #[arg(long, conflicts_with_all = ["camera", "camera_path"])]
+    auto_camera: bool,
     /// Trace buried points like any other (the baseline) instead of giving
     /// them their visible neighbours' AO.
     #[arg(long)]
@@ -190,6 +195,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         let mut scene = load_scene_file(path)?;
         if let Some(c) = &camera {
             scene.camera = Some(c.clone());
+        } else if args.auto_camera {
+            scene.camera = None;
         }
         let scene = stage(scene)?;
         let name = path
@@ -300,6 +307,18 @@ mod tests {
             assert_eq!(got.image_frames, ImageFrames::List(vec![0]));
             assert_eq!(got.backend, Backend::Cpu);
         }
+    }
+
+    #[test]
+    fn the_automatic_camera_excludes_a_given_one() {
+        let parse = |args: &[&str]| {
+            Cli::try_parse_from(std::iter::once("bench").chain(args.iter().copied()))
+                .map(|c| c.args.auto_camera)
+        };
+        assert!(parse(&["--auto-camera"]).unwrap());
+        assert!(!parse(&[]).unwrap());
+        assert!(parse(&["--auto-camera", "--camera", "0,1,2,0,0,0"]).is_err());
+        assert!(parse(&["--auto-camera", "--camera-path", "p.txt"]).is_err());
     }
 
     #[test]

@@ -193,12 +193,27 @@ pub fn pipeline_with_progress(scene: Scene, config: PipelineConfig) -> anyhow::R
         bar.set_position(p.done);
     });
     bar.finish_and_clear();
+    // Setup's scratch is freed; hand its pages back before serving.
+    crate::memory::release_freed();
     Ok(pipeline?)
 }
 
-/// The scene at `path` (a .gltf, .glb or .obj file) or the embedded default scene, with
-/// the name `WELCOME` gives it.
+/// The scene at `path` (a .gltf, .glb or .obj file), an embedded scene
+/// named `default`, `hall` or `cesium-man` (where no file has that name),
+/// or the embedded default scene, with the name `WELCOME` gives it.
 pub fn load_scene(path: Option<&Path>) -> anyhow::Result<(Scene, String)> {
+    let embedded = path
+        .filter(|p| !p.exists())
+        .and_then(|p| p.to_str())
+        .and_then(|name| match name {
+            "default" => Some(default_scene()),
+            "hall" => Some(psao_scene::hall_scene()),
+            "cesium-man" => Some(psao_scene::cesium_man_scene()),
+            _ => None,
+        });
+    if let (Some(scene), Some(p)) = (embedded, path) {
+        return Ok((scene, p.display().to_string()));
+    }
     match path {
         None => Ok((default_scene(), "default".into())),
         Some(p) => {
@@ -275,6 +290,30 @@ mod tests {
             Affine3A::IDENTITY,
         );
         s
+    }
+
+    #[test]
+    fn embedded_scenes_are_named_and_files_come_first() {
+        let (hall, name) = load_scene(Some(Path::new("hall"))).unwrap();
+        assert_eq!(name, "hall");
+        assert_eq!(
+            hall.instances.len(),
+            psao_scene::hall_scene().instances.len()
+        );
+        let (_, name) = load_scene(None).unwrap();
+        assert_eq!(name, "default");
+        let e = load_scene(Some(Path::new("lobby"))).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("unsupported scene format"),
+            "{e:#}"
+        );
+        // A file named like an embedded scene is read as a file.
+        let dir = std::env::temp_dir().join(format!("psao-embedded-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("hall");
+        std::fs::write(&file, b"not a scene").unwrap();
+        assert!(load_scene(Some(&file)).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -14,8 +14,9 @@ use super::common::{load_scene, pipeline_config, pipeline_with_progress, seconds
 /// Arguments of `psao serve`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// A scene file: glTF (.gltf, .glb) or OBJ [default: the embedded
-    /// default scene].
+    /// A scene file, glTF (.gltf, .glb) or OBJ, or an embedded scene:
+    /// `default`, `hall` (160 moving props, 4 walking figures) or
+    /// `cesium-man` [default: the embedded default scene].
     #[arg(long)]
     scene: Option<PathBuf>,
     /// Address to listen on.
@@ -40,6 +41,9 @@ pub struct Args {
     /// --densities`).
     #[arg(long, default_value_t = 32.0)]
     density: f32,
+    /// AO rays per point.
+    #[arg(long, default_value_t = 64)]
+    rays: u32,
     /// AO radius R in scene units (the default is the paper's, in metres).
     #[arg(long, default_value_t = 0.6)]
     radius: f32,
@@ -53,7 +57,8 @@ pub struct Args {
 }
 
 /// What the server holds for the scene, in a line: triangles, instances
-/// (how many move), points, keyframe bytes, pipeline memory, setup time.
+/// (how many move), points, keyframe bytes, pipeline memory, the process's
+/// resident memory, setup time.
 fn scene_summary(p: &mut Pipeline, setup_s: f64) -> anyhow::Result<String> {
     let scene = p.scene();
     let triangles: usize = scene
@@ -67,10 +72,19 @@ fn scene_summary(p: &mut Pipeline, setup_s: f64) -> anyhow::Result<String> {
         .map(|i| p.points(i).map_or(0, |s| s.len()))
         .sum();
     let memory = p.memory_bytes();
+    // Measured before the keyframe is encoded, as the pipeline stands.
+    let process = crate::memory::resident().map_or(String::new(), |(rss, peak)| {
+        format!(
+            "; process {:.1} MB resident ({:.0} bytes per point), {:.1} MB at its peak",
+            rss as f64 / 1e6,
+            rss as f64 / points.max(1) as f64,
+            peak as f64 / 1e6
+        )
+    });
     let keyframe = p.keyframe()?.bytes.len();
     Ok(format!(
         "scene ready in {setup_s:.1} s: {triangles} triangles, {instances} instances ({moving} moving), \
-         {points} points, keyframe {:.1} kB, {:.1} MB held ({:.0} bytes per point)",
+         {points} points, keyframe {:.1} kB, {:.1} MB held by the pipeline ({:.0} bytes per point){process}",
         keyframe as f64 / 1e3,
         memory as f64 / 1e6,
         memory as f64 / points.max(1) as f64
@@ -94,7 +108,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     };
     let pipeline = PipelineConfig {
         cull: args.cull.then(ViewerCull::default),
-        ..pipeline_config(args.density, 64, args.radius)
+        ..pipeline_config(args.density, args.rays, args.radius)
     };
     for w in super::common::scale_warnings(&scene, args.density, args.radius)? {
         eprintln!("warning: {w}");
