@@ -81,6 +81,18 @@ pub enum SceneError {
         /// The rule it breaks.
         rule: &'static str,
     },
+    /// The scene at this density would give more points than the
+    /// configured budget ([`crate::PipelineConfig::max_points`]).
+    #[error(
+        "the scene would give about {estimated} points at this density, over the budget of {max} (lower the density, or raise PipelineConfig::max_points where the memory is there: about 100 bytes a point)"
+    )]
+    TooManyPoints {
+        /// Points the scene's area and the density would keep, estimated
+        /// before any is made.
+        estimated: u64,
+        /// The budget.
+        max: u64,
+    },
     /// The laid-out grid breaks a rule of the wire format.
     #[error("instance {instance}: grid definition rejected: {error}")]
     Grid {

@@ -640,3 +640,39 @@ fn transforms_are_judged_relative_to_their_own_scale() {
         assert!(matches!(e, SceneError::BadTransform { instance: 1 }), "{e}");
     }
 }
+
+/// The scene-wide point budget is checked before any point is made, from
+/// an estimate that tracks the points a scene really keeps.
+#[test]
+fn the_point_budget_refuses_a_scene_before_making_its_points() {
+    let config = quick();
+    let p = Pipeline::new(default_scene(), config.clone()).unwrap();
+    let kept: usize = (0..p.instance_count())
+        .map(|i| p.points(i).map_or(0, |s| s.len()))
+        .sum();
+    // Just under what the scene keeps: refused, naming both numbers.
+    let budget = (kept as u64) * 9 / 10;
+    let Err(SceneError::TooManyPoints { estimated, max }) = Pipeline::new(
+        default_scene(),
+        PipelineConfig {
+            max_points: budget,
+            ..config.clone()
+        },
+    ) else {
+        panic!("a scene over its budget was accepted");
+    };
+    assert_eq!(max, budget);
+    let ratio = estimated as f64 / kept as f64;
+    assert!((0.9..1.1).contains(&ratio), "estimated {estimated}, kept {kept}");
+    // A node scale of 1e4 (a model in decimicrons...) at the default budget
+    // is refused at once, not after allocating 10^8 times the points.
+    let mut huge = default_scene();
+    for inst in &mut huge.instances {
+        inst.transform = glam::Affine3A::from_scale(glam::Vec3::splat(1e4)) * inst.transform;
+    }
+    let e = Pipeline::new(huge, config).err().expect("refused");
+    assert!(
+        matches!(e, SceneError::TooManyPoints { max: DEFAULT_MAX_POINTS, .. }),
+        "{e}"
+    );
+}

@@ -56,6 +56,10 @@ pub enum Views {
     All,
 }
 
+/// The default [`PipelineConfig::max_points`]: 2^26 points, about 6.7 GB
+/// held by the pipeline.
+pub const DEFAULT_MAX_POINTS: u64 = 1 << 26;
+
 /// Pipeline settings.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PipelineConfig {
@@ -88,6 +92,12 @@ pub struct PipelineConfig {
     /// `buried` module), or are traced like any other (false: the
     /// baseline).
     pub fill_buried: bool,
+    /// Most points the whole scene may keep, checked against an estimate
+    /// from the scene's area before any point is made
+    /// ([`SceneError::TooManyPoints`](crate::SceneError::TooManyPoints)):
+    /// a scene's node scales times the density bound the memory setup
+    /// takes (about 100 bytes a point held, twice that at the peak).
+    pub max_points: u64,
 }
 
 impl PipelineConfig {
@@ -121,6 +131,7 @@ impl Default for PipelineConfig {
             split_bvh: true,
             cull: None,
             fill_buried: true,
+            max_points: DEFAULT_MAX_POINTS,
         }
     }
 }

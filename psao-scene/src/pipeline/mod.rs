@@ -217,6 +217,29 @@ fn bounds_of(points: &[Vec3]) -> (Vec3, Vec3) {
 /// a triangle of normal `n` grows by `|cof(M) n|`), 1 for a mesh without
 /// area or a transform that keeps areas (within 1e-5: rotations and
 /// translations).
+/// Points the scene keeps at `density` (spawned per unit of world area,
+/// half kept), estimated from its meshes' areas as [`Pipeline::build`]
+/// scales them; infinite where an area or a scale is.
+fn estimated_points(scene: &Scene, pose: &Pose, density: f32) -> f64 {
+    scene
+        .instances
+        .iter()
+        .enumerate()
+        .map(|(i, inst)| {
+            let mesh = &scene.meshes[inst.mesh];
+            let skinned = inst.skin.is_some() && mesh.skin.is_some();
+            let scale = if skinned {
+                1.0
+            } else {
+                world_area_scale(mesh, &pose.instances[i]) as f64
+            };
+            let sides = if mesh.double_sided { 2.0 } else { 1.0 };
+            mesh.area() as f64 * sides * scale * density as f64 * 0.5
+        })
+        .map(|n| if n.is_nan() { f64::INFINITY } else { n })
+        .sum()
+}
+
 fn world_area_scale(mesh: &crate::model::mesh::Mesh, t: &Affine3A) -> f32 {
     let m = glam::DMat3::from_cols(
         t.matrix3.x_axis.as_dvec3(),
@@ -299,6 +322,13 @@ impl Pipeline {
         }
         let dynamic = scene.dynamic_instances();
         let pose = scene.pose(0.0);
+        let estimated = estimated_points(&scene, &pose, config.density);
+        if estimated > config.max_points as f64 {
+            return Err(SceneError::TooManyPoints {
+                estimated: estimated.min(u64::MAX as f64) as u64,
+                max: config.max_points,
+            });
+        }
         let skin_bounds = skinned_bounds(&scene, &dynamic);
         let masks = scene
             .meshes
