@@ -322,6 +322,13 @@ impl Pipeline {
         }
         let dynamic = scene.dynamic_instances();
         let pose = scene.pose(0.0);
+        check_param(
+            "density",
+            config.density as f64,
+            f32::MIN_POSITIVE as f64,
+            f32::MAX as f64,
+            "points per unit area, positive and finite",
+        )?;
         let estimated = estimated_points(&scene, &pose, config.density);
         if estimated > config.max_points as f64 {
             return Err(SceneError::TooManyPoints {
