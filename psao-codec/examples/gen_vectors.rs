@@ -538,6 +538,39 @@ fn vectors() -> Vec<Vector> {
         "max_mirror_bytes",
         1000,
     ));
+    let bind = InstanceDef {
+        point_format: 1,
+        ..DEF
+    };
+    list.push(v(
+        "50-point-format-bind",
+        "Point format 1 (bind space, section 6.1): instance 1 of vector 02 defined as a deforming mesh's bind-space grid, and instance 2 of format 0 beside it, in one keyframe; the words apply as format 0's, and the state reports each instance's format.",
+        vec![
+            key(
+                5,
+                vec![
+                    define(1, &bind),
+                    transform(1, 1, 3.0),
+                    buckets(1, &[(1, &[(1, 0)])]),
+                    cells_full(1, &[(0, &[W1])]),
+                    define(2, &DEF),
+                    END.to_vec(),
+                ],
+            )
+            .bytes(),
+        ],
+    ));
+    list.push(after_kf(
+        "51-point-format-unknown",
+        "Point format 2 is unknown.",
+        vec![define(
+            3,
+            &InstanceDef {
+                point_format: 2,
+                ..DEF
+            },
+        )],
+    ));
     assert_eq!(W1, word([1, 1, 3], 0x77, 200));
     assert_eq!(W2, word([0, 0, 0], 0x74, 64));
     list

@@ -30,8 +30,8 @@ pub enum DefError {
     /// Cell pool of 0 cells, or `cell_pool * cell_capacity` above `2^32 - 1`.
     #[error("cell pool must be >= 1 with cell_pool * cell_capacity <= 2^32-1")]
     CellPool,
-    /// Unknown point format.
-    #[error("unknown point format")]
+    /// Unknown point format (known: 0 and 1).
+    #[error("unknown point format (known: 0, local space, and 1, bind space)")]
     PointFormat,
     /// Radius not positive, `T_n` outside `[-1, 1]` or `T_d` outside `[0, 1]`.
     #[error("radius must be > 0, T_n in [-1,1], T_d in [0,1]")]

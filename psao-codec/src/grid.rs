@@ -13,8 +13,13 @@ pub const MAX_CELL_CAPACITY: u8 = 8;
 pub const MAX_TABLE_LOG2: u8 = 31;
 /// The key of an empty bucket entry; never a valid cell key.
 pub const EMPTY_KEY: u32 = u32::MAX;
-/// The only point format of v1: the packed 32-bit word.
+/// Point format 0: the packed 32-bit word, in the instance's local space.
 pub const POINT_FORMAT_PACKED32: u8 = 0;
+/// Point format 1: the same word, in the bind space of a deforming mesh
+/// (spec/wire-format.md 6.1): a client looks a pixel up by the bind-space
+/// position and normal of the surface it shows, not through the
+/// instance's transform.
+pub const POINT_FORMAT_BIND32: u8 = 1;
 
 /// One hash bucket entry as laid out in memory: `(cell key, cell index)`,
 /// both `u32::MAX` when empty. `#[repr(C)]`, 8 bytes, so an array of them
@@ -62,7 +67,7 @@ pub struct InstanceDef {
     /// Number of cells in the cell pool; cell indices are `< cell_pool`, and
     /// `cell_pool * cell_capacity <= 2^32 - 1`.
     pub cell_pool: u32,
-    /// Point format; v1 knows only [`POINT_FORMAT_PACKED32`].
+    /// Point format: [`POINT_FORMAT_PACKED32`] or [`POINT_FORMAT_BIND32`].
     pub point_format: u8,
     /// Interpolation radius r of eq. 2, in local units (positive, finite).
     pub radius: f32,
@@ -73,6 +78,12 @@ pub struct InstanceDef {
 }
 
 impl InstanceDef {
+    /// Whether the points are in bind space (point format 1), looked up by
+    /// a surface's bind-space position and normal.
+    pub fn bind_space(&self) -> bool {
+        self.point_format == POINT_FORMAT_BIND32
+    }
+
     /// Number of buckets.
     pub fn table_size(&self) -> u32 {
         1u32 << self.table_log2
@@ -126,7 +137,10 @@ impl InstanceDef {
         if self.cell_pool == 0 || words > u32::MAX as u64 {
             return Err(DefError::CellPool);
         }
-        if self.point_format != POINT_FORMAT_PACKED32 {
+        if !matches!(
+            self.point_format,
+            POINT_FORMAT_PACKED32 | POINT_FORMAT_BIND32
+        ) {
             return Err(DefError::PointFormat);
         }
         if self.radius <= 0.0

@@ -61,7 +61,7 @@ pub use client::reconstruct::{WeightParams, base_cell, reconstruct_ao, weight, w
 pub use error::{DecodeError, DefError, EncodeError, MessageError};
 pub use grid::{
     BucketEntry, EMPTY_KEY, InstanceDef, MAX_BUCKET_CAPACITY, MAX_CELL_CAPACITY, MAX_TABLE_LOG2,
-    POINT_FORMAT_PACKED32, key_fits,
+    POINT_FORMAT_BIND32, POINT_FORMAT_PACKED32, key_fits,
 };
 pub use limits::Limits;
 pub use server::encoder::{EncodedFrame, Encoder, EncoderConfig, FrameBuilder, FrameStats};

@@ -168,7 +168,9 @@ impl ClientSession {
         Control::Hello(Hello {
             version: VERSION,
             compressions: decodable_compressions(),
-            point_formats: 1,
+            // Formats 0 and 1: the decoder applies both alike; the
+            // mirror reports each instance's (spec/wire-format.md 6.1).
+            point_formats: 0b11,
             max_frame_bytes: config.limits.max_frame_bytes,
             max_payload_bytes: config.limits.max_payload_bytes,
             max_mirror_bytes: config.limits.max_mirror_bytes,

@@ -301,7 +301,7 @@ impl Control {
                         supported: VERSION,
                     });
                 }
-                if h.compressions & 0xF8 != 0 || h.point_formats & 0xFE != 0 || flags & 0xFE != 0 {
+                if h.compressions & 0xF8 != 0 || h.point_formats & 0xFC != 0 || flags & 0xFE != 0 {
                     return Err(SessionError::malformed("HELLO", "a reserved bit is set"));
                 }
                 if h.compressions & 1 == 0 || h.point_formats & 1 == 0 {
@@ -364,7 +364,7 @@ impl Control {
                 if flags & 0xFE != 0 {
                     return Err(SessionError::malformed("WELCOME", "a reserved bit is set"));
                 }
-                if !(1..=1000).contains(&frame_rate) || compression > 2 || point_format != 0 {
+                if !(1..=1000).contains(&frame_rate) || compression > 2 || point_format > 1 {
                     return Err(SessionError::malformed(
                         "WELCOME",
                         "a field is out of range",

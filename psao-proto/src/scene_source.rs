@@ -18,6 +18,11 @@ impl FrameSource for Pipeline {
                 .filter_map(|i| self.table(i))
                 .map(|t| t.def().mirror_bytes() as u64)
                 .sum(),
+            point_format: (0..self.instance_count())
+                .filter_map(|i| self.table(i))
+                .map(|t| t.def().point_format)
+                .max()
+                .unwrap_or(0),
             culls: self.config().cull.is_some(),
         }
     }

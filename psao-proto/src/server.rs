@@ -292,6 +292,7 @@ pub async fn serve<S: FrameSource>(
         max_frame_bytes: info.max_frame_bytes,
         max_payload_bytes: info.max_payload_bytes,
         mirror_bytes: info.mirror_bytes,
+        point_format: info.point_format,
         frame_rate: config.frame_rate,
         scene: config.scene_name.clone(),
         culling: info.culls,

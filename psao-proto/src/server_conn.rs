@@ -30,6 +30,8 @@ pub struct Offer {
     pub max_payload_bytes: u32,
     /// Bytes of the mirror a client needs for the scene.
     pub mirror_bytes: u64,
+    /// The largest point format the frames use (`WELCOME.point_format`).
+    pub point_format: u8,
     /// Nominal frames per second.
     pub frame_rate: u16,
     /// The scene's name.
@@ -47,6 +49,15 @@ pub fn negotiate(hello: &Hello, offer: &Offer) -> Result<Welcome, SessionError> 
         return mismatch(format!(
             "the stream uses compression {}, which the client does not decode",
             offer.compression
+        ));
+    }
+    // Formats are cumulative: a session of format 1 defines instances of
+    // formats 0 and 1.
+    let formats = (2u16 << offer.point_format.min(7)) - 1;
+    if u16::from(hello.point_formats) & formats != formats {
+        return mismatch(format!(
+            "the scene's frames use point formats 0 to {} (1: deforming meshes in bind space), the client knows {:#04x}",
+            offer.point_format, hello.point_formats
         ));
     }
     if hello.max_frame_bytes < offer.max_frame_bytes
@@ -69,7 +80,7 @@ pub fn negotiate(hello: &Hello, offer: &Offer) -> Result<Welcome, SessionError> 
     Ok(Welcome {
         version: VERSION,
         compression: offer.compression,
-        point_format: 0,
+        point_format: offer.point_format,
         max_frame_bytes: offer.max_frame_bytes,
         max_payload_bytes: offer.max_payload_bytes,
         frame_rate: offer.frame_rate,

@@ -28,6 +28,9 @@ pub struct SourceInfo {
     pub max_payload_bytes: u32,
     /// Bytes of the mirror a client needs for the scene.
     pub mirror_bytes: u64,
+    /// The largest point format its frames define instances with (0, or 1
+    /// where some are in bind space: spec/wire-format.md 6.1).
+    pub point_format: u8,
     /// Whether it culls to what the clients see (`WELCOME`'s
     /// `flags.culling`); then the server calls
     /// [`FrameSource::set_views`] before each step.

@@ -15,6 +15,7 @@ fn offer() -> Offer {
         max_frame_bytes: 1 << 20,
         max_payload_bytes: 1 << 20,
         mirror_bytes: 1 << 16,
+        point_format: 0,
         frame_rate: 60,
         scene: "test".into(),
         culling: false,
@@ -69,6 +70,64 @@ fn negotiation_refuses_what_the_client_cannot_take() {
             ..hello()
         }),
         CloseCode::CapabilityMismatch
+    );
+}
+
+/// Point format 1 (bind space): a server whose frames use it welcomes a
+/// client that knows formats 0 and 1 with WELCOME.point_format 1 and
+/// refuses one that knows only 0, naming the formats; a format-0 server
+/// takes either. HELLO's and WELCOME's bytes carry the formats.
+#[test]
+fn point_format_one_is_negotiated() {
+    let bind = Offer {
+        point_format: 1,
+        ..offer()
+    };
+    let both = Hello {
+        point_formats: 0b11,
+        ..hello()
+    };
+    assert_eq!(negotiate(&both, &bind).unwrap().point_format, 1);
+    assert_eq!(negotiate(&both, &offer()).unwrap().point_format, 0);
+    assert_eq!(negotiate(&hello(), &offer()).unwrap().point_format, 0);
+    let e = negotiate(&hello(), &bind).unwrap_err();
+    assert_eq!(e.close_code(), CloseCode::CapabilityMismatch);
+    assert!(e.to_string().contains("point formats 0 to 1"), "{e}");
+    // The bytes: HELLO with bits 0 and 1 reads back; bit 2 is reserved.
+    let mut b = bytes(Control::Hello(both.clone())).to_vec();
+    let mut r = psao_proto::control::ControlReader::new();
+    let mut input = &b[..];
+    assert_eq!(r.read(&mut input).unwrap(), Some(Control::Hello(both)));
+    b[2 + 1 + 7] |= 0b100;
+    let mut input = &b[..];
+    assert!(
+        psao_proto::control::ControlReader::new()
+            .read(&mut input)
+            .is_err()
+    );
+    // WELCOME with point format 1 reads back; 2 is out of range.
+    let w = negotiate(
+        &Hello {
+            point_formats: 0b11,
+            ..hello()
+        },
+        &bind,
+    )
+    .unwrap();
+    let mut b = bytes(Control::Welcome(w.clone())).to_vec();
+    let mut input = &b[..];
+    assert_eq!(
+        psao_proto::control::ControlReader::new()
+            .read(&mut input)
+            .unwrap(),
+        Some(Control::Welcome(w))
+    );
+    b[2 + 1 + 3] = 2;
+    let mut input = &b[..];
+    assert!(
+        psao_proto::control::ControlReader::new()
+            .read(&mut input)
+            .is_err()
     );
 }
 

@@ -663,7 +663,10 @@ fn the_point_budget_refuses_a_scene_before_making_its_points() {
     };
     assert_eq!(max, budget);
     let ratio = estimated as f64 / kept as f64;
-    assert!((0.9..1.1).contains(&ratio), "estimated {estimated}, kept {kept}");
+    assert!(
+        (0.9..1.1).contains(&ratio),
+        "estimated {estimated}, kept {kept}"
+    );
     // A node scale of 1e4 (a model in decimicrons...) at the default budget
     // is refused at once, not after allocating 10^8 times the points.
     let mut huge = default_scene();
@@ -672,7 +675,13 @@ fn the_point_budget_refuses_a_scene_before_making_its_points() {
     }
     let e = Pipeline::new(huge, config).err().expect("refused");
     assert!(
-        matches!(e, SceneError::TooManyPoints { max: DEFAULT_MAX_POINTS, .. }),
+        matches!(
+            e,
+            SceneError::TooManyPoints {
+                max: DEFAULT_MAX_POINTS,
+                ..
+            }
+        ),
         "{e}"
     );
 }

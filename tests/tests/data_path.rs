@@ -76,6 +76,7 @@ fn run(seed: u64) -> (Run, Vec<f32>, Pipeline, Scene) {
         max_frame_bytes: info.max_frame_bytes,
         max_payload_bytes: info.max_payload_bytes,
         mirror_bytes: info.mirror_bytes,
+        point_format: info.point_format,
         frame_rate: RATE,
         scene: "sliding-box".into(),
         culling: info.culls,
