@@ -31,6 +31,10 @@ pub struct PosedScene {
     corners: Vec<[Vec3; 3]>,
     /// Per world triangle: the unit world normals at its corners.
     normals: Vec<[Vec3; 3]>,
+    /// Per world triangle: its corners and their normals as its mesh
+    /// stores them, undeformed (the bind space of point format 1).
+    bind: Vec<[Vec3; 3]>,
+    bind_normals: Vec<[Vec3; 3]>,
     /// Per world triangle: 0 when its mesh is double-sided, else the sign
     /// of its instance's determinant (+1 or -1): its front face is the
     /// side its world corners wind counterclockwise around, flipped by a
@@ -63,6 +67,7 @@ impl PosedScene {
             .collect();
         let mut g = Geometry::default();
         let (mut owners, mut normals, mut facing) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut bind, mut bind_normals) = (Vec::new(), Vec::new());
         for (i, inst) in scene.instances.iter().enumerate() {
             let to_world = pose.instances[i];
             let det = to_world.matrix3.determinant();
@@ -89,6 +94,8 @@ impl PosedScene {
                 g.triangles.push(idx.map(|k| world[k as usize]));
                 g.masks.push(masks[inst.mesh].clone().map(|m| (m, idx)));
                 normals.push(idx.map(|k| (nm * nrm[k as usize]).normalize_or_zero()));
+                bind.push(idx.map(|k| mesh.positions[k as usize]));
+                bind_normals.push(idx.map(|k| mesh.normals[k as usize].normalize_or_zero()));
                 owners.push((i as u32, tri as u32));
                 facing.push(front as i8);
             }
@@ -99,6 +106,8 @@ impl PosedScene {
             owners,
             corners,
             normals,
+            bind,
+            bind_normals,
             facing,
             transforms: pose.instances,
             time: t,
@@ -146,6 +155,8 @@ impl PosedScene {
                 if let Some(s) = s {
                     g.position[k] = s.position;
                     g.normal[k] = s.normal;
+                    g.bind_position[k] = s.bind_position;
+                    g.bind_normal[k] = s.bind_normal;
                     g.instance[k] = s.instance;
                     g.depth[k] = s.depth;
                 }
@@ -199,13 +210,25 @@ impl PosedScene {
         if normal == Vec3::ZERO {
             normal = (b - a).cross(c - a).normalize_or_zero();
         }
+        // The same surface point in bind space: the undeformed corners with
+        // the same barycentrics, as a rasterizer interpolates an attribute.
+        let [ba, bb, bc] = self.bind[prim as usize];
+        let bind_position = ba * w[0] + bb * w[1] + bc * w[2];
+        let [bna, bnb, bnc] = self.bind_normals[prim as usize];
+        let mut bind_normal = (bna * w[0] + bnb * w[1] + bnc * w[2]).normalize_or_zero();
+        if bind_normal == Vec3::ZERO {
+            bind_normal = (bb - ba).cross(bc - ba).normalize_or_zero();
+        }
         // Shade the side the camera sees.
         if normal.dot(unit) > 0.0 {
             normal = -normal;
+            bind_normal = -bind_normal;
         }
         Some(Sample {
             position,
             normal,
+            bind_position,
+            bind_normal,
             instance: self.owners[prim as usize].0,
             // Distance along the view axis (the view direction has z = -1).
             depth: t / len,
@@ -231,6 +254,8 @@ impl PosedScene {
 struct Sample {
     position: Vec3,
     normal: Vec3,
+    bind_position: Vec3,
+    bind_normal: Vec3,
     instance: u32,
     depth: f32,
 }
@@ -247,6 +272,13 @@ pub struct GBuffer {
     /// Unit world shading normal facing the camera (zero where nothing
     /// was hit).
     pub normal: Vec<Vec3>,
+    /// The surface's position in its mesh's bind space: the undeformed
+    /// vertices interpolated as the deformed ones are (zero where nothing
+    /// was hit). Point format 1 instances are looked up with it.
+    pub bind_position: Vec<Vec3>,
+    /// The bind-space normal, facing as [`Self::normal`] does (zero where
+    /// nothing was hit).
+    pub bind_normal: Vec<Vec3>,
     /// The instance seen, or [`NO_INSTANCE`].
     pub instance: Vec<u32>,
     /// Distance along the view axis (`f32::INFINITY` where nothing was
@@ -263,6 +295,8 @@ impl GBuffer {
             height: view.height,
             position: vec![Vec3::ZERO; n],
             normal: vec![Vec3::ZERO; n],
+            bind_position: vec![Vec3::ZERO; n],
+            bind_normal: vec![Vec3::ZERO; n],
             instance: vec![NO_INSTANCE; n],
             depth: vec![f32::INFINITY; n],
         }
@@ -285,6 +319,8 @@ impl GBuffer {
         let lens = [
             ("position", self.position.len()),
             ("normal", self.normal.len()),
+            ("bind position", self.bind_position.len()),
+            ("bind normal", self.bind_normal.len()),
             ("instance", self.instance.len()),
             ("depth", self.depth.len()),
         ];
@@ -295,6 +331,8 @@ impl GBuffer {
                 rule: match *name {
                     "position" => "positions must number width x height",
                     "normal" => "normals must number width x height",
+                    "bind position" => "bind positions must number width x height",
+                    "bind normal" => "bind normals must number width x height",
                     "instance" => "instance ids must number width x height",
                     _ => "depths must number width x height",
                 },

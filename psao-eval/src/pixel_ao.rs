@@ -47,7 +47,8 @@ pub struct ClientImage {
 
 /// The PSAO client's AO image: each covered pixel's world position and
 /// normal are taken into its instance's local space with the last
-/// transform the mirror received, and AO is reconstructed from the 2x2x2
+/// transform the mirror received (for an instance of point format 1, its
+/// bind-space position and normal are used as they are), and AO is reconstructed from the 2x2x2
 /// cells around it (paper eq. 2-4, with the second pass at twice the
 /// radius of spec/wire-format.md 7.3). Rows run in parallel; the result
 /// does not depend on the thread count. A G-buffer whose attributes do not
@@ -66,6 +67,10 @@ pub fn psao_image(mirror: &Mirror, g: &GBuffer) -> Result<ClientImage, SceneErro
                         return 1.0;
                     }
                     let local = mirror.instance(id).and_then(|inst| {
+                        if inst.def().bind_space() {
+                            // Point format 1: looked up in bind space.
+                            return Some((inst, (g.bind_position[k], g.bind_normal[k])));
+                        }
                         let m = inst.transform()?.affine();
                         world_to_local(&m, g.position[k], g.normal[k]).map(|x| (inst, x))
                     });

@@ -229,6 +229,8 @@ fn a_renderers_own_arrays_reconstruct_and_mismatched_ones_are_an_error() {
         position: &g.position,
         normal: &g.normal,
         instance: &g.instance,
+        bind_position: &g.bind_position,
+        bind_normal: &g.bind_normal,
     };
     assert_eq!(
         pass.run(&ctx, &gm, own).unwrap(),
@@ -243,11 +245,35 @@ fn a_renderers_own_arrays_reconstruct_and_mismatched_ones_are_an_error() {
         matches!(e, GpuError::Input(ref m) if m.contains("different lengths")),
         "{e}"
     );
+    // Bind-space attributes are needed where the mirror holds a point
+    // format 1 instance (the default scene's skinned figure) on screen.
+    let bound = client
+        .mirror()
+        .instances()
+        .any(|(id, _)| gm.bind_space(id) && g.instance.contains(&id));
+    let unbound = GBufferSlices {
+        bind_position: &[],
+        bind_normal: &[],
+        ..own
+    };
+    assert!(bound, "the figure is on screen, in bind space");
+    let e = pass.run(&ctx, &gm, unbound).unwrap_err();
+    assert!(
+        matches!(e, GpuError::Input(ref m) if m.contains("bind space")),
+        "{e}"
+    );
+    let half = GBufferSlices {
+        bind_normal: &g.bind_normal[1..],
+        ..own
+    };
+    assert!(matches!(pass.run(&ctx, &gm, half), Err(GpuError::Input(_))));
     // No pixels: no pass, no error.
     let none = GBufferSlices {
         position: &[],
         normal: &[],
         instance: &[],
+        bind_position: &[],
+        bind_normal: &[],
     };
     assert!(pass.run(&ctx, &gm, none).unwrap().is_empty());
 }

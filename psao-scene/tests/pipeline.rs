@@ -203,8 +203,9 @@ fn stored_position(table: &psao_codec::GridTable, id: u32) -> Option<Vec3> {
     Some(def.cell_min(cell_pos) + word.frac() * def.cell_size)
 }
 
-#[test]
-fn skinned_points_follow_the_skin_to_the_client() {
+/// RiggedSimple over a floor, streamed 20 steps to a client: the
+/// pipeline, the client, the skinned instance, and the frame bytes sent.
+fn stream_rigged_simple(bind_space: bool) -> (Pipeline, Decoder, usize, usize) {
     let mut scene = load_gltf(std::path::Path::new("tests/data/RiggedSimple.glb")).unwrap();
     let i = scene
         .instances
@@ -217,17 +218,19 @@ fn skinned_points_follow_the_skin_to_the_client() {
     );
     let config = PipelineConfig {
         density: 200.0,
+        bind_space,
         ..quick()
     };
     let mut p = Pipeline::new(scene, config).unwrap();
     let mut client = Decoder::new(Limits::default());
     client.receive(&p.keyframe().unwrap().bytes).unwrap();
-    let (mut deformed, mut updated) = (0, 0);
+    let (mut deformed, mut updated, mut bytes) = (0, 0, 0);
     for _ in 0..20 {
         let (frame, r) = p.step(1.0 / 30.0).unwrap();
         deformed += r.deformed;
         updated += r.updated;
         if let Some(f) = frame {
+            bytes += f.bytes.len();
             assert!(matches!(
                 client.receive(&f.bytes),
                 Ok(Event::Applied { .. })
@@ -239,6 +242,62 @@ fn skinned_points_follow_the_skin_to_the_client() {
     let table = p.table(i).unwrap();
     let m = client.mirror().instance(i as u32).unwrap();
     assert!(m.words() == table.words() && m.buckets() == table.buckets());
+    (p, client, i, bytes)
+}
+
+/// Point format 1: a skinned instance's points stay where the bind pose
+/// has them, so only their AO is sent, in fewer bytes than the posed
+/// stream (which moves every point with the skin), and the client's
+/// mirror says the instance is in bind space.
+#[test]
+fn bind_space_points_never_move_and_only_their_ao_is_sent() {
+    let (p, client, i, bind_bytes) = stream_rigged_simple(true);
+    let (_, _, _, posed_bytes) = stream_rigged_simple(false);
+    let table = p.table(i).unwrap();
+    assert!(table.def().bind_space());
+    assert!(
+        client
+            .mirror()
+            .instance(i as u32)
+            .unwrap()
+            .def()
+            .bind_space()
+    );
+    let floor = p.instance_count() - 1;
+    assert!(
+        !p.table(floor).unwrap().def().bind_space(),
+        "a rigid floor stays format 0"
+    );
+    let bind = &p.points(i).unwrap().positions;
+    let quantum = table.def().cell_size / psao_codec::POSITION_QUANTA as f32;
+    let mut checked = 0;
+    for (k, &pos) in bind.iter().enumerate() {
+        let Some(stored) = stored_position(table, k as u32) else {
+            continue;
+        };
+        checked += 1;
+        let off = (stored - pos) / quantum;
+        assert!(
+            off.abs().max_element() <= 0.5 + 1e-3,
+            "point {k}: {off} quanta off"
+        );
+    }
+    assert!(
+        checked * 10 >= bind.len() * 9,
+        "{checked} of {}",
+        bind.len()
+    );
+    assert!(
+        bind_bytes * 2 < posed_bytes,
+        "bind space sent {bind_bytes} bytes, posed {posed_bytes}"
+    );
+}
+
+#[test]
+fn skinned_points_follow_the_skin_to_the_client() {
+    // The posed baseline (point format 0): points move with the skin.
+    let (p, _, i, _) = stream_rigged_simple(false);
+    let table = p.table(i).unwrap();
     // Every stored point sits where the skin has it now, within the
     // position threshold (3 quanta) plus rounding.
     let (now, _) = p.current_points(i).unwrap();

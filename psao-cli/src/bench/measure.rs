@@ -85,6 +85,9 @@ pub struct Settings {
     /// Buried points take their visible neighbours' AO (else they are
     /// traced: the baseline).
     pub fill_buried: bool,
+    /// Deforming instances keep their points in bind space (point format
+    /// 1; else posed, format 0: the baseline).
+    pub bind_space: bool,
     /// Which measured frames are saved as images.
     pub image_frames: ImageFrames,
 }
@@ -179,6 +182,7 @@ impl Settings {
             backend: Backend::Cpu,
             radius: AoParams::default().radius,
             fill_buried: true,
+            bind_space: true,
             image_frames: ImageFrames::List(vec![0]),
         }
     }
@@ -633,6 +637,7 @@ fn measure_psao(
     // `density` counts points kept, as every command's --density does.
     let mut config = crate::cmd::common::pipeline_config(density, s.point_rays, s.radius);
     config.fill_buried = s.fill_buried;
+    config.bind_space = s.bind_space;
     let started = Instant::now();
     say("setup");
     let backend = match s.backend {

@@ -133,6 +133,11 @@ pub struct BenchArgs {
     /// them their visible neighbours' AO.
     #[arg(long)]
     no_fill_buried: bool,
+    /// Keep deforming (skinned, morphing) instances' points in posed space,
+    /// moved and re-sent with every pose (point format 0: the baseline),
+    /// instead of in their mesh's bind space (point format 1).
+    #[arg(long)]
+    posed_deforming: bool,
 }
 
 impl BenchArgs {
@@ -166,6 +171,7 @@ impl BenchArgs {
         settings.backend = self.backend;
         settings.image_frames = self.image_frames.clone();
         settings.fill_buried = !self.no_fill_buried;
+        settings.bind_space = !self.posed_deforming;
         settings
     }
 }

@@ -75,7 +75,7 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}); client times are the AO work per frame on {} threads.\n",
+        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}; {}); client times are the AO work per frame on {} threads.\n",
         s.width,
         s.height,
         s.frames,
@@ -90,6 +90,11 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
             "buried points take their visible neighbours' AO"
         } else {
             "buried points traced: --no-fill-buried"
+        },
+        if s.bind_space {
+            "deforming meshes' points in bind space"
+        } else {
+            "deforming meshes' points posed: --posed-deforming"
         },
         std::thread::available_parallelism().map_or(1, |n| n.get())
     );

@@ -275,7 +275,23 @@ impl GpuMirror {
                 params: [w.t_n, w.t_d, 0.0, 0.0],
                 ..InstanceGpu::default()
             };
-            if let Some(t) = inst.transform() {
+            if d.bind_space() {
+                // Point format 1: looked up by bind-space attributes as
+                // they are (identity), whatever the transform.
+                g.to_local = [
+                    [1.0, 0.0, 0.0, 0.0],
+                    [0.0, 1.0, 0.0, 0.0],
+                    [0.0, 0.0, 1.0, 0.0],
+                    [0.0; 4],
+                ];
+                g.normal = [
+                    [1.0, 0.0, 0.0, 0.0],
+                    [0.0, 1.0, 0.0, 0.0],
+                    [0.0, 0.0, 1.0, 0.0],
+                ];
+                g.params[2] = 1.0;
+                g.params[3] = 1.0;
+            } else if let Some(t) = inst.transform() {
                 let m = t.affine();
                 let det = m.matrix3.determinant();
                 if m.is_finite() && det.is_finite() && det.abs() > f32::MIN_POSITIVE {
@@ -298,6 +314,15 @@ impl GpuMirror {
             table[id] = g;
         }
         table
+    }
+
+    /// Whether instance `id` is held in bind space (point format 1): its
+    /// pixels are looked up by their bind-space position and normal.
+    pub fn bind_space(&self, id: u32) -> bool {
+        self.slots
+            .get(id as usize)
+            .and_then(|s| s.as_ref())
+            .is_some_and(|s| s.def.bind_space())
     }
 
     /// Bytes written by the last upload or sync.

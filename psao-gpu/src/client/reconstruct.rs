@@ -13,7 +13,9 @@ use crate::error::GpuError;
 /// The reconstruction functions and their bindings (group 0, bindings
 /// 0-3: instances, bucket entries, point words, normal table; see
 /// [`GpuMirror::bind_entries`]). Call `psao_ao(instance, world_position,
-/// world_normal)` from any shader stage.
+/// world_normal)` from any shader stage; for an instance of point format 1
+/// (`psao_bind_space(instance)`), pass the surface's bind-space position
+/// and normal instead (spec/wire-format.md 6.1).
 pub const RECONSTRUCT_WGSL: &str = include_str!("../shaders/reconstruct.wgsl");
 
 const WORKGROUP: u32 = 64;
@@ -107,12 +109,24 @@ impl GpuReconstruct {
             });
         }
         let grid = ctx.grid(n, WORKGROUP);
-        let pos: Vec<[f32; 4]> = g
-            .position
-            .iter()
-            .map(|p| p.extend(0.0).to_array())
-            .collect();
-        let nrm: Vec<[f32; 4]> = g.normal.iter().map(|p| p.extend(0.0).to_array()).collect();
+        // Pixels of bind-space instances are looked up by their bind-space
+        // attributes (the shader's transform for them is the identity).
+        let bind = |k: usize| mirror.bind_space(g.instance[k]);
+        if g.bind_position.is_empty() && (0..n).any(bind) {
+            return Err(GpuError::Input(
+                "the mirror holds instances in bind space (point format 1): the G-buffer needs bind_position and bind_normal".into(),
+            ));
+        }
+        let pick = |world: &[glam::Vec3], local: &[glam::Vec3]| -> Vec<[f32; 4]> {
+            (0..n)
+                .map(|k| {
+                    let v = if bind(k) { local[k] } else { world[k] };
+                    v.extend(0.0).to_array()
+                })
+                .collect()
+        };
+        let pos = pick(g.position, g.bind_position);
+        let nrm = pick(g.normal, g.bind_normal);
         let ids: Vec<u32> = g
             .instance
             .iter()

@@ -2,8 +2,12 @@
 // mirror's flat buffers, as psao-codec's reconstruct_ao does on the CPU.
 // Include this text in a shader (a fragment shader of your renderer or the
 // compute pass of psao-gpu) and call `psao_ao(instance, position, normal)`
-// with a world-space position and unit normal. The bindings are group 0,
-// bindings 0-3; replace `@group(0)` in the text to move them.
+// with a world-space position and unit normal. For an instance of point
+// format 1 (spec/wire-format.md 6.1; `psao_bind_space(instance)` is true:
+// a skinned or morphing mesh whose points stay in its bind space), pass
+// the surface's bind-space position and normal instead: the undeformed
+// vertex attributes, interpolated like the deformed ones. The bindings are
+// group 0, bindings 0-3; replace `@group(0)` in the text to move them.
 
 struct PsaoInstance {
     // World-to-local transform: columns of the inverse linear part, and
@@ -26,7 +30,9 @@ struct PsaoInstance {
     // x: bucket capacity; y: cell capacity; z: first bucket entry; w: first word.
     arrays: vec4<u32>,
     // x: T_n; y: T_d; z: 1 when the instance can be sampled (defined, with
-    // an invertible transform); w unused.
+    // an invertible transform or in bind space); w: 1 when it is in bind
+    // space (point format 1; the to_local and normal rows are then the
+    // identity).
     params: vec4<f32>,
 }
 
@@ -125,6 +131,15 @@ fn psao_sums(inst: PsaoInstance, x: vec3<f32>, n: vec3<f32>, r: f32) -> vec2<f32
         }
     }
     return vec2<f32>(sum_w, sum);
+}
+
+// Whether `instance` keeps its points in bind space (point format 1):
+// call psao_ao with the surface's bind-space position and normal.
+fn psao_bind_space(instance: u32) -> bool {
+    if (instance >= arrayLength(&psao_instances)) {
+        return false;
+    }
+    return psao_instances[instance].params.w == 1.0;
 }
 
 // AO at a world position with a unit world normal on `instance`, or 1

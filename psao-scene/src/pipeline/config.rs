@@ -98,6 +98,13 @@ pub struct PipelineConfig {
     /// a scene's node scales times the density bound the memory setup
     /// takes (about 100 bytes a point held, twice that at the peak).
     pub max_points: u64,
+    /// Deforming (skinned or morphing) instances keep their points in the
+    /// mesh's bind space (point format 1, spec/wire-format.md 6.1): they
+    /// never move, only their AO is sent, and a client looks a pixel up by
+    /// its bind-space position and normal (true); or in posed local space,
+    /// moved and re-sent with every pose (false: format 0 only, for
+    /// clients that know no other, and the baseline).
+    pub bind_space: bool,
 }
 
 impl PipelineConfig {
@@ -132,6 +139,7 @@ impl Default for PipelineConfig {
             cull: None,
             fill_buried: true,
             max_points: DEFAULT_MAX_POINTS,
+            bind_space: true,
         }
     }
 }

@@ -71,7 +71,10 @@ impl Pipeline {
                 continue;
             }
             let nm = normal_matrix(&s.transform);
+            // Traced where the points are now; compared where the table
+            // stores them (bind space for a bind-space instance).
             let (positions, normals) = s.now();
+            let (stored_p, stored_n) = s.stored();
             for &k in list {
                 let (p, n) = (positions[k as usize], normals[k as usize]);
                 ids.push(base + k);
@@ -81,6 +84,7 @@ impl Pipeline {
                 sent.push(if force {
                     SentPoint::not_held(Vec3::ZERO)
                 } else {
+                    let (p, n) = (stored_p[k as usize], stored_n[k as usize]);
                     let mut held = s.table.sent(k, p, n);
                     held.cell = held.cell.saturating_add(cell_base);
                     held
@@ -160,7 +164,7 @@ impl Pipeline {
                 });
             };
             let s = &mut self.instances[i];
-            let (positions, normals) = s.now();
+            let (positions, normals) = s.stored();
             let (p, n) = (positions[k as usize], normals[k as usize]);
             s.table.set_point(k, p, n, value)?;
         }

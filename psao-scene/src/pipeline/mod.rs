@@ -87,6 +87,10 @@ struct InstanceState {
     bvh: Option<Arc<TriangleBvh>>,
     /// Its buried points and their donors (none found yet, or none).
     buried: buried::Buried,
+    /// Whether its table holds the points in the mesh's bind space (point
+    /// format 1: a deforming instance with
+    /// [`PipelineConfig::bind_space`]), where they never move.
+    bind: bool,
 }
 
 /// Skinned instances on one node with one skin (the primitives of one
@@ -124,6 +128,16 @@ impl InstanceState {
             (&self.points.positions, &self.points.normals)
         } else {
             (&self.positions, &self.normals)
+        }
+    }
+
+    /// Positions and normals of the points as its table stores them: in
+    /// bind space for a bind-space instance, else as [`Self::now`].
+    fn stored(&self) -> (&[Vec3], &[Vec3]) {
+        if self.bind {
+            (&self.points.positions, &self.points.normals)
+        } else {
+            self.now()
         }
     }
 
@@ -361,7 +375,14 @@ impl Pipeline {
             };
             let mut points = generate_points(mesh, config.density * area_scale, seed)?;
             let rest = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ZERO));
-            let grid_bounds = skin_bounds[i].unwrap_or(rest);
+            // A bind-space grid covers the mesh as it is stored; a posed
+            // one every place its deformation takes the points.
+            let bind = deforms && config.bind_space;
+            let grid_bounds = if bind {
+                rest
+            } else {
+                skin_bounds[i].unwrap_or(rest)
+            };
             check_precision(
                 i,
                 &pose.instances[i],
@@ -370,7 +391,7 @@ impl Pipeline {
                 config.ao.radius,
             )?;
             let sides = if mesh.double_sided { 2.0 } else { 1.0 };
-            let def = layout(
+            let mut def = layout(
                 i,
                 grid_bounds,
                 mesh.area() * sides,
@@ -378,6 +399,9 @@ impl Pipeline {
                 points.radius.max(1e-6),
                 &config.layout,
             )?;
+            if bind {
+                def.point_format = psao_codec::POINT_FORMAT_BIND32;
+            }
             let table = GridTable::new(i as u32, def, points.len().max(1) as u32)?;
             let (vertices, vertex_normals) = scene.deformed(i, &pose);
             let (mut positions, mut normals) = (Vec::new(), Vec::new());
@@ -422,6 +446,7 @@ impl Pipeline {
                 dynamic: dynamic[i],
                 bvh: None,
                 buried: buried::Buried::default(),
+                bind,
             })
         };
         let instances = scene
