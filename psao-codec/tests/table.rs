@@ -192,7 +192,7 @@ fn invalid_definitions_are_refused() {
         ),
         (
             InstanceDef {
-                point_format: 1,
+                point_format: 2,
                 ..small_def()
             },
             DefError::PointFormat,

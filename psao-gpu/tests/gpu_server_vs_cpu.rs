@@ -300,7 +300,7 @@ fn held(p: &Pipeline) -> Vec<psao_codec::SentPoint> {
     let mut cell_base = 0;
     for i in 0..p.instance_count() {
         let table = p.table(i).unwrap();
-        let (pos, n) = p.current_points(i).unwrap();
+        let (pos, n) = p.stored_points(i).unwrap();
         for k in 0..pos.len() {
             let mut s = table.sent(k as u32, pos[k], n[k]);
             s.cell = s.cell.saturating_add(cell_base);
@@ -412,7 +412,7 @@ fn the_gpu_compares_with_what_clients_hold_and_reads_back_only_changes() {
     }
     for (&at, &v) in on_gpu.changed.iter().zip(&on_gpu.ao) {
         let (i, k) = owners[at as usize];
-        let (pos, n) = p.current_points(i).unwrap();
+        let (pos, n) = p.stored_points(i).unwrap();
         tables[i].set_point(k as u32, pos[k], n[k], v).unwrap();
     }
     let dirty: Vec<u32> = tables

@@ -43,7 +43,8 @@ pub struct Hello {
     pub version: u16,
     /// Bit `i`: the client decodes compression id `i`.
     pub compressions: u8,
-    /// Bit `i`: the client knows point format `i`.
+    /// Bit `i`: the client knows point format `i` (bits 0 and 1 are
+    /// defined: spec/session.md 3.1).
     pub point_formats: u8,
     /// Largest frame it accepts.
     pub max_frame_bytes: u32,
@@ -62,7 +63,8 @@ pub struct Welcome {
     pub version: u16,
     /// The compression id every frame uses.
     pub compression: u8,
-    /// The point format (0).
+    /// The largest point format the frames use: 0, or 1 where some
+    /// instances are in bind space (spec/wire-format.md 6.1).
     pub point_format: u8,
     /// Largest frame record of this session.
     pub max_frame_bytes: u32,

@@ -86,8 +86,14 @@ fn main() {
             let (Some(ma), Some(mb)) = (a.instance(i as u32), b.instance(i as u32)) else {
                 continue;
             };
-            let (pos, nrm) = fast.current_points(i).expect("instance");
-            let to_world = fast.transform(i).expect("instance");
+            // Where clients look the points up (bind space for deforming
+            // instances, whose lookup needs no transform).
+            let (pos, nrm) = fast.stored_points(i).expect("instance");
+            let to_world = if ma.def().bind_space() {
+                glam::Affine3A::IDENTITY
+            } else {
+                fast.transform(i).expect("instance")
+            };
             for (&p, &n) in pos.iter().zip(nrm) {
                 let (wp, wn) = (to_world.transform_point3(p), to_world.transform_vector3(n));
                 let Some((x, nx)) = world_to_local(&to_world, wp, wn) else {

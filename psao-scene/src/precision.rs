@@ -60,8 +60,8 @@ fn spectral_norm(m: &Mat3A) -> f64 {
 }
 
 /// Checks that f32 places instance `instance` finely enough for AO:
-/// `local_bounds` are its local bounds (for a skinned mesh, over the poses
-/// its grid was made for), `to_world` its transform, `point_spacing` the
+/// `local_bounds` are its local bounds (for a skinned mesh, over its bind
+/// pose and the poses it is traced in), `to_world` its transform, `point_spacing` the
 /// interpolation radius r of its points (0 when it has none: then only the
 /// AO radius rule applies) and `ao_radius` the AO radius R.
 ///

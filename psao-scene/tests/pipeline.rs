@@ -119,7 +119,8 @@ fn default_scene_streams_end_to_end() {
             p.table(i).unwrap(),
             client.mirror().instance(i as u32).unwrap(),
         );
-        let (pos, nrm) = p.current_points(i).unwrap();
+        // Where the client looks them up (bind space for the walker).
+        let (pos, nrm) = p.stored_points(i).unwrap();
         let (mut sum, mut n) = (0.0f64, 0u32);
         for k in 0..pos.len() as u32 {
             let psao_codec::Placement::Stored { cell, slot } = table.placement(k) else {

@@ -692,12 +692,10 @@ fn nan_and_infinity_anywhere_are_refused_by_name() {
     }
 }
 
-#[test]
-fn skinning_past_the_grid_drops_and_counts_points_and_streams_on() {
-    // A floor and a 2 x 2 sheet above it, skinned to two joints: its x < 0
-    // half to a still joint, its x > 0 half to one that jumps 1000 m along
-    // x at 100 s and back at 101 s. The grid is sized from the first 60 s
-    // of animation, which never see the jump.
+/// A floor and a 2 x 2 sheet above it, skinned to two joints: its x < 0
+/// half to a still joint, its x > 0 half to one that jumps 1000 m along x
+/// at 100 s and back at 101 s; the sheet's instance.
+fn jumping_sheet() -> (Scene, usize) {
     let mut s = Scene::default();
     s.add(
         Mesh::quad(Vec3::new(-3.0, 0.0, -3.0), Vec3::Z * 6.0, Vec3::X * 6.0),
@@ -732,7 +730,50 @@ fn skinning_past_the_grid_drops_and_counts_points_and_streams_on() {
             interpolation: Interpolation::Step,
         }],
     });
-    let mut p = Pipeline::new(s.clone(), config(1.0)).unwrap();
+    (s, i)
+}
+
+/// In bind space (point format 1) the jump moves no stored point: nothing
+/// leaves the grid, the stream stays in sync and only AO changes.
+#[test]
+fn a_bind_space_skin_keeps_every_point_in_its_grid_whatever_the_pose() {
+    let (s, i) = jumping_sheet();
+    let mut p = Pipeline::new(s, config(1.0)).unwrap();
+    assert!(p.table(i).unwrap().def().bind_space());
+    let mut client = Decoder::new(Limits::default());
+    client.receive(&p.keyframe().unwrap().bytes).unwrap();
+    let before = p.table(i).unwrap().stats();
+    for dt in [100.5, 1.0] {
+        let (frame, report) = p.step(dt).unwrap();
+        assert_eq!(report.deformed, 1, "{report:?}");
+        if let Some(f) = frame {
+            assert!(matches!(
+                client.receive(&f.bytes),
+                Ok(Event::Applied { .. })
+            ));
+        }
+        let table = p.table(i).unwrap();
+        let stats = table.stats();
+        assert_eq!(stats.out_of_grid, 0, "{stats:?}");
+        assert_eq!(stats.stored, before.stored, "{stats:?}");
+        let m = client.mirror().instance(i as u32).unwrap();
+        assert!(m.words() == table.words() && m.buckets() == table.buckets());
+    }
+}
+
+#[test]
+fn skinning_past_the_grid_drops_and_counts_points_and_streams_on() {
+    // Posed (point format 0): the grid is sized from the first 60 s of
+    // animation, which never see the jump.
+    let (s, i) = jumping_sheet();
+    let mut p = Pipeline::new(
+        s.clone(),
+        PipelineConfig {
+            bind_space: false,
+            ..config(1.0)
+        },
+    )
+    .unwrap();
     let mut client = Decoder::new(Limits::default());
     client.receive(&p.keyframe().unwrap().bytes).unwrap();
     let before = p.table(i).unwrap().stats();

@@ -54,6 +54,11 @@ pub struct Args {
     /// viewers' CAMERA messages say they see (spec/session.md 3.2).
     #[arg(long)]
     cull: bool,
+    /// Keep deforming (skinned, morphing) meshes' points posed, moved and
+    /// re-sent with every pose (point format 0 only), for clients that do
+    /// not know point format 1 (bind space, spec/wire-format.md 6.1).
+    #[arg(long)]
+    posed_deforming: bool,
 }
 
 /// What the server holds for the scene, in a line: triangles, instances
@@ -108,6 +113,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     };
     let pipeline = PipelineConfig {
         cull: args.cull.then(ViewerCull::default),
+        bind_space: !args.posed_deforming,
         ..pipeline_config(args.density, args.rays, args.radius)
     };
     for w in super::common::scale_warnings(&scene, args.density, args.radius)? {

@@ -1,7 +1,8 @@
 //! Linear blend skinning: a skin's joints are nodes; each vertex follows a
 //! weighted blend of up to four joint transforms.
 //!
-//! Skinning works in the instance's local space, where its grid lives: the
+//! Skinning works in the instance's local space (where a posed grid lives;
+//! a bind-space grid, point format 1, stays in the mesh's own space): the
 //! joint matrix of joint `j` is `inverse(instance world) * world(j) *
 //! inverse_bind(j)`, so a skinned instance that also moves as a whole sends
 //! its rigid part as a transform and only the deformation as point updates.

@@ -1,5 +1,6 @@
 //! The server frame pipeline (paper 3.3): animate -> carry skinned points
-//! along (in instance-local space) -> choose the points to re-trace ->
+//! along (in instance-local space, where they are traced) -> choose the
+//! points to re-trace ->
 //! trace -> compare with what clients hold (thresholds) -> GridTable ->
 //! Encoder.
 //!
@@ -7,8 +8,11 @@
 //! - a rigidly moving instance sends only its transform; its own points are
 //!   re-traced (their surroundings changed) but sent only if their AO moved
 //!   past the threshold;
-//! - a skinned instance re-traces its points when its pose changes, and
-//!   sends those whose position, normal or AO passed the thresholds;
+//! - a skinned (or morphing) instance re-traces its points when its pose
+//!   changes; in bind space (point format 1, the default) its points never
+//!   move and it sends those whose AO passed the threshold, posed
+//!   ([`PipelineConfig::bind_space`] off) those whose position, normal or
+//!   AO did;
 //! - a static instance is re-traced only where its points lie within reach
 //!   (the AO radius) of a moving instance's swept bounds;
 //! - with per-viewer culling, points outside the viewer's extended frustum
@@ -383,10 +387,15 @@ impl Pipeline {
             } else {
                 skin_bounds[i].unwrap_or(rest)
             };
+            // Traced where the poses take the points: their precision is
+            // checked over the grid and every posed place.
+            let traced_bounds = skin_bounds[i].map_or(grid_bounds, |b| {
+                (b.0.min(grid_bounds.0), b.1.max(grid_bounds.1))
+            });
             check_precision(
                 i,
                 &pose.instances[i],
-                grid_bounds,
+                traced_bounds,
                 points.radius,
                 config.ao.radius,
             )?;
@@ -591,9 +600,17 @@ impl Pipeline {
     }
 
     /// Positions and normals of instance `i`'s points now (local space;
-    /// skinned instances move them).
+    /// deforming instances move them): where they are traced.
     pub fn current_points(&self, i: usize) -> Option<(&[Vec3], &[Vec3])> {
         self.instances.get(i).map(InstanceState::now)
+    }
+
+    /// Positions and normals of instance `i`'s points as its table stores
+    /// them and clients look them up: in the mesh's bind space for an
+    /// instance of point format 1 (which never move), else as
+    /// [`current_points`](Self::current_points).
+    pub fn stored_points(&self, i: usize) -> Option<(&[Vec3], &[Vec3])> {
+        self.instances.get(i).map(InstanceState::stored)
     }
 
     /// Bytes the pipeline holds for its instances (points, skinned
