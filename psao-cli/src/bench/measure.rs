@@ -386,6 +386,7 @@ impl Errors {
             points: None,
             setup_s: None,
             keyframe_bytes: None,
+            dropped: None,
             unknown_px: 0,
             extra_ms: None,
             breakdown: self.breakdown(),
@@ -715,6 +716,12 @@ fn measure_psao(
     row.points = Some(points);
     row.setup_s = Some(setup_s);
     row.keyframe_bytes = Some(keyframe.bytes.len());
+    row.dropped = Some(
+        (0..pipeline.instance_count())
+            .filter_map(|i| pipeline.table(i))
+            .map(|t| t.stats().dropped as u64)
+            .sum(),
+    );
     row.unknown_px = unknown;
     Ok((row, kept))
 }

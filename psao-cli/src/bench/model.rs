@@ -62,6 +62,9 @@ pub struct Row {
     pub setup_s: Option<f64>,
     /// Keyframe bytes (PSAO only).
     pub keyframe_bytes: Option<usize>,
+    /// Points the server's tables hold no slot for at the end of the run:
+    /// their cell or bucket was full, or they left their grid (PSAO only).
+    pub dropped: Option<u64>,
     /// Covered pixels the client had no data for, over all frames.
     pub unknown_px: usize,
     /// PSAO: the part of `client_ms` spent decoding frames. RTAO: the

@@ -34,7 +34,7 @@ fn opt(v: Option<f64>, digits: usize) -> String {
 /// The CSV: one line per scene and configuration.
 pub fn csv_text(results: &[SceneResult]) -> String {
     let mut t = String::from(
-        "scene,method,label,density,rate_hz,rays_per_pixel,points,server_ms,keeps_rate,client_ms,extra_ms,mbit_s,rmse,psnr_db,ssim,flip,setup_s,keyframe_bytes,unknown_px,dark_where_open_px\n",
+        "scene,method,label,density,rate_hz,rays_per_pixel,points,server_ms,keeps_rate,client_ms,extra_ms,mbit_s,rmse,psnr_db,ssim,flip,setup_s,keyframe_bytes,unknown_px,dark_where_open_px,dropped_points\n",
     );
     for r in results {
         for row in &r.rows {
@@ -47,7 +47,7 @@ pub fn csv_text(results: &[SceneResult]) -> String {
             };
             let _ = writeln!(
                 t,
-                "{},{kind},{},{density},{rate},{rays},{},{},{},{:.4},{},{},{:.6},{:.3},{:.5},{:.5},{},{},{},{:.6}",
+                "{},{kind},{},{density},{rate},{rays},{},{},{},{:.4},{},{},{:.6},{:.3},{:.5},{:.5},{},{},{},{:.6},{}",
                 r.name,
                 row.method.label(),
                 row.points.map_or(String::new(), |p| p.to_string()),
@@ -64,6 +64,7 @@ pub fn csv_text(results: &[SceneResult]) -> String {
                 row.keyframe_bytes.map_or(String::new(), |b| b.to_string()),
                 row.unknown_px,
                 row.breakdown.dark_where_open_px,
+                row.dropped.map_or(String::new(), |d| d.to_string()),
             );
         }
     }
@@ -114,7 +115,11 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
                 t,
                 "| {} | {} | {} | {} | {} | {:.2} | {} | {} | {:.4} | {:.2} | {:.4} | {:.4} |",
                 row.method.label(),
-                row.points.map_or("-".into(), |p| p.to_string()),
+                match (row.points, row.dropped) {
+                    (Some(p), Some(d)) if d > 0 => format!("{p} ({d} dropped)"),
+                    (Some(p), _) => p.to_string(),
+                    (None, _) => "-".into(),
+                },
                 row.setup_s.map_or("-".into(), |v| format!("{v:.2}")),
                 row.keyframe_bytes
                     .map_or("-".into(), |b| format!("{:.1}", b as f64 / 1e3)),
