@@ -52,6 +52,20 @@ fn described(name: &str) -> Control {
             culling: false,
             scene: "default".into(),
         }),
+        "HELLO-BIND" => match described("HELLO") {
+            Control::Hello(h) => Control::Hello(Hello {
+                point_formats: 0b11,
+                ..h
+            }),
+            _ => unreachable!(),
+        },
+        "WELCOME-BIND" => match described("WELCOME") {
+            Control::Welcome(w) => Control::Welcome(Welcome {
+                point_format: 1,
+                ..w
+            }),
+            _ => unreachable!(),
+        },
         "CAMERA" => Control::Camera(CameraPose {
             time_ms: 1000,
             eye: Vec3::new(0.0, 1.5, 5.0),
@@ -89,6 +103,8 @@ fn the_spec_examples_match_the_code() {
         [
             "HELLO",
             "WELCOME",
+            "HELLO-BIND",
+            "WELCOME-BIND",
             "CAMERA",
             "ACK",
             "KEYFRAME_REQUEST",
