@@ -94,7 +94,7 @@ fn point_format_one_is_negotiated() {
     assert_eq!(e.close_code(), CloseCode::CapabilityMismatch);
     assert!(e.to_string().contains("point formats 0 to 1"), "{e}");
     // The bytes: HELLO with bits 0 and 1 reads back; bit 2 is reserved.
-    let mut b = bytes(Control::Hello(both.clone())).to_vec();
+    let mut b = bytes(Control::Hello(both)).to_vec();
     let mut r = psao_proto::control::ControlReader::new();
     let mut input = &b[..];
     assert_eq!(r.read(&mut input).unwrap(), Some(Control::Hello(both)));
