@@ -219,8 +219,16 @@ impl PosedScene {
         if bind_normal == Vec3::ZERO {
             bind_normal = (bb - ba).cross(bc - ba).normalize_or_zero();
         }
-        // Shade the side the camera sees.
-        if normal.dot(unit) > 0.0 {
+        // Shade the side the camera sees, told by the triangle's face (as
+        // a rasterizer's front-facing test is), turned to the side its
+        // vertex normals point to: not by the interpolated normal, which at
+        // a grazing silhouette can point away from a face that points at
+        // the camera; flipping it there turned the normal into the surface
+        // (the reference then traced into the mesh, dark, where no point
+        // faces that way).
+        let face = (b - a).cross(c - a);
+        let face = if face.dot(normal) < 0.0 { -face } else { face };
+        if face.dot(unit) > 0.0 {
             normal = -normal;
             bind_normal = -bind_normal;
         }

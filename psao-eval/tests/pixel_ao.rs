@@ -364,3 +364,59 @@ fn single_sided_faces_seen_from_behind_are_culled_as_gltf_says() {
         .gbuffer(&view_from(3.0 - 6.0));
     assert!(g.instance.iter().all(|&i| i == 1), "{:?}", g.instance);
 }
+
+/// The side a pixel shades is told by its triangle's face, as a
+/// rasterizer's front-facing test: a front face whose vertex normals lean
+/// so far that the interpolated normal points away from the camera (a
+/// grazing silhouette of a smooth mesh) keeps that normal, not its inverse
+/// pointing into the surface; a double-sided face seen from behind still
+/// flips, position normal and bind normal alike.
+#[test]
+fn the_shaded_side_follows_the_face_not_a_leaning_vertex_normal() {
+    // Seen from above at 45 degrees, from +x.
+    let camera = Camera {
+        eye: Vec3::new(3.0, 3.0, 0.01),
+        target: Vec3::ZERO,
+        fov_y: 0.3,
+    };
+    let view = View::new(camera, 8, 8).unwrap();
+    // A square facing up (+y) whose normals all lean 79 degrees towards
+    // -x: still on the face's side, but pointing away from the camera.
+    let mut quad = Mesh::quad(Vec3::new(-2.0, 0.0, -2.0), Vec3::Z * 4.0, Vec3::X * 4.0);
+    let lean = Vec3::new(-1.0, 0.2, 0.0).normalize();
+    for n in &mut quad.normals {
+        *n = lean;
+    }
+    let mut s = Scene::default();
+    s.add(quad, Affine3A::IDENTITY);
+    let g = PosedScene::new(&s, 0.0).unwrap().gbuffer(&view);
+    assert_eq!(g.covered(), 64);
+    for k in 0..g.pixels() {
+        assert!((g.normal[k] - lean).length() < 1e-5, "{:?}", g.normal[k]);
+        assert!(
+            (g.bind_normal[k] - lean).length() < 1e-5,
+            "{:?}",
+            g.bind_normal[k]
+        );
+    }
+    // Double-sided and seen from below: the normals flip to face the
+    // camera's side of the face.
+    let mut both = Scene::default();
+    let mut quad = Mesh::quad(Vec3::new(-2.0, 0.0, -2.0), Vec3::Z * 4.0, Vec3::X * 4.0);
+    quad.double_sided = true;
+    both.add(quad, Affine3A::IDENTITY);
+    let below = View::new(
+        Camera {
+            eye: Vec3::new(0.0, -3.0, 0.01),
+            fov_y: 0.5,
+            ..camera
+        },
+        8,
+        8,
+    )
+    .unwrap();
+    let g = PosedScene::new(&both, 0.0).unwrap().gbuffer(&below);
+    assert_eq!(g.covered(), 64);
+    assert!(g.normal.iter().all(|n| (*n + Vec3::Y).length() < 1e-5));
+    assert!(g.bind_normal.iter().all(|n| (*n + Vec3::Y).length() < 1e-5));
+}
