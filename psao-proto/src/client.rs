@@ -28,6 +28,11 @@ pub struct ClientConfig {
     /// Whether received frames are kept for [`ClientSession::take_captured`]
     /// (recording a session).
     pub capture: bool,
+    /// Offer point format 0 only: for a renderer that cannot give its
+    /// pixels bind-space attributes (spec/wire-format.md 6.1). A server
+    /// whose frames use point format 1 then refuses the client with
+    /// `capability_mismatch`. Default: formats 0 and 1.
+    pub point_format_0_only: bool,
 }
 
 /// What happened on a session.
@@ -170,7 +175,11 @@ impl ClientSession {
             compressions: decodable_compressions(),
             // Formats 0 and 1: the decoder applies both alike; the
             // mirror reports each instance's (spec/wire-format.md 6.1).
-            point_formats: 0b11,
+            point_formats: if config.point_format_0_only {
+                0b01
+            } else {
+                0b11
+            },
             max_frame_bytes: config.limits.max_frame_bytes,
             max_payload_bytes: config.limits.max_payload_bytes,
             max_mirror_bytes: config.limits.max_mirror_bytes,
@@ -230,6 +239,7 @@ impl ClientSession {
                 Control::Welcome(w) if self.welcome.is_none() => {
                     let ours = decodable_compressions();
                     if ours & (1 << w.compression) == 0
+                        || (self.config.point_format_0_only && w.point_format > 0)
                         || w.max_frame_bytes > self.config.limits.max_frame_bytes
                         || w.max_payload_bytes > self.config.limits.max_payload_bytes
                     {

@@ -131,6 +131,40 @@ fn point_format_one_is_negotiated() {
     );
 }
 
+/// A client that cannot draw bind-space instances offers point format 0
+/// alone, and closes on a WELCOME that chose format 1 anyway.
+#[test]
+fn a_client_may_offer_point_format_0_alone() {
+    let hello_of = |c: &mut ClientSession| {
+        let t = c.take_transmit().expect("HELLO goes out first");
+        let mut input = &t[..];
+        match psao_proto::control::ControlReader::new().read(&mut input) {
+            Ok(Some(Control::Hello(h))) => h,
+            other => panic!("{other:?}"),
+        }
+    };
+    let mut both = ClientSession::new(ClientConfig::default());
+    assert_eq!(hello_of(&mut both).point_formats, 0b11);
+    let mut only = ClientSession::new(ClientConfig {
+        point_format_0_only: true,
+        ..ClientConfig::default()
+    });
+    let h = hello_of(&mut only);
+    assert_eq!(h.point_formats, 0b01);
+    let bind = Offer {
+        point_format: 1,
+        ..offer()
+    };
+    assert_eq!(
+        negotiate(&h, &bind).unwrap_err().close_code(),
+        CloseCode::CapabilityMismatch
+    );
+    let mut w = negotiate(&h, &offer()).unwrap();
+    w.point_format = 1;
+    let e = only.on_control(&bytes(Control::Welcome(w))).unwrap_err();
+    assert_eq!(e.close_code(), CloseCode::CapabilityMismatch);
+}
+
 fn bytes(c: Control) -> Bytes {
     c.to_bytes().freeze()
 }
