@@ -37,6 +37,9 @@ fuzz_target!(|data: &[u8]| {
                 max_frame_bytes: 1 << 20,
                 max_payload_bytes: 1 << 20,
                 mirror_bytes: 1 << 16,
+                // Bind space half the time: negotiation refuses clients
+                // without point format 1.
+                point_format: which / 4 % 2,
                 frame_rate: 60,
                 scene: "fuzz".into(),
                 culling: true,
