@@ -57,6 +57,22 @@ fn base_keyframe() -> Frame {
     f
 }
 
+/// Keyframe 5: instance 1 (defined by `first`) as in vector 02's, and an
+/// empty instance 2 of `DEF`.
+fn two_instances(first: &InstanceDef) -> Frame {
+    key(
+        5,
+        vec![
+            define(1, first),
+            transform(1, 1, 3.0),
+            buckets(1, &[(1, &[(1, 0)])]),
+            cells_full(1, &[(0, &[W1])]),
+            define(2, &DEF),
+            END.to_vec(),
+        ],
+    )
+}
+
 const W1: u32 = 0x8C21_77C8; // pos (1,1,3), normal 0x77 (+Z), ao 200
 const W2: u32 = 0x8000_7440; // pos (0,0,0), normal 0x74, ao 64
 
@@ -208,18 +224,7 @@ fn vectors() -> Vec<Vector> {
         "10-redefine-and-remove",
         "Keyframe with instances 1 and 2; a delta redefines 1 (which clears it) and removes 2.",
         vec![
-            key(
-                5,
-                vec![
-                    define(1, &DEF),
-                    transform(1, 1, 3.0),
-                    buckets(1, &[(1, &[(1, 0)])]),
-                    cells_full(1, &[(0, &[W1])]),
-                    define(2, &DEF),
-                    END.to_vec(),
-                ],
-            )
-            .bytes(),
+            two_instances(&DEF).bytes(),
             delta(6, 5, vec![define(1, &DEF), remove(2), END.to_vec()]).bytes(),
         ],
     ));
@@ -546,18 +551,7 @@ fn vectors() -> Vec<Vector> {
         "50-point-format-bind",
         "Point format 1 (bind space, section 6.1): instance 1 of vector 02 defined as a deforming mesh's bind-space grid, and instance 2 of format 0 beside it, in one keyframe; the words apply as format 0's, and the state reports each instance's format.",
         vec![
-            key(
-                5,
-                vec![
-                    define(1, &bind),
-                    transform(1, 1, 3.0),
-                    buckets(1, &[(1, &[(1, 0)])]),
-                    cells_full(1, &[(0, &[W1])]),
-                    define(2, &DEF),
-                    END.to_vec(),
-                ],
-            )
-            .bytes(),
+            two_instances(&bind).bytes(),
         ],
     ));
     list.push(after_kf(
