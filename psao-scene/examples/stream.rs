@@ -206,6 +206,20 @@ fn main() {
         "  points culled      {:.0} per frame waiting out of view",
         sum.culled as f64 / n
     );
+    // Points without a slot now, and the drop events by reason (a point
+    // that retries and drops again counts again).
+    let stats: Vec<_> = (0..server.instance_count())
+        .filter_map(|i| server.table(i).map(|t| t.stats()))
+        .collect();
+    let total = |f: fn(&psao_codec::TableStats) -> u64| stats.iter().map(f).sum::<u64>();
+    println!(
+        "  points dropped     {} without a slot now; drop events: {} cell full, {} bucket full, {} pool exhausted, {} out of the grid",
+        total(|s| s.dropped as u64),
+        total(|s| s.cell_overflow),
+        total(|s| s.bucket_overflow),
+        total(|s| s.pool_exhausted),
+        total(|s| s.out_of_grid)
+    );
     println!(
         "  per traced point   {:.3} us of server time ({:.3} us tracing)",
         sum.total_time().as_secs_f64() * 1e6 / (sum.traced as f64).max(1.0),
