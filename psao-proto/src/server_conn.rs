@@ -84,7 +84,9 @@ pub fn negotiate(hello: &Hello, offer: &Offer) -> Result<Welcome, SessionError> 
         max_frame_bytes: offer.max_frame_bytes,
         max_payload_bytes: offer.max_payload_bytes,
         frame_rate: offer.frame_rate,
-        culling: offer.culling,
+        // Culling is to a viewer's camera: a client that sends none is not
+        // culled for (its presence turns culling off, spec/session.md 3.2).
+        culling: offer.culling && hello.viewer,
         scene: offer.scene.clone(),
     })
 }

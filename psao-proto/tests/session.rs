@@ -73,6 +73,23 @@ fn negotiation_refuses_what_the_client_cannot_take() {
     );
 }
 
+/// WELCOME's culling flag is set for a viewer of a culling server only: a
+/// non-viewer is never culled for (issue 16's finding 4).
+#[test]
+fn only_a_viewer_is_told_that_the_server_culls() {
+    let culling = Offer {
+        culling: true,
+        ..offer()
+    };
+    let viewer = Hello {
+        viewer: true,
+        ..hello()
+    };
+    assert!(negotiate(&viewer, &culling).unwrap().culling);
+    assert!(!negotiate(&hello(), &culling).unwrap().culling);
+    assert!(!negotiate(&viewer, &offer()).unwrap().culling);
+}
+
 /// Point format 1 (bind space): a server whose frames use it welcomes a
 /// client that knows formats 0 and 1 with WELCOME.point_format 1 and
 /// refuses one that knows only 0, naming the formats; a format-0 server
