@@ -539,6 +539,29 @@ fn instances_can_be_placed_by_scene_events() {
         p.step(1.0 / 60.0).unwrap();
         assert_eq!(p.transform(MOVING_BOX).unwrap(), to);
     }
+    // Placed again where it is: the placement is still sent, with a newer
+    // transform sequence, so a client can tell it was accepted.
+    let mut client = Decoder::new(Limits::default());
+    client.receive(&p.keyframe().unwrap().bytes).unwrap();
+    let seq = |c: &Decoder| {
+        c.mirror()
+            .instance(MOVING_BOX as u32)
+            .unwrap()
+            .transform()
+            .unwrap()
+            .sequence
+    };
+    let before = seq(&client);
+    // Not placed: held where it is, nothing new sent for it.
+    if let (Some(f), _) = p.step(1.0 / 60.0).unwrap() {
+        client.receive(&f.bytes).unwrap();
+    }
+    assert_eq!(seq(&client), before);
+    p.place_instance(MOVING_BOX, to).unwrap();
+    let (frame, _) = p.step(1.0 / 60.0).unwrap();
+    client.receive(&frame.expect("the transform is sent").bytes).unwrap();
+    assert_eq!(seq(&client), before.wrapping_add(1));
+    assert_eq!(p.transform(MOVING_BOX).unwrap(), to);
 }
 
 /// CesiumMan's staged scene with the character's mesh cut into two

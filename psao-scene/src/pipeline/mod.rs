@@ -206,6 +206,9 @@ pub struct Pipeline {
     pose: Pose,
     /// Transforms set by [`Pipeline::place_instance`], overriding animation.
     overrides: Vec<Option<Affine3A>>,
+    /// Instances placed since the last step: their transform is sent in the
+    /// next frame even if it did not change, so that a placement is seen.
+    placed: Vec<bool>,
     static_layer: Option<Arc<TriangleBvh>>,
     whole_layer: Option<Arc<TriangleBvh>>,
     /// Skinned instances that deform as one ([`SkinGroup`]).
@@ -484,6 +487,7 @@ impl Pipeline {
             instances,
             masks,
             overrides: vec![None; pose.instances.len()],
+            placed: vec![false; pose.instances.len()],
             pose,
             static_layer: None,
             whole_layer: None,
@@ -666,6 +670,7 @@ impl Pipeline {
             self.config.ao.radius,
         )?;
         self.overrides[i] = Some(transform);
+        self.placed[i] = true;
         Ok(())
     }
 

@@ -106,7 +106,14 @@ impl Pipeline {
             let joints = &self.pose.joints[i];
             let weights = &self.pose.weights[i];
             let deformed = !s.vertices.is_empty() && (*joints != s.joints || *weights != s.weights);
+            let placed = std::mem::take(&mut self.placed[i]);
             if next == s.transform && !deformed {
+                if placed {
+                    // Placed where it already is: nothing to trace, but the
+                    // placement is sent (a newer transform sequence).
+                    s.transform_seq = s.transform_seq.wrapping_add(1);
+                    motion.moved[i] = true;
+                }
                 continue;
             }
             // Work out the new state before changing anything: a degenerate
