@@ -559,7 +559,9 @@ fn instances_can_be_placed_by_scene_events() {
     assert_eq!(seq(&client), before);
     p.place_instance(MOVING_BOX, to).unwrap();
     let (frame, _) = p.step(1.0 / 60.0).unwrap();
-    client.receive(&frame.expect("the transform is sent").bytes).unwrap();
+    client
+        .receive(&frame.expect("the transform is sent").bytes)
+        .unwrap();
     assert_eq!(seq(&client), before.wrapping_add(1));
     assert_eq!(p.transform(MOVING_BOX).unwrap(), to);
 }
