@@ -219,16 +219,18 @@ impl PosedScene {
         if bind_normal == Vec3::ZERO {
             bind_normal = (bb - ba).cross(bc - ba).normalize_or_zero();
         }
-        // Shade the side the camera sees, told by the triangle's face (as
-        // a rasterizer's front-facing test is), turned to the side its
-        // vertex normals point to: not by the interpolated normal, which at
-        // a grazing silhouette can point away from a face that points at
-        // the camera; flipping it there turned the normal into the surface
-        // (the reference then traced into the mesh, dark, where no point
-        // faces that way).
+        // Shade the side the camera sees, told by the triangle's face as a
+        // rasterizer's front-facing test is, not by the interpolated
+        // normal, which at a grazing silhouette can point away from a face
+        // that faces the camera: flipping it there turned the normal into
+        // the surface (the reference then traced into the mesh, dark, where
+        // no point faces that way). A single-sided face the camera sees is
+        // its front (its back is culled): never flipped. A double-sided one
+        // flips when the camera is on the other side of its plane from its
+        // vertex normals.
         let face = (b - a).cross(c - a);
         let face = if face.dot(normal) < 0.0 { -face } else { face };
-        if face.dot(unit) > 0.0 {
+        if self.facing[prim as usize] == 0 && face.dot(unit) > 0.0 {
             normal = -normal;
             bind_normal = -bind_normal;
         }
@@ -277,8 +279,9 @@ pub struct GBuffer {
     pub height: u32,
     /// World position of the surface seen (zero where nothing was hit).
     pub position: Vec<Vec3>,
-    /// Unit world shading normal facing the camera (zero where nothing
-    /// was hit).
+    /// Unit world shading normal, on the camera's side of the surface (a
+    /// double-sided face seen from behind has its normals flipped; zero
+    /// where nothing was hit).
     pub normal: Vec<Vec3>,
     /// The surface's position in its mesh's bind space: the undeformed
     /// vertices interpolated as the deformed ones are (zero where nothing

@@ -399,6 +399,36 @@ fn the_shaded_side_follows_the_face_not_a_leaning_vertex_normal() {
             g.bind_normal[k]
         );
     }
+    // Mirrored (its front faces down) and seen from below: a front face,
+    // its leaning normals kept as the mirror places them.
+    let mut mirrored = Scene::default();
+    let mut quad = Mesh::quad(Vec3::new(-2.0, 0.0, -2.0), Vec3::Z * 4.0, Vec3::X * 4.0);
+    for n in &mut quad.normals {
+        *n = lean;
+    }
+    mirrored.add(quad, Affine3A::from_scale(Vec3::new(1.0, -1.0, 1.0)));
+    let from_below = View::new(
+        Camera {
+            eye: Vec3::new(3.0, -3.0, 0.01),
+            ..camera
+        },
+        8,
+        8,
+    )
+    .unwrap();
+    let g = PosedScene::new(&mirrored, 0.0)
+        .unwrap()
+        .gbuffer(&from_below);
+    assert_eq!(g.covered(), 64);
+    let placed = Vec3::new(lean.x, -lean.y, lean.z);
+    for k in 0..g.pixels() {
+        assert!((g.normal[k] - placed).length() < 1e-5, "{:?}", g.normal[k]);
+        assert!(
+            (g.bind_normal[k] - lean).length() < 1e-5,
+            "{:?}",
+            g.bind_normal[k]
+        );
+    }
     // Double-sided and seen from below: the normals flip to face the
     // camera's side of the face.
     let mut both = Scene::default();

@@ -161,6 +161,17 @@ pub fn decodable_compressions() -> u8 {
 /// The smallest frame and payload limits a `HELLO` may offer.
 const MIN_OFFERED_BYTES: u32 = 65_536;
 
+/// The point formats a client of `config` offers in `HELLO`: 0 and 1 (the
+/// decoder applies both alike; the mirror reports each instance's,
+/// spec/wire-format.md 6.1), or 0 alone.
+fn point_formats_of(config: &ClientConfig) -> u8 {
+    if config.point_format_0_only {
+        0b01
+    } else {
+        0b11
+    }
+}
+
 impl ClientSession {
     /// A session that has queued its `HELLO` (its limits raised to the
     /// 65,536 bytes `HELLO` must offer at least, for the decoder too).
@@ -173,13 +184,7 @@ impl ClientSession {
         Control::Hello(Hello {
             version: VERSION,
             compressions: decodable_compressions(),
-            // Formats 0 and 1: the decoder applies both alike; the
-            // mirror reports each instance's (spec/wire-format.md 6.1).
-            point_formats: if config.point_format_0_only {
-                0b01
-            } else {
-                0b11
-            },
+            point_formats: point_formats_of(&config),
             max_frame_bytes: config.limits.max_frame_bytes,
             max_payload_bytes: config.limits.max_payload_bytes,
             max_mirror_bytes: config.limits.max_mirror_bytes,
@@ -229,6 +234,11 @@ impl ClientSession {
         self.stats
     }
 
+    /// The point formats its `HELLO` offered.
+    fn point_formats(&self) -> u8 {
+        point_formats_of(&self.config)
+    }
+
     /// Bytes from the control stream.
     pub fn on_control(&mut self, mut input: &[u8]) -> Result<(), SessionError> {
         while !input.is_empty() {
@@ -239,7 +249,7 @@ impl ClientSession {
                 Control::Welcome(w) if self.welcome.is_none() => {
                     let ours = decodable_compressions();
                     if ours & (1 << w.compression) == 0
-                        || (self.config.point_format_0_only && w.point_format > 0)
+                        || self.point_formats() & (1 << w.point_format.min(7)) == 0
                         || w.max_frame_bytes > self.config.limits.max_frame_bytes
                         || w.max_payload_bytes > self.config.limits.max_payload_bytes
                     {

@@ -37,7 +37,7 @@ pub struct Offer {
     /// The scene's name.
     pub scene: String,
     /// Whether the server culls to its viewers' views (`WELCOME`'s
-    /// `flags.culling`).
+    /// `flags.culling` for a viewer; a non-viewer is told 0).
     pub culling: bool,
 }
 

@@ -32,7 +32,7 @@ pub struct SourceInfo {
     /// where some are in bind space: spec/wire-format.md 6.1).
     pub point_format: u8,
     /// Whether it culls to what the clients see (`WELCOME`'s
-    /// `flags.culling`); then the server calls
+    /// `flags.culling`, for viewers); then the server calls
     /// [`FrameSource::set_views`] before each step.
     pub culls: bool,
 }

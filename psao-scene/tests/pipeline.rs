@@ -566,6 +566,40 @@ fn instances_can_be_placed_by_scene_events() {
     assert_eq!(p.transform(MOVING_BOX).unwrap(), to);
 }
 
+/// A deforming instance placed where it already is, while its skin moves,
+/// still sends its placement (a newer transform sequence).
+#[test]
+fn a_skinned_instance_placed_where_it_is_sends_its_placement() {
+    let scene = cesium_man_scene();
+    let i = (0..scene.instances.len())
+        .find(|&i| scene.instances[i].skin.is_some())
+        .unwrap();
+    let mut p = Pipeline::new(scene, quick()).unwrap();
+    let mut client = Decoder::new(Limits::default());
+    client.receive(&p.keyframe().unwrap().bytes).unwrap();
+    let seq = |c: &Decoder| {
+        c.mirror()
+            .instance(i as u32)
+            .unwrap()
+            .transform()
+            .unwrap()
+            .sequence
+    };
+    let before = seq(&client);
+    let (frame, r) = p.step(0.25).unwrap();
+    assert_eq!(r.deformed, 1, "{r:?}");
+    if let Some(f) = frame {
+        client.receive(&f.bytes).unwrap();
+    }
+    assert_eq!(seq(&client), before, "walking in place: no new transform");
+    let at = p.transform(i).unwrap();
+    p.place_instance(i, at).unwrap();
+    let (frame, r) = p.step(0.25).unwrap();
+    assert_eq!(r.deformed, 1, "{r:?}");
+    client.receive(&frame.unwrap().bytes).unwrap();
+    assert_eq!(seq(&client), before.wrapping_add(1));
+}
+
 /// CesiumMan's staged scene with the character's mesh cut into two
 /// primitives on the same node and skin (as a glTF mesh of several
 /// primitives imports), the vertices shared.

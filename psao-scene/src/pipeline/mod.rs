@@ -234,13 +234,10 @@ fn bounds_of(points: &[Vec3]) -> (Vec3, Vec3) {
     crate::model::mesh::bounds_of(points).unwrap_or((Vec3::ZERO, Vec3::ZERO))
 }
 
-/// World area per local area of `mesh` placed by `t` (exact per triangle:
-/// a triangle of normal `n` grows by `|cof(M) n|`), 1 for a mesh without
-/// area or a transform that keeps areas (within 1e-5: rotations and
-/// translations).
 /// Points the scene keeps at `density` (spawned per unit of world area,
 /// half kept), estimated from its meshes' areas as [`Pipeline::build`]
-/// scales them; infinite where an area or a scale is.
+/// scales them: an upper bound where alpha masks cut holes; infinite where
+/// an area or a scale is.
 fn estimated_points(scene: &Scene, pose: &Pose, density: f32) -> f64 {
     scene
         .instances
@@ -261,6 +258,10 @@ fn estimated_points(scene: &Scene, pose: &Pose, density: f32) -> f64 {
         .sum()
 }
 
+/// World area per local area of `mesh` placed by `t` (exact per triangle:
+/// a triangle of normal `n` grows by `|cof(M) n|`), 1 for a mesh without
+/// area or a transform that keeps areas (within 1e-5: rotations and
+/// translations).
 fn world_area_scale(mesh: &crate::model::mesh::Mesh, t: &Affine3A) -> f32 {
     let m = glam::DMat3::from_cols(
         t.matrix3.x_axis.as_dvec3(),

@@ -138,6 +138,8 @@ impl Pipeline {
                 || !after.1.is_finite()
             {
                 report.held += 1;
+                // A placement waits for a pose that can be sent.
+                self.placed[i] |= placed;
                 continue;
             }
             let before = transformed_bounds(&s.transform, s.bounds);
@@ -160,7 +162,7 @@ impl Pipeline {
             motion
                 .swept
                 .push(grow(&ao, (before.0.min(after.0), before.1.max(after.1))));
-            if next != s.transform {
+            if next != s.transform || placed {
                 s.transform = next;
                 s.transform_seq = s.transform_seq.wrapping_add(1);
                 motion.moved[i] = true;
