@@ -365,6 +365,29 @@ fn single_sided_faces_seen_from_behind_are_culled_as_gltf_says() {
     assert!(g.instance.iter().all(|&i| i == 1), "{:?}", g.instance);
 }
 
+/// A 4 m square facing up (+y) at y = 0 whose vertex normals are all `n`.
+fn square_with_normals(n: Vec3) -> Mesh {
+    let mut quad = Mesh::quad(Vec3::new(-2.0, 0.0, -2.0), Vec3::Z * 4.0, Vec3::X * 4.0);
+    for v in &mut quad.normals {
+        *v = n;
+    }
+    quad
+}
+
+/// Every covered pixel of `g` (all 64 of them) has shading normal `world`
+/// and bind-space normal `bind`.
+fn assert_normals(g: &GBuffer, world: Vec3, bind: Vec3) {
+    assert_eq!(g.covered(), 64);
+    for k in 0..g.pixels() {
+        assert!((g.normal[k] - world).length() < 1e-5, "{:?}", g.normal[k]);
+        assert!(
+            (g.bind_normal[k] - bind).length() < 1e-5,
+            "{:?}",
+            g.bind_normal[k]
+        );
+    }
+}
+
 /// The side a pixel shades is told by its triangle's face, as a
 /// rasterizer's front-facing test: a front face whose vertex normals lean
 /// so far that the interpolated normal points away from the camera (a
@@ -382,31 +405,18 @@ fn the_shaded_side_follows_the_face_not_a_leaning_vertex_normal() {
     let view = View::new(camera, 8, 8).unwrap();
     // A square facing up (+y) whose normals all lean 79 degrees towards
     // -x: still on the face's side, but pointing away from the camera.
-    let mut quad = Mesh::quad(Vec3::new(-2.0, 0.0, -2.0), Vec3::Z * 4.0, Vec3::X * 4.0);
     let lean = Vec3::new(-1.0, 0.2, 0.0).normalize();
-    for n in &mut quad.normals {
-        *n = lean;
-    }
     let mut s = Scene::default();
-    s.add(quad, Affine3A::IDENTITY);
+    s.add(square_with_normals(lean), Affine3A::IDENTITY);
     let g = PosedScene::new(&s, 0.0).unwrap().gbuffer(&view);
-    assert_eq!(g.covered(), 64);
-    for k in 0..g.pixels() {
-        assert!((g.normal[k] - lean).length() < 1e-5, "{:?}", g.normal[k]);
-        assert!(
-            (g.bind_normal[k] - lean).length() < 1e-5,
-            "{:?}",
-            g.bind_normal[k]
-        );
-    }
+    assert_normals(&g, lean, lean);
     // Mirrored (its front faces down) and seen from below: a front face,
     // its leaning normals kept as the mirror places them.
     let mut mirrored = Scene::default();
-    let mut quad = Mesh::quad(Vec3::new(-2.0, 0.0, -2.0), Vec3::Z * 4.0, Vec3::X * 4.0);
-    for n in &mut quad.normals {
-        *n = lean;
-    }
-    mirrored.add(quad, Affine3A::from_scale(Vec3::new(1.0, -1.0, 1.0)));
+    mirrored.add(
+        square_with_normals(lean),
+        Affine3A::from_scale(Vec3::new(1.0, -1.0, 1.0)),
+    );
     let from_below = View::new(
         Camera {
             eye: Vec3::new(3.0, -3.0, 0.01),
@@ -419,16 +429,7 @@ fn the_shaded_side_follows_the_face_not_a_leaning_vertex_normal() {
     let g = PosedScene::new(&mirrored, 0.0)
         .unwrap()
         .gbuffer(&from_below);
-    assert_eq!(g.covered(), 64);
-    let placed = Vec3::new(lean.x, -lean.y, lean.z);
-    for k in 0..g.pixels() {
-        assert!((g.normal[k] - placed).length() < 1e-5, "{:?}", g.normal[k]);
-        assert!(
-            (g.bind_normal[k] - lean).length() < 1e-5,
-            "{:?}",
-            g.bind_normal[k]
-        );
-    }
+    assert_normals(&g, Vec3::new(lean.x, -lean.y, lean.z), lean);
     // Double-sided and seen from below: the normals flip to face the
     // camera's side of the face.
     let mut both = Scene::default();

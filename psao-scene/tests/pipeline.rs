@@ -523,6 +523,16 @@ fn a_degenerate_pose_holds_the_instance_and_others_carry_on() {
     assert!((p.transform(0).unwrap().translation.x - 3.0).abs() < 1e-4);
 }
 
+/// The sequence of the transform `client` holds for instance `i`.
+fn transform_sequence(client: &Decoder, i: usize) -> u32 {
+    client
+        .mirror()
+        .instance(i as u32)
+        .and_then(|m| m.transform())
+        .expect("the instance and its transform")
+        .sequence
+}
+
 #[test]
 fn instances_can_be_placed_by_scene_events() {
     let mut p = Pipeline::new(default_scene(), quick()).unwrap();
@@ -543,14 +553,7 @@ fn instances_can_be_placed_by_scene_events() {
     // transform sequence, so a client can tell it was accepted.
     let mut client = Decoder::new(Limits::default());
     client.receive(&p.keyframe().unwrap().bytes).unwrap();
-    let seq = |c: &Decoder| {
-        c.mirror()
-            .instance(MOVING_BOX as u32)
-            .unwrap()
-            .transform()
-            .unwrap()
-            .sequence
-    };
+    let seq = |c: &Decoder| transform_sequence(c, MOVING_BOX);
     let before = seq(&client);
     // Not placed: held where it is, nothing new sent for it.
     if let (Some(f), _) = p.step(1.0 / 60.0).unwrap() {
@@ -577,14 +580,7 @@ fn a_skinned_instance_placed_where_it_is_sends_its_placement() {
     let mut p = Pipeline::new(scene, quick()).unwrap();
     let mut client = Decoder::new(Limits::default());
     client.receive(&p.keyframe().unwrap().bytes).unwrap();
-    let seq = |c: &Decoder| {
-        c.mirror()
-            .instance(i as u32)
-            .unwrap()
-            .transform()
-            .unwrap()
-            .sequence
-    };
+    let seq = |c: &Decoder| transform_sequence(c, i);
     let before = seq(&client);
     let (frame, r) = p.step(0.25).unwrap();
     assert_eq!(r.deformed, 1, "{r:?}");
