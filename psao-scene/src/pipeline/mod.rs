@@ -46,7 +46,7 @@ use crate::error::{SceneError, check_param};
 use crate::model::alpha::AlphaMask;
 use crate::model::pose::Pose;
 use crate::model::scene::{Instance, Scene, check_transform};
-use crate::points::generate::{PointSet, generate_points};
+use crate::points::generate::{PointSet, check_density, generate_points};
 use crate::points::layout::layout;
 use crate::precision::check_precision;
 use crate::trace::ao::AoTracer;
@@ -234,25 +234,38 @@ fn bounds_of(points: &[Vec3]) -> (Vec3, Vec3) {
     crate::model::mesh::bounds_of(points).unwrap_or((Vec3::ZERO, Vec3::ZERO))
 }
 
+/// Density counts points per unit of world area: a rigid instance placed
+/// by a scale (a model in millimetres under a node that scales by 1e-3)
+/// gets as many points per square metre as any other. Per instance, the
+/// world area per mesh area its points are made for: 1 for a skinned
+/// instance (its mesh's own area), else [`world_area_scale`] at `pose`.
+fn area_scales(scene: &Scene, pose: &Pose) -> Vec<f32> {
+    (0..scene.instances.len())
+        .into_par_iter()
+        .map(|i| {
+            let inst = &scene.instances[i];
+            let mesh = &scene.meshes[inst.mesh];
+            if inst.skin.is_some() && mesh.skin.is_some() {
+                1.0
+            } else {
+                world_area_scale(mesh, &pose.instances[i])
+            }
+        })
+        .collect()
+}
+
 /// Points the scene keeps at `density` (spawned per unit of world area,
-/// half kept), estimated from its meshes' areas as [`Pipeline::build`]
-/// scales them: an upper bound where alpha masks cut holes; infinite where
-/// an area or a scale is.
-fn estimated_points(scene: &Scene, pose: &Pose, density: f32) -> f64 {
+/// half kept) with the instances' `area_scales`: an upper bound where
+/// alpha masks cut holes; infinite where an area or a scale is.
+fn estimated_points(scene: &Scene, area_scales: &[f32], density: f32) -> f64 {
     scene
         .instances
         .iter()
-        .enumerate()
-        .map(|(i, inst)| {
+        .zip(area_scales)
+        .map(|(inst, &scale)| {
             let mesh = &scene.meshes[inst.mesh];
-            let skinned = inst.skin.is_some() && mesh.skin.is_some();
-            let scale = if skinned {
-                1.0
-            } else {
-                world_area_scale(mesh, &pose.instances[i]) as f64
-            };
             let sides = if mesh.double_sided { 2.0 } else { 1.0 };
-            mesh.area() as f64 * sides * scale * density as f64 * 0.5
+            mesh.area() as f64 * sides * scale as f64 * density as f64 * 0.5
         })
         .map(|n| if n.is_nan() { f64::INFINITY } else { n })
         .sum()
@@ -344,14 +357,9 @@ impl Pipeline {
         }
         let dynamic = scene.dynamic_instances();
         let pose = scene.pose(0.0);
-        check_param(
-            "density",
-            config.density as f64,
-            f32::MIN_POSITIVE as f64,
-            f32::MAX as f64,
-            "points per unit area, positive and finite",
-        )?;
-        let estimated = estimated_points(&scene, &pose, config.density);
+        check_density(config.density)?;
+        let area_scales = area_scales(&scene, &pose);
+        let estimated = estimated_points(&scene, &area_scales, config.density);
         if estimated > config.max_points as f64 {
             return Err(SceneError::TooManyPoints {
                 estimated: estimated.min(u64::MAX as f64) as u64,
@@ -370,18 +378,8 @@ impl Pipeline {
         let set_up = |(i, inst): (usize, &Instance)| -> Result<InstanceState, SceneError> {
             let mesh = &scene.meshes[inst.mesh];
             let seed = config.seed ^ ((i as u64) << 32);
-            // Density counts points per unit of world area: a rigid
-            // instance placed by a scale (a model in millimetres under a
-            // node that scales by 1e-3) gets as many points per square
-            // metre as any other.
-            let skinned = inst.skin.is_some() && mesh.skin.is_some();
             let deforms = scene.deforms(i);
-            let area_scale = if skinned {
-                1.0
-            } else {
-                world_area_scale(mesh, &pose.instances[i])
-            };
-            let mut points = generate_points(mesh, config.density * area_scale, seed)?;
+            let mut points = generate_points(mesh, config.density * area_scales[i], seed)?;
             let rest = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ZERO));
             // A bind-space grid covers the mesh as it is stored; a posed
             // one every place its deformation takes the points.

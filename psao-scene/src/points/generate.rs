@@ -94,6 +94,18 @@ impl PointSet {
     }
 }
 
+/// Checks a density of points spawned per unit area: any positive, finite
+/// value (the spawned count is what is bounded).
+pub(crate) fn check_density(density: f32) -> Result<(), SceneError> {
+    check_param(
+        "density",
+        density as f64,
+        f32::MIN_POSITIVE as f64,
+        f32::MAX as f64,
+        "points per unit area, positive and finite",
+    )
+}
+
 /// Most points [`generate_points`] spawns for one mesh side.
 pub const MAX_SPAWNED_POINTS: usize = 1 << 26;
 
@@ -105,13 +117,7 @@ pub fn generate_points(mesh: &Mesh, density: f32, seed: u64) -> Result<PointSet,
     // Any positive density: the mesh's own units may be millimetres under
     // a node that scales them up (or metres for a model 7 mm across); the
     // spawned count below is what is bounded.
-    check_param(
-        "density",
-        density as f64,
-        f32::MIN_POSITIVE as f64,
-        f32::MAX as f64,
-        "points per unit area, positive and finite",
-    )?;
+    check_density(density)?;
     mesh.validate(0)?;
     let area = mesh.area();
     let spawned = area as f64 * density as f64;
