@@ -16,22 +16,11 @@ use std::path::PathBuf;
 
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressStyle};
-use psao_scene::{
-    AoParams, Scene, cesium_man_scene, default_scene, hall_scene, load_scene_file, stage,
-};
+use psao_scene::{AoParams, Scene, load_scene_file, stage};
+
+use crate::cmd::common::Embedded;
 
 pub use measure::{ImageFrames, Settings};
-
-/// The scenes `psao bench` carries.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Embedded {
-    /// The codec demo's scene: floor, trellis, a sliding box, a walker.
-    Default,
-    /// CesiumMan walking on a floor.
-    CesiumMan,
-    /// The procedural hall (`psao_scene::hall_scene`).
-    Hall,
-}
 
 /// Where PSAO servers trace.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -188,11 +177,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 continue;
             }
             seen.push(e);
-            scenes.push(match e {
-                Embedded::Default => ("default".into(), default_scene()),
-                Embedded::CesiumMan => ("cesium-man".into(), cesium_man_scene()),
-                Embedded::Hall => ("hall".into(), hall_scene()),
-            });
+            scenes.push((e.name().into(), e.scene()));
         }
     }
     let camera = args.camera.path()?;

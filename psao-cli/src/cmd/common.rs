@@ -198,21 +198,49 @@ pub fn pipeline_with_progress(scene: Scene, config: PipelineConfig) -> anyhow::R
     Ok(pipeline?)
 }
 
+/// The scenes the `psao` binary carries (`bench --scenes`, `serve
+/// --scene`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Embedded {
+    /// The codec demo's scene: floor, trellis, a sliding box, a walker.
+    Default,
+    /// CesiumMan walking on a floor.
+    CesiumMan,
+    /// The procedural hall (`psao_scene::hall_scene`).
+    Hall,
+}
+
+impl Embedded {
+    /// Its name on the command line and in `WELCOME`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Embedded::Default => "default",
+            Embedded::CesiumMan => "cesium-man",
+            Embedded::Hall => "hall",
+        }
+    }
+
+    /// The scene.
+    pub fn scene(self) -> Scene {
+        match self {
+            Embedded::Default => default_scene(),
+            Embedded::CesiumMan => psao_scene::cesium_man_scene(),
+            Embedded::Hall => psao_scene::hall_scene(),
+        }
+    }
+}
+
 /// The scene at `path` (a .gltf, .glb or .obj file), an embedded scene
 /// named `default`, `hall` or `cesium-man` (where no file has that name),
 /// or the embedded default scene, with the name `WELCOME` gives it.
 pub fn load_scene(path: Option<&Path>) -> anyhow::Result<(Scene, String)> {
+    use clap::ValueEnum as _;
     let embedded = path
         .filter(|p| !p.exists())
         .and_then(|p| p.to_str())
-        .and_then(|name| match name {
-            "default" => Some(default_scene()),
-            "hall" => Some(psao_scene::hall_scene()),
-            "cesium-man" => Some(psao_scene::cesium_man_scene()),
-            _ => None,
-        });
-    if let (Some(scene), Some(p)) = (embedded, path) {
-        return Ok((scene, p.display().to_string()));
+        .and_then(|name| Embedded::from_str(name, false).ok());
+    if let Some(e) = embedded {
+        return Ok((e.scene(), e.name().into()));
     }
     match path {
         None => Ok((default_scene(), "default".into())),
@@ -302,6 +330,11 @@ mod tests {
         );
         let (_, name) = load_scene(None).unwrap();
         assert_eq!(name, "default");
+        for e in [Embedded::Default, Embedded::CesiumMan, Embedded::Hall] {
+            let (scene, name) = load_scene(Some(Path::new(e.name()))).unwrap();
+            assert_eq!(name, e.name());
+            assert_eq!(scene.instances.len(), e.scene().instances.len());
+        }
         let e = load_scene(Some(Path::new("lobby"))).unwrap_err();
         assert!(
             format!("{e:#}").contains("unsupported scene format"),
