@@ -111,18 +111,17 @@ impl GpuReconstruct {
         let grid = ctx.grid(n, WORKGROUP);
         // Pixels of bind-space instances are looked up by their bind-space
         // attributes (the shader's transform for them is the identity).
-        let bind = |k: usize| mirror.bind_space(g.instance[k]);
-        if g.bind_position.is_empty() && (0..n).any(bind) {
+        // (Each pixel's instance is looked up once.)
+        let bind: Vec<bool> = g.instance.iter().map(|&i| mirror.bind_space(i)).collect();
+        if g.bind_position.is_empty() && bind.contains(&true) {
             return Err(GpuError::Input(
                 "the mirror holds instances in bind space (point format 1): the G-buffer needs bind_position and bind_normal".into(),
             ));
         }
         let pick = |world: &[glam::Vec3], local: &[glam::Vec3]| -> Vec<[f32; 4]> {
-            (0..n)
-                .map(|k| {
-                    let v = if bind(k) { local[k] } else { world[k] };
-                    v.extend(0.0).to_array()
-                })
+            bind.iter()
+                .enumerate()
+                .map(|(k, &b)| if b { local[k] } else { world[k] }.extend(0.0).to_array())
                 .collect()
         };
         let pos = pick(g.position, g.bind_position);
