@@ -545,6 +545,7 @@ fn vectors() -> Vec<Vector> {
     ));
     let bind = InstanceDef {
         point_format: 1,
+        overflow: false,
         ..DEF
     };
     list.push(v(
@@ -561,9 +562,56 @@ fn vectors() -> Vec<Vector> {
             3,
             &InstanceDef {
                 point_format: 2,
+                overflow: false,
                 ..DEF
             },
         )],
+    ));
+    // Overflow chains (section 7.4): DEF with OVERFLOW (byte 44 = 0x80).
+    // Dx = 4, so link j of cell (1,0,0) (key 1) has key 1 + 4j.
+    let chained = InstanceDef {
+        overflow: true,
+        ..DEF
+    };
+    let (w7, w8) = (word([8, 20, 3], 0x10, 33), word([30, 2, 16], 0x77, 180));
+    let chain_kf = key(
+        5,
+        vec![
+            define(1, &chained),
+            buckets(1, &[(1, &[(1, 0)]), (5, &[(5, 1)])]),
+            cells_full(1, &[(0, &[W1, W2, w3, w4]), (1, &[w7, w8])]),
+            END.to_vec(),
+        ],
+    )
+    .bytes();
+    list.push(v(
+        "52-overflow-chain",
+        "OVERFLOW: cell (1,0,0) (key 1, bucket 1) is full in pool cell 0 and goes on in its link 1 (key 1 + 1*Dx = 5, bucket 5), pool cell 1, with two more points: six points in a cell of 4 slots. Then a delta moves the chain's last point into slot 1 of link 0, as an encoder does when a point leaves, and the cell holds five.",
+        vec![
+            chain_kf.clone(),
+            delta(
+                6,
+                5,
+                vec![
+                    cells_xor(1, &[(0, 0b10, &[W2 ^ w8]), (1, 0b10, &[w8])]),
+                    END.to_vec(),
+                ],
+            )
+            .bytes(),
+        ],
+    ));
+    list.push(v(
+        "53-overflow-key-beyond-links",
+        "OVERFLOW: key 272 = 0 + 4*68 (r' = 68, y = 68 div 17 = 4 = Dy) is no link of any cell of the 4x4x4 grid.",
+        vec![
+            chain_kf,
+            delta(6, 5, vec![buckets(1, &[(0, &[(272, 2)])]), END.to_vec()]).bytes(),
+        ],
+    ));
+    list.push(after_kf(
+        "54-overflow-key-without-flag",
+        "Without OVERFLOW, key 5 (link 1 of cell (1,0,0) in a chained grid) names no cell.",
+        vec![buckets(1, &[(5, &[(5, 1)])])],
     ));
     assert_eq!(W1, word([1, 1, 3], 0x77, 200));
     assert_eq!(W2, word([0, 0, 0], 0x74, 64));

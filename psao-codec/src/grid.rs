@@ -21,6 +21,14 @@ pub const POINT_FORMAT_PACKED32: u8 = 0;
 /// instance's transform.
 pub const POINT_FORMAT_BIND32: u8 = 1;
 
+/// Bit 7 of `DefineInstance`'s point format byte: the instance's full cells
+/// continue in overflow chains (spec/wire-format.md 7.4).
+pub const OVERFLOW_FLAG: u8 = 0x80;
+/// Links a cell's overflow chain has beyond the cell itself: link `j`
+/// (`1..=16`) of the cell with key `k` has key `k + j * Dx`, so a cell holds
+/// at most `17 * cell_capacity` points.
+pub const MAX_OVERFLOW_LINKS: u8 = 16;
+
 /// One hash bucket entry as laid out in memory: `(cell key, cell index)`,
 /// both `u32::MAX` when empty. `#[repr(C)]`, 8 bytes, so an array of them
 /// can be uploaded to a GPU as it is.
@@ -69,6 +77,10 @@ pub struct InstanceDef {
     pub cell_pool: u32,
     /// Point format: [`POINT_FORMAT_PACKED32`] or [`POINT_FORMAT_BIND32`].
     pub point_format: u8,
+    /// Whether a full cell continues in an overflow chain of up to
+    /// [`MAX_OVERFLOW_LINKS`] more cells (spec/wire-format.md 7.4), sent as
+    /// bit 7 ([`OVERFLOW_FLAG`]) of the point format byte.
+    pub overflow: bool,
     /// Interpolation radius r of eq. 2, in local units (positive, finite).
     pub radius: f32,
     /// Normal threshold T_n of eq. 3, in `[-1, 1]`.
@@ -82,6 +94,12 @@ impl InstanceDef {
     /// a surface's bind-space position and normal.
     pub fn bind_space(&self) -> bool {
         self.point_format == POINT_FORMAT_BIND32
+    }
+
+    /// Byte 44 of `DefineInstance`: the point format in bits 0-6 and
+    /// [`OVERFLOW_FLAG`] in bit 7.
+    pub fn format_byte(&self) -> u8 {
+        self.point_format | if self.overflow { OVERFLOW_FLAG } else { 0 }
     }
 
     /// Number of buckets.
@@ -182,8 +200,26 @@ impl InstanceDef {
         k as u32
     }
 
-    /// The cell a key names, or `None` if no cell of this grid has that key.
+    /// The cell a key names, or `None` if no cell of this grid has that key
+    /// (a link key of an overflow chain names no cell: see
+    /// [`link_of_key`](Self::link_of_key)).
     pub fn cell_of_key(&self, key: u32) -> Option<UVec3> {
+        match self.any_link_of_key(key)? {
+            (cell, 0) => Some(cell),
+            _ => None,
+        }
+    }
+
+    /// The cell and the link of its overflow chain that a key names (link 0
+    /// is the cell's own key), or `None` if it names none. Without
+    /// [`overflow`](Self::overflow) only link 0 keys are valid
+    /// (spec/wire-format.md 7.4).
+    pub fn link_of_key(&self, key: u32) -> Option<(UVec3, u8)> {
+        let (cell, link) = self.any_link_of_key(key)?;
+        (link == 0 || self.overflow).then_some((cell, link))
+    }
+
+    fn any_link_of_key(&self, key: u32) -> Option<(UVec3, u8)> {
         let (dx, dy, dz) = (self.dims.x as u64, self.dims.y as u64, self.dims.z as u64);
         let k = key as u64;
         let x = k % dx;
@@ -191,10 +227,21 @@ impl InstanceDef {
         let layer = 31 * dy;
         let z = rest / layer;
         let r = rest % layer;
-        if r % 17 != 0 || r / 17 >= dy || z >= dz {
+        if r / 17 >= dy || z >= dz {
             return None;
         }
-        Some(UVec3::new(x as u32, (r / 17) as u32, z as u32))
+        let cell = UVec3::new(x as u32, (r / 17) as u32, z as u32);
+        Some((cell, (r % 17) as u8))
+    }
+
+    /// The key of link `link` (`0..=16`) of the overflow chain of the cell
+    /// with key `key`: `key + link * Dx`. `key` must be a cell's own key;
+    /// the result is then unique to that link and below `2^32 - 1`.
+    pub fn link_key(&self, key: u32, link: u8) -> u32 {
+        debug_assert!(link <= MAX_OVERFLOW_LINKS);
+        let k = key as u64 + link as u64 * self.dims.x as u64;
+        debug_assert!(k < EMPTY_KEY as u64);
+        k as u32
     }
 
     /// The bucket a key hashes to: `key mod table_size`.

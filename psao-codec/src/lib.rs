@@ -24,7 +24,7 @@
 //! let def = InstanceDef {
 //!     origin: Vec3::ZERO, cell_size: Vec3::splat(0.25), dims: UVec3::splat(8),
 //!     table_log2: 6, bucket_capacity: 8, cell_capacity: 7, cell_pool: 512,
-//!     point_format: 0, radius: 0.1, t_n: 0.1, t_d: 0.7,
+//!     point_format: 0, overflow: true, radius: 0.1, t_n: 0.1, t_d: 0.7,
 //! };
 //! let mut table = GridTable::new(7, def, 1000).unwrap();
 //! let mut encoder = Encoder::new(EncoderConfig::default());
@@ -60,8 +60,9 @@ pub use client::mirror::{Change, Changes, Event, InstanceMirror, Mirror, Transfo
 pub use client::reconstruct::{WeightParams, base_cell, reconstruct_ao, weight, world_to_local};
 pub use error::{DecodeError, DefError, EncodeError, MessageError};
 pub use grid::{
-    BucketEntry, EMPTY_KEY, InstanceDef, MAX_BUCKET_CAPACITY, MAX_CELL_CAPACITY, MAX_TABLE_LOG2,
-    POINT_FORMAT_BIND32, POINT_FORMAT_PACKED32, key_fits,
+    BucketEntry, EMPTY_KEY, InstanceDef, MAX_BUCKET_CAPACITY, MAX_CELL_CAPACITY,
+    MAX_OVERFLOW_LINKS, MAX_TABLE_LOG2, OVERFLOW_FLAG, POINT_FORMAT_BIND32, POINT_FORMAT_PACKED32,
+    key_fits,
 };
 pub use limits::Limits;
 pub use server::encoder::{EncodedFrame, Encoder, EncoderConfig, FrameBuilder, FrameStats};

@@ -169,3 +169,36 @@ fn world_to_local_inverts_rigid_and_scaled_transforms() {
     let singular = Affine3A::from_scale(Vec3::new(1.0, 0.0, 1.0));
     assert!(world_to_local(&singular, world, Vec3::Y).is_none());
 }
+
+/// A full cell's overflow chain counts in the weighted mean: three points
+/// at one place in cells of one slot give the mean of all three with
+/// chains, and the first alone without (the other two dropped).
+#[test]
+fn reconstruction_follows_overflow_chains() {
+    for overflow in [true, false] {
+        let def = InstanceDef {
+            cell_capacity: 1,
+            overflow,
+            ..small_def()
+        };
+        let mut t = GridTable::new(1, def, 4).unwrap();
+        let cell = UVec3::new(3, 1, 3);
+        let at = def.cell_min(cell) + def.cell_size * 0.5;
+        for (id, ao) in [(0, 0.0), (1, 0.4), (2, 1.0)] {
+            t.set_point(id, at, Vec3::Y, ao).unwrap();
+        }
+        let d = mirror_of(&mut t);
+        let m = d.mirror().instance(1).unwrap();
+        let links: Vec<u32> = m.chain(def.key(cell)).collect();
+        let ao = reconstruct_ao(m, at, Vec3::Y);
+        if overflow {
+            assert_eq!(links.len(), 3);
+            let want = (0..3).map(|id| stored(&t, id, cell).1).sum::<f32>() / 3.0;
+            assert!((ao - want).abs() < 1e-6, "{ao} vs {want}");
+        } else {
+            assert_eq!(links.len(), 1);
+            assert_eq!(t.stats().dropped, 2);
+            assert!((ao - stored(&t, 0, cell).1).abs() < 1e-6, "{ao}");
+        }
+    }
+}

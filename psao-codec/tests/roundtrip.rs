@@ -54,11 +54,12 @@ fn op() -> impl Strategy<Value = Op> {
     ]
 }
 
-fn grid(table_log2: u8, cell_pool: u32, cell_capacity: u8) -> InstanceDef {
+fn grid(table_log2: u8, cell_pool: u32, cell_capacity: u8, overflow: bool) -> InstanceDef {
     InstanceDef {
         table_log2,
         cell_pool,
         cell_capacity,
+        overflow,
         ..small_def()
     }
 }
@@ -67,6 +68,7 @@ fn check_all(decoders: &[Decoder], tables: &[GridTable], transforms: &[Option<(u
     for d in decoders {
         for (t, tr) in tables.iter().zip(transforms) {
             assert_mirrors(d, t);
+            assert_chains_compacted(t);
             let got = d
                 .mirror()
                 .instance(t.id())
@@ -87,10 +89,11 @@ proptest! {
         log2 in 0u8..7,
         pool in 3u32..200,
         cap in 1u8..=8,
+        overflow in any::<bool>(),
     ) {
         let mut tables = vec![
-            GridTable::new(3, grid(log2, pool, cap), 120).unwrap(),
-            GridTable::new(900, grid(6, 256, 7), 120).unwrap(),
+            GridTable::new(3, grid(log2, pool, cap, overflow), 120).unwrap(),
+            GridTable::new(900, grid(6, 256, 7, overflow), 120).unwrap(),
         ];
         let mut transforms: Vec<Option<(u32, [f32; 12])>> = vec![None, None];
         let mut enc = Encoder::new(EncoderConfig::default());
@@ -112,7 +115,8 @@ proptest! {
                         let key_cell = (0..def.table_size())
                             .flat_map(|b| tables[table].bucket(b).to_vec())
                             .find(|e| e.cell == cell)
-                            .and_then(|e| def.cell_of_key(e.key))
+                            .and_then(|e| def.link_of_key(e.key))
+                            .map(|(cell, _link)| cell)
                             .unwrap();
                         let pos = def.cell_min(key_cell) + w.frac() * def.cell_size;
                         tables[table].set_point(id, pos, w.normal(), ao).unwrap();

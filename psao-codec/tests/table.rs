@@ -2,7 +2,8 @@
 
 mod common;
 
-use common::small_def;
+use common::{assert_chains_compacted, small_def};
+use psao_codec::wire::point::quantize_ao;
 use glam::{UVec3, Vec3};
 use psao_codec::*;
 
@@ -66,6 +67,59 @@ fn cell_overflow_is_counted_and_retried() {
     assert_eq!(t.stats().dropped, 1);
     assert!(!t.remove_point(7), "point 7 is dropped, not stored");
     assert_eq!(t.stats().dropped, 0);
+}
+
+/// With overflow chains a crowded cell keeps every point up to 17 links of
+/// `cell_capacity`, drops only past that, and stays compacted as points
+/// leave from any link (the chain's last point fills the hole).
+#[test]
+fn overflow_chains_hold_a_crowded_cell_and_stay_compacted() {
+    let def = InstanceDef {
+        cell_capacity: 2,
+        overflow: true,
+        ..small_def()
+    };
+    let cap = def.cell_capacity as u32;
+    let total = (MAX_OVERFLOW_LINKS as u32 + 1) * cap;
+    let mut t = GridTable::new(1, def, 64).unwrap();
+    let a = centre(&def, UVec3::new(2, 2, 2));
+    for id in 0..total + 3 {
+        t.set_point(id, a, Vec3::Y, id as f32 / 64.0).unwrap();
+    }
+    assert_eq!(t.stats().stored, total);
+    assert_eq!(t.stats().cells, MAX_OVERFLOW_LINKS as u32 + 1);
+    assert_eq!(t.stats().dropped, 3);
+    assert_eq!(t.placement(total), Placement::Dropped(DropReason::CellFull));
+    assert_chains_compacted(&t);
+    // Points leave from the first, a middle and the last link: the chain
+    // shrinks from its end, and the dropped points get in again.
+    for id in [0, 13, total - 1, 5, 6, 7] {
+        assert!(t.remove_point(id));
+        assert_chains_compacted(&t);
+    }
+    assert_eq!(t.stats().stored, total - 6);
+    assert_eq!(t.stats().cells, (total - 6).div_ceil(cap));
+    for id in total..total + 3 {
+        t.set_point(id, a, Vec3::Y, 0.5).unwrap();
+        assert!(matches!(t.placement(id), Placement::Stored { .. }));
+    }
+    assert_chains_compacted(&t);
+    // Every stored point's slot holds its own word (the moved ones too).
+    for id in (0..total + 3).filter(|id| ![0, 13, total - 1, 5, 6, 7].contains(id)) {
+        let Placement::Stored { cell, slot } = t.placement(id) else {
+            panic!("point {id} not stored");
+        };
+        let ao = if id >= total { 0.5 } else { id as f32 / 64.0 };
+        let w = PointWord(t.cell(cell)[slot as usize]);
+        assert_eq!(w.fields().ao, quantize_ao(ao), "point {id}");
+    }
+    // Without chains the same cell drops all but its own 2 slots.
+    let mut flat = GridTable::new(1, InstanceDef { overflow: false, ..def }, 64).unwrap();
+    for id in 0..total {
+        flat.set_point(id, a, Vec3::Y, 0.5).unwrap();
+    }
+    assert_eq!(flat.stats().stored, cap);
+    assert_eq!(flat.stats().dropped, total - cap);
 }
 
 #[test]
@@ -193,6 +247,7 @@ fn invalid_definitions_are_refused() {
         (
             InstanceDef {
                 point_format: 2,
+                overflow: false,
                 ..small_def()
             },
             DefError::PointFormat,

@@ -33,6 +33,12 @@ pub struct ClientConfig {
     /// whose frames use point format 1 then refuses the client with
     /// `capability_mismatch`. Default: formats 0 and 1.
     pub point_format_0_only: bool,
+    /// Do not offer overflow chains (spec/wire-format.md 7.4): for a
+    /// renderer whose lookup stops at a cell's own key. A server whose
+    /// frames use chains then refuses the client with
+    /// `capability_mismatch`. Default: offered (the decoder and
+    /// [`psao_codec::reconstruct_ao`] follow chains).
+    pub no_overflow: bool,
 }
 
 /// What happened on a session.
@@ -189,6 +195,7 @@ impl ClientSession {
             max_payload_bytes: config.limits.max_payload_bytes,
             max_mirror_bytes: config.limits.max_mirror_bytes,
             viewer: config.viewer,
+            overflow: !config.no_overflow,
         })
         .encode(&mut transmit);
         ClientSession {
@@ -250,6 +257,7 @@ impl ClientSession {
                     let ours = decodable_compressions();
                     if ours & (1 << w.compression) == 0
                         || self.point_formats() & (1 << w.point_format.min(7)) == 0
+                        || (w.overflow && self.config.no_overflow)
                         || w.max_frame_bytes > self.config.limits.max_frame_bytes
                         || w.max_payload_bytes > self.config.limits.max_payload_bytes
                     {

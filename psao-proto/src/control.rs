@@ -54,6 +54,9 @@ pub struct Hello {
     pub max_mirror_bytes: u64,
     /// Whether it will send `CAMERA`.
     pub viewer: bool,
+    /// Whether it decodes and reconstructs instances with overflow chains
+    /// (`flags` bit 1; spec/wire-format.md 7.4).
+    pub overflow: bool,
 }
 
 /// `WELCOME`: what the server will send.
@@ -74,6 +77,9 @@ pub struct Welcome {
     pub frame_rate: u16,
     /// Whether the server culls to this client's camera.
     pub culling: bool,
+    /// Whether the frames may define instances with overflow chains
+    /// (`flags` bit 1; spec/wire-format.md 7.4).
+    pub overflow: bool,
     /// The scene's name (at most [`MAX_TEXT`] bytes).
     pub scene: String,
 }
@@ -190,7 +196,7 @@ impl Control {
                 body.put_u32_le(h.max_frame_bytes);
                 body.put_u32_le(h.max_payload_bytes);
                 body.put_u64_le(h.max_mirror_bytes);
-                body.put_u8(h.viewer as u8);
+                body.put_u8(h.viewer as u8 | (h.overflow as u8) << 1);
             }
             Control::Welcome(w) => {
                 body.put_u16_le(w.version);
@@ -199,7 +205,7 @@ impl Control {
                 body.put_u32_le(w.max_frame_bytes);
                 body.put_u32_le(w.max_payload_bytes);
                 body.put_u16_le(w.frame_rate);
-                body.put_u8(w.culling as u8);
+                body.put_u8(w.culling as u8 | (w.overflow as u8) << 1);
                 let name = clip_text(&w.scene);
                 body.put_u8(name.len() as u8);
                 body.put_slice(name.as_bytes());
@@ -294,6 +300,7 @@ impl Control {
                     max_payload_bytes: b.get_u32_le(),
                     max_mirror_bytes: b.get_u64_le(),
                     viewer: false,
+                    overflow: false,
                 };
                 let flags = b.get_u8();
                 if h.version != VERSION {
@@ -303,7 +310,7 @@ impl Control {
                         supported: VERSION,
                     });
                 }
-                if h.compressions & 0xF8 != 0 || h.point_formats & 0xFC != 0 || flags & 0xFE != 0 {
+                if h.compressions & 0xF8 != 0 || h.point_formats & 0xFC != 0 || flags & 0xFC != 0 {
                     return Err(SessionError::malformed("HELLO", "a reserved bit is set"));
                 }
                 if h.compressions & 1 == 0 || h.point_formats & 1 == 0 {
@@ -320,6 +327,7 @@ impl Control {
                 }
                 Ok(Control::Hello(Hello {
                     viewer: flags & 1 == 1,
+                    overflow: flags & 2 == 2,
                     ..h
                 }))
             }
@@ -363,7 +371,7 @@ impl Control {
                         supported: VERSION,
                     });
                 }
-                if flags & 0xFE != 0 {
+                if flags & 0xFC != 0 {
                     return Err(SessionError::malformed("WELCOME", "a reserved bit is set"));
                 }
                 if !(1..=1000).contains(&frame_rate) || compression > 2 || point_format > 1 {
@@ -380,6 +388,7 @@ impl Control {
                     max_payload_bytes,
                     frame_rate,
                     culling: flags & 1 == 1,
+                    overflow: flags & 2 == 2,
                     scene,
                 }))
             }

@@ -23,6 +23,9 @@ impl FrameSource for Pipeline {
                 .map(|t| t.def().point_format)
                 .max()
                 .unwrap_or(0),
+            overflow: (0..self.instance_count())
+                .filter_map(|i| self.table(i))
+                .any(|t| t.def().overflow),
             culls: self.config().cull.is_some(),
         }
     }

@@ -293,6 +293,7 @@ pub async fn serve<S: FrameSource>(
         max_payload_bytes: info.max_payload_bytes,
         mirror_bytes: info.mirror_bytes,
         point_format: info.point_format,
+        overflow: info.overflow,
         frame_rate: config.frame_rate,
         scene: config.scene_name.clone(),
         culling: info.culls,

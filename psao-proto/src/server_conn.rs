@@ -32,6 +32,9 @@ pub struct Offer {
     pub mirror_bytes: u64,
     /// The largest point format the frames use (`WELCOME.point_format`).
     pub point_format: u8,
+    /// Whether the frames define instances with overflow chains
+    /// (`WELCOME.flags.overflow`; spec/wire-format.md 7.4).
+    pub overflow: bool,
     /// Nominal frames per second.
     pub frame_rate: u16,
     /// The scene's name.
@@ -60,6 +63,12 @@ pub fn negotiate(hello: &Hello, offer: &Offer) -> Result<Welcome, SessionError> 
             offer.point_format, hello.point_formats
         ));
     }
+    if offer.overflow && !hello.overflow {
+        return mismatch(
+            "the scene's frames use overflow chains (spec/wire-format.md 7.4), which the client does not decode"
+                .to_string(),
+        );
+    }
     if hello.max_frame_bytes < offer.max_frame_bytes
         || hello.max_payload_bytes < offer.max_payload_bytes
     {
@@ -87,6 +96,7 @@ pub fn negotiate(hello: &Hello, offer: &Offer) -> Result<Welcome, SessionError> 
         // Culling is to a viewer's camera: a client that sends none is not
         // culled for (its presence turns culling off, spec/session.md 3.2).
         culling: offer.culling && hello.viewer,
+        overflow: offer.overflow,
         scene: offer.scene.clone(),
     })
 }

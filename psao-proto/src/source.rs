@@ -31,6 +31,9 @@ pub struct SourceInfo {
     /// The largest point format its frames define instances with (0, or 1
     /// where some are in bind space: spec/wire-format.md 6.1).
     pub point_format: u8,
+    /// Whether its frames define instances with overflow chains
+    /// (spec/wire-format.md 7.4).
+    pub overflow: bool,
     /// Whether it culls to what the clients see (`WELCOME`'s
     /// `flags.culling`, for viewers); then the server calls
     /// [`FrameSource::set_views`] before each step.

@@ -41,6 +41,7 @@ fn described(name: &str) -> Control {
             max_payload_bytes: 1 << 20,
             max_mirror_bytes: 1 << 30,
             viewer: true,
+            overflow: false,
         }),
         "WELCOME" => Control::Welcome(Welcome {
             version: 1,
@@ -50,6 +51,7 @@ fn described(name: &str) -> Control {
             max_payload_bytes: 1 << 20,
             frame_rate: 60,
             culling: false,
+            overflow: false,
             scene: "default".into(),
         }),
         "HELLO-BIND" => match described("HELLO") {
@@ -62,6 +64,20 @@ fn described(name: &str) -> Control {
         "WELCOME-BIND" => match described("WELCOME") {
             Control::Welcome(w) => Control::Welcome(Welcome {
                 point_format: 1,
+                ..w
+            }),
+            _ => unreachable!(),
+        },
+        "HELLO-OVERFLOW" => match described("HELLO-BIND") {
+            Control::Hello(h) => Control::Hello(Hello {
+                overflow: true,
+                ..h
+            }),
+            _ => unreachable!(),
+        },
+        "WELCOME-OVERFLOW" => match described("WELCOME-BIND") {
+            Control::Welcome(w) => Control::Welcome(Welcome {
+                overflow: true,
                 ..w
             }),
             _ => unreachable!(),
@@ -105,6 +121,8 @@ fn the_spec_examples_match_the_code() {
             "WELCOME",
             "HELLO-BIND",
             "WELCOME-BIND",
+            "HELLO-OVERFLOW",
+            "WELCOME-OVERFLOW",
             "CAMERA",
             "ACK",
             "KEYFRAME_REQUEST",
@@ -329,7 +347,7 @@ proptest! {
             },
             Control::Welcome(Welcome {
                 version: 1, compression: 1, point_format: 0, max_frame_bytes: seq,
-                max_payload_bytes: inst, frame_rate: 30, culling: flags, scene: text.clone(),
+                max_payload_bytes: inst, frame_rate: 30, culling: flags, overflow: !flags, scene: text.clone(),
             }),
         ];
         for m in msgs {

@@ -16,6 +16,7 @@ fn offer() -> Offer {
         max_payload_bytes: 1 << 20,
         mirror_bytes: 1 << 16,
         point_format: 0,
+        overflow: false,
         frame_rate: 60,
         scene: "test".into(),
         culling: false,
@@ -39,6 +40,7 @@ fn hello() -> Hello {
         max_payload_bytes: 1 << 20,
         max_mirror_bytes: 1 << 30,
         viewer: false,
+        overflow: false,
     }
 }
 
@@ -344,6 +346,7 @@ fn server() -> (GridTable, Encoder) {
         cell_capacity: 7,
         cell_pool: 128,
         point_format: 0,
+        overflow: false,
         radius: 0.1,
         t_n: 0.1,
         t_d: 0.7,

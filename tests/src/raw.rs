@@ -52,6 +52,7 @@ pub const DEF: InstanceDef = InstanceDef {
     cell_capacity: 4,
     cell_pool: 16,
     point_format: 0,
+    overflow: false,
     radius: 0.25,
     t_n: 0.1,
     t_d: 0.7,
@@ -76,7 +77,7 @@ pub fn define(id: u32, d: &InstanceDef) -> Vec<u8> {
         d.table_log2,
         d.bucket_capacity,
         d.cell_capacity,
-        d.point_format,
+        d.point_format | if d.overflow { 0x80 } else { 0 },
     ]);
     u32le(&mut o, d.cell_pool);
     for f in [d.radius, d.t_n, d.t_d] {

@@ -49,6 +49,7 @@ pub fn def() -> InstanceDef {
         cell_capacity: 7,
         cell_pool: 8192,
         point_format: POINT_FORMAT_PACKED32,
+        overflow: false,
         radius: 0.12,
         t_n: 0.1,
         t_d: 0.7,

@@ -77,6 +77,7 @@ fn run(seed: u64) -> (Run, Vec<f32>, Pipeline, Scene) {
         max_payload_bytes: info.max_payload_bytes,
         mirror_bytes: info.mirror_bytes,
         point_format: info.point_format,
+        overflow: info.overflow,
         frame_rate: RATE,
         scene: "sliding-box".into(),
         culling: info.culls,

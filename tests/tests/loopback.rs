@@ -88,6 +88,7 @@ async fn raw(
         max_payload_bytes: 1 << 26,
         max_mirror_bytes: 1 << 30,
         viewer: false,
+        overflow: true,
     });
     send.write_all(&hello.to_bytes()).await.unwrap();
     let mut len = [0u8; 2];

@@ -112,16 +112,15 @@ fn weighted_sum(inst: &InstanceMirror, x: Vec3, n: Vec3, params: &WeightParams) 
                     continue;
                 }
                 let c = c.as_uvec3();
-                let Some(cell) = inst.find_cell(d.key(c)) else {
-                    continue;
-                };
                 let min = d.cell_min(c);
-                for w in inst.cell_points(cell) {
-                    let p = min + w.frac() * d.cell_size;
-                    let n_p = normals[w.fields().normal as usize];
-                    let a = weight(p, n_p, x, n, params);
-                    sum_w += a;
-                    sum += a * w.ao();
+                for cell in inst.chain(d.key(c)) {
+                    for w in inst.cell_points(cell) {
+                        let p = min + w.frac() * d.cell_size;
+                        let n_p = normals[w.fields().normal as usize];
+                        let a = weight(p, n_p, x, n, params);
+                        sum_w += a;
+                        sum += a * w.ao();
+                    }
                 }
             }
         }

@@ -5,13 +5,16 @@
 //! keeps both compacted (occupied entries and allocated points first), and
 //! records which buckets and cells changed since the last
 //! [`GridTable::take_dirty`], with each dirty cell's words as last sent.
-//! Points that do not fit (full bucket, full cell, exhausted pool, outside
-//! the grid) are dropped and counted, never silently.
+//! With [`InstanceDef::overflow`], a full cell goes on in an overflow chain
+//! of up to 16 more cells (spec/wire-format.md 7.4), which the table keeps
+//! compacted: every link but the last is full. Points that still do not fit
+//! (full bucket, full chain, exhausted pool, outside the grid) are dropped
+//! and counted, never silently.
 
 use glam::Vec3;
 
 use crate::error::{DefError, EncodeError};
-use crate::grid::{BucketEntry, InstanceDef, MAX_CELL_CAPACITY};
+use crate::grid::{BucketEntry, InstanceDef, MAX_CELL_CAPACITY, MAX_OVERFLOW_LINKS};
 use crate::wire::point::{POSITION_QUANTA, PointWord, quantize_ao};
 
 /// Where a point id stands.
@@ -38,7 +41,9 @@ pub enum DropReason {
     OutOfGrid,
     /// Its cell is new and its bucket is full (hash collisions).
     BucketFull,
-    /// Its cell already holds `cell_capacity` points.
+    /// Its cell already holds `cell_capacity` points (with
+    /// [`InstanceDef::overflow`]: in each of its 17 links, `17 *
+    /// cell_capacity` in all).
     CellFull,
     /// Its cell is new and no free cell is left in the pool.
     PoolExhausted,
@@ -212,7 +217,12 @@ pub struct GridTable {
     bucket_len: Vec<u8>,
     words: Vec<u32>,
     cell_len: Vec<u8>,
+    /// The key each cell is filed under in its bucket (a link key for a
+    /// link of an overflow chain).
     cell_key: Vec<u32>,
+    /// Which link of its grid cell's chain each cell is (0: the cell's
+    /// own key).
+    cell_link: Vec<u8>,
     slot_point: Vec<u32>,
     free: Vec<u32>,
     points: Vec<Loc>,
@@ -243,6 +253,7 @@ impl GridTable {
             words: vec![0; def.cell_words()],
             cell_len: vec![0; cells],
             cell_key: vec![0; cells],
+            cell_link: vec![0; cells],
             slot_point: vec![ABSENT; def.cell_words()],
             free: (0..def.cell_pool).rev().collect(),
             points: Vec::new(),
@@ -304,6 +315,7 @@ impl GridTable {
             + bytes(self.words.capacity(), 4)
             + bytes(self.cell_len.capacity(), 1)
             + bytes(self.cell_key.capacity(), 4)
+            + bytes(self.cell_link.capacity(), 1)
             + bytes(self.slot_point.capacity(), 4)
             + bytes(self.free.capacity(), 4)
             + bytes(self.points.capacity(), size_of::<Loc>())
@@ -402,7 +414,7 @@ impl GridTable {
         let word = PointWord::encode(frac, normal, ao).0;
         let key = self.def.key(cell_pos);
         if let Placement::Stored { cell, slot } = self.placement(id)
-            && self.cell_key[cell as usize] == key
+            && self.grid_key(cell) == key
         {
             let i = cell as usize * self.def.cell_capacity as usize + slot as usize;
             if self.words[i] != word {
@@ -425,7 +437,7 @@ impl GridTable {
         let normal = normal.normalize_or_zero();
         if let Placement::Stored { cell, slot } = self.placement(id)
             && let Some(cell_pos) = self.def.cell_of(local)
-            && self.def.key(cell_pos) == self.cell_key[cell as usize]
+            && self.def.key(cell_pos) == self.grid_key(cell)
         {
             let cap = self.def.cell_capacity as usize;
             return SentPoint {
@@ -487,72 +499,129 @@ impl GridTable {
         }
     }
 
-    fn insert(&mut self, id: u32, key: u32, word: u32) -> Loc {
-        let bucket = self.def.bucket_of_key(key);
-        let cap = self.def.bucket_capacity as usize;
-        let start = bucket as usize * cap;
-        let len = self.bucket_len[bucket as usize] as usize;
-        let cell = match self.buckets[start..start + len]
-            .iter()
-            .find(|e| e.key == key)
-        {
-            Some(e) => e.cell,
-            None => {
-                if len == cap {
-                    self.stats.bucket_overflow += 1;
-                    return Loc::dropped(DropReason::BucketFull);
-                }
-                let Some(cell) = self.free.pop() else {
-                    self.stats.pool_exhausted += 1;
-                    return Loc::dropped(DropReason::PoolExhausted);
-                };
-                self.touch_bucket(bucket);
-                self.buckets[start + len] = BucketEntry { key, cell };
-                self.bucket_len[bucket as usize] += 1;
-                self.cell_key[cell as usize] = key;
-                self.stats.cells += 1;
-                cell
-            }
-        };
-        let n = self.cell_len[cell as usize];
-        if n == self.def.cell_capacity {
-            self.stats.cell_overflow += 1;
-            return Loc::dropped(DropReason::CellFull);
-        }
-        self.touch_cell(cell);
-        let i = cell as usize * self.def.cell_capacity as usize + n as usize;
-        self.words[i] = word;
-        self.slot_point[i] = id;
-        self.cell_len[cell as usize] = n + 1;
-        self.stats.stored += 1;
-        Loc { cell, slot: n }
+    /// The key of the grid cell a pool cell holds points of (eq. 1), which
+    /// for a link of an overflow chain is not the key it is filed under.
+    fn grid_key(&self, cell: u32) -> u32 {
+        let link = self.cell_link[cell as usize] as u32;
+        self.cell_key[cell as usize] - link * self.def.dims.x
     }
 
-    /// Takes a stored point out of its cell, keeping the cell compacted and
-    /// freeing it when it empties. The caller sets the point's new `Loc`.
+    /// The cell filed under `key`, if any.
+    fn find(&self, key: u32) -> Option<u32> {
+        let cap = self.def.bucket_capacity as usize;
+        let start = self.def.bucket_of_key(key) as usize * cap;
+        let len = self.bucket_len[self.def.bucket_of_key(key) as usize] as usize;
+        self.buckets[start..start + len]
+            .iter()
+            .find(|e| e.key == key)
+            .map(|e| e.cell)
+    }
+
+    /// Files a free cell under `key` as link `link` of its chain.
+    fn new_cell(&mut self, key: u32, link: u8) -> Result<u32, Loc> {
+        let bucket = self.def.bucket_of_key(key);
+        let cap = self.def.bucket_capacity as usize;
+        let len = self.bucket_len[bucket as usize] as usize;
+        if len == cap {
+            self.stats.bucket_overflow += 1;
+            return Err(Loc::dropped(DropReason::BucketFull));
+        }
+        let Some(cell) = self.free.pop() else {
+            self.stats.pool_exhausted += 1;
+            return Err(Loc::dropped(DropReason::PoolExhausted));
+        };
+        self.touch_bucket(bucket);
+        self.buckets[bucket as usize * cap + len] = BucketEntry { key, cell };
+        self.bucket_len[bucket as usize] += 1;
+        self.cell_key[cell as usize] = key;
+        self.cell_link[cell as usize] = link;
+        self.stats.cells += 1;
+        Ok(cell)
+    }
+
+    /// Links beyond a cell's own that its chain may have.
+    fn max_links(&self) -> u8 {
+        if self.def.overflow {
+            MAX_OVERFLOW_LINKS
+        } else {
+            0
+        }
+    }
+
+    /// Stores a point in the first link of its cell's chain with room
+    /// (the last one, or a new one after it), since every link but the
+    /// last is full.
+    fn insert(&mut self, id: u32, key: u32, word: u32) -> Loc {
+        for link in 0..=self.max_links() {
+            let link_key = self.def.link_key(key, link);
+            let cell = match self.find(link_key) {
+                Some(cell) => cell,
+                None => match self.new_cell(link_key, link) {
+                    Ok(cell) => cell,
+                    Err(dropped) => return dropped,
+                },
+            };
+            let n = self.cell_len[cell as usize];
+            if n == self.def.cell_capacity {
+                continue;
+            }
+            self.touch_cell(cell);
+            let i = cell as usize * self.def.cell_capacity as usize + n as usize;
+            self.words[i] = word;
+            self.slot_point[i] = id;
+            self.cell_len[cell as usize] = n + 1;
+            self.stats.stored += 1;
+            return Loc { cell, slot: n };
+        }
+        self.stats.cell_overflow += 1;
+        Loc::dropped(DropReason::CellFull)
+    }
+
+    /// The last link of the chain `cell` belongs to (`cell` itself when it
+    /// is the last, or chains are off).
+    fn last_link(&self, cell: u32) -> u32 {
+        let key = self.grid_key(cell);
+        let mut last = cell;
+        let mut link = self.cell_link[cell as usize];
+        while link < self.max_links() && self.cell_len[last as usize] == self.def.cell_capacity {
+            link += 1;
+            match self.find(self.def.link_key(key, link)) {
+                Some(next) => last = next,
+                None => break,
+            }
+        }
+        last
+    }
+
+    /// Takes a stored point out of its cell, keeping the cell and its chain
+    /// compacted (the chain's last point fills the hole) and freeing the
+    /// last link when it empties. The caller sets the point's new `Loc`.
     fn unlink(&mut self, id: u32) {
         let Some(Placement::Stored { cell, slot }) =
             self.points.get(id as usize).map(|l| l.placement())
         else {
             return;
         };
+        let last_cell = self.last_link(cell);
         self.touch_cell(cell);
+        self.touch_cell(last_cell);
         let cap = self.def.cell_capacity as usize;
-        let base = cell as usize * cap;
-        let last = self.cell_len[cell as usize] as usize - 1;
-        if slot as usize != last {
-            self.words[base + slot as usize] = self.words[base + last];
-            let moved = self.slot_point[base + last];
-            self.slot_point[base + slot as usize] = moved;
-            self.points[moved as usize].slot = slot;
+        let hole = cell as usize * cap + slot as usize;
+        let last = self.cell_len[last_cell as usize] as usize - 1;
+        let tail = last_cell as usize * cap + last;
+        if tail != hole {
+            self.words[hole] = self.words[tail];
+            let moved = self.slot_point[tail];
+            self.slot_point[hole] = moved;
+            self.points[moved as usize] = Loc { cell, slot };
         }
-        self.words[base + last] = 0;
-        self.slot_point[base + last] = ABSENT;
-        self.cell_len[cell as usize] = last as u8;
+        self.words[tail] = 0;
+        self.slot_point[tail] = ABSENT;
+        self.cell_len[last_cell as usize] = last as u8;
         self.points[id as usize].cell = ABSENT;
         self.stats.stored -= 1;
         if last == 0 {
-            self.free_cell(cell);
+            self.free_cell(last_cell);
         }
     }
 

@@ -9,7 +9,7 @@
 use glam::{UVec3, Vec3};
 
 use crate::error::MessageError;
-use crate::grid::{InstanceDef, MAX_BUCKET_CAPACITY, MAX_CELL_CAPACITY};
+use crate::grid::{InstanceDef, MAX_BUCKET_CAPACITY, MAX_CELL_CAPACITY, OVERFLOW_FLAG};
 
 /// Message type bytes.
 pub mod kind {
@@ -343,7 +343,7 @@ impl<'a> Reader<'a> {
                 let table_log2 = self.u8()?;
                 let bucket_capacity = self.u8()?;
                 let cell_capacity = self.u8()?;
-                let point_format = self.u8()?;
+                let format = self.u8()?;
                 let cell_pool = self.u32()?;
                 let radius = self.f32()?;
                 let t_n = self.f32()?;
@@ -356,7 +356,8 @@ impl<'a> Reader<'a> {
                     bucket_capacity,
                     cell_capacity,
                     cell_pool,
-                    point_format,
+                    point_format: format & !OVERFLOW_FLAG,
+                    overflow: format & OVERFLOW_FLAG != 0,
                     radius,
                     t_n,
                     t_d,
@@ -497,7 +498,7 @@ pub(crate) mod write {
             d.table_log2,
             d.bucket_capacity,
             d.cell_capacity,
-            d.point_format,
+            d.format_byte(),
         ]);
         out.put_u32_le(d.cell_pool);
         out.put_f32_le(d.radius);

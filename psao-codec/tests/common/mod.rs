@@ -15,6 +15,7 @@ pub fn small_def() -> InstanceDef {
         cell_capacity: 7,
         cell_pool: 256,
         point_format: POINT_FORMAT_PACKED32,
+        overflow: false,
         radius: 0.2,
         t_n: 0.1,
         t_d: 0.7,
@@ -48,4 +49,32 @@ pub fn assert_mirrors(decoder: &Decoder, table: &GridTable) {
     assert_eq!(m.def(), table.def());
     assert_eq!(m.buckets(), table.buckets(), "buckets of {}", table.id());
     assert_eq!(m.words(), table.words(), "words of {}", table.id());
+}
+
+/// Every overflow chain of a table is compacted (spec/wire-format.md 7.4):
+/// a grid cell's links `0..=L` are all present, each but the last full,
+/// none empty; and every bucket key names a link of a cell.
+pub fn assert_chains_compacted(t: &GridTable) {
+    let def = *t.def();
+    let mut chains: std::collections::BTreeMap<u32, Vec<(u8, u32)>> = Default::default();
+    for b in 0..def.table_size() {
+        for e in t.bucket(b) {
+            let (cell, link) = def
+                .link_of_key(e.key)
+                .unwrap_or_else(|| panic!("key {} names no link", e.key));
+            chains.entry(def.key(cell)).or_default().push((link, e.cell));
+        }
+    }
+    for (key, mut links) in chains {
+        links.sort_unstable();
+        let last = links.len() - 1;
+        for (i, &(link, cell)) in links.iter().enumerate() {
+            assert_eq!(link as usize, i, "chain of key {key}: {links:?}");
+            let n = t.cell_len(cell);
+            assert!(n > 0, "chain of key {key}: link {i} is empty");
+            if i < last {
+                assert_eq!(n, def.cell_capacity, "chain of key {key}: link {i} not full");
+            }
+        }
+    }
 }

@@ -23,6 +23,11 @@ pub struct LayoutParams {
     pub t_n: f32,
     /// Direction threshold T_d.
     pub t_d: f32,
+    /// Whether a full cell continues in an overflow chain
+    /// (spec/wire-format.md 7.4: no point is dropped below `17 *
+    /// cell_capacity` in a cell) rather than dropping its extra points
+    /// (false: for clients that cannot decode chains, and the baseline).
+    pub overflow: bool,
 }
 
 impl Default for LayoutParams {
@@ -34,6 +39,7 @@ impl Default for LayoutParams {
             margin_cells: 1,
             t_n: 0.1,
             t_d: 0.7,
+            overflow: true,
         }
     }
 }
@@ -155,6 +161,7 @@ pub fn layout(
         cell_capacity: p.cell_capacity,
         cell_pool,
         point_format: POINT_FORMAT_PACKED32,
+        overflow: p.overflow,
         radius,
         t_n: p.t_n,
         t_d: p.t_d,

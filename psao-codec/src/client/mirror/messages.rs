@@ -182,7 +182,7 @@ impl Mirror {
             for i in 0..count as usize {
                 let key = msg.keys.get(entry + i);
                 let cell = msg.cells.get(entry + i);
-                if def.cell_of_key(key).is_none() {
+                if def.link_of_key(key).is_none() {
                     return Err(MessageError::KeyNotInGrid(key));
                 }
                 if def.bucket_of_key(key) != bucket {

@@ -95,6 +95,37 @@ impl InstanceMirror {
             .map(|e| e.cell)
     }
 
+    /// The pool cells holding grid cell `key`'s points: the cell the key
+    /// names, then, with [`InstanceDef::overflow`], each link of its
+    /// overflow chain while the one before it is full (spec/wire-format.md
+    /// 7.4). `key` must be a cell's own key (eq. 1).
+    pub fn chain(&self, key: u32) -> impl Iterator<Item = u32> + '_ {
+        let links = if self.def.overflow {
+            crate::grid::MAX_OVERFLOW_LINKS
+        } else {
+            0
+        };
+        let mut next = self.find_cell(key);
+        let mut link = 0u8;
+        std::iter::from_fn(move || {
+            let cell = next.take()?;
+            if link < links && self.cell_full(cell) {
+                link += 1;
+                next = self.find_cell(self.def.link_key(key, link));
+            }
+            Some(cell)
+        })
+    }
+
+    /// Whether every slot of a cell holds an allocated word.
+    fn cell_full(&self, cell: u32) -> bool {
+        let cap = self.def.cell_capacity as usize;
+        let last = cell as usize * cap + cap - 1;
+        self.words
+            .get(last)
+            .is_some_and(|&w| PointWord(w).is_allocated())
+    }
+
     /// The allocated words of a cell.
     pub fn cell_points(&self, cell: u32) -> impl Iterator<Item = PointWord> + '_ {
         let cap = self.def.cell_capacity as usize;
@@ -207,7 +238,7 @@ impl Mirror {
             writeln!(
                 out,
                 "instance {id} origin {} cell_size {} dims {} {} {} table_log2 {} \
-                 bucket_capacity {} cell_capacity {} cell_pool {} point_format {} \
+                 bucket_capacity {} cell_capacity {} cell_pool {} point_format {}{} \
                  radius {} t_n {} t_d {}",
                 v(d.origin),
                 v(d.cell_size),
@@ -219,6 +250,7 @@ impl Mirror {
                 d.cell_capacity,
                 d.cell_pool,
                 d.point_format,
+                if d.overflow { " overflow" } else { "" },
                 d.radius,
                 d.t_n,
                 d.t_d
