@@ -3,8 +3,8 @@
 mod common;
 
 use common::{assert_chains_compacted, small_def};
-use psao_codec::wire::point::quantize_ao;
 use glam::{UVec3, Vec3};
+use psao_codec::wire::point::quantize_ao;
 use psao_codec::*;
 
 fn centre(def: &InstanceDef, cell: UVec3) -> Vec3 {
@@ -114,7 +114,15 @@ fn overflow_chains_hold_a_crowded_cell_and_stay_compacted() {
         assert_eq!(w.fields().ao, quantize_ao(ao), "point {id}");
     }
     // Without chains the same cell drops all but its own 2 slots.
-    let mut flat = GridTable::new(1, InstanceDef { overflow: false, ..def }, 64).unwrap();
+    let mut flat = GridTable::new(
+        1,
+        InstanceDef {
+            overflow: false,
+            ..def
+        },
+        64,
+    )
+    .unwrap();
     for id in 0..total {
         flat.set_point(id, a, Vec3::Y, 0.5).unwrap();
     }

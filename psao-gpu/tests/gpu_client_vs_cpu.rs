@@ -277,3 +277,40 @@ fn a_renderers_own_arrays_reconstruct_and_mismatched_ones_are_an_error() {
     };
     assert!(pass.run(&ctx, &gm, none).unwrap().is_empty());
 }
+
+/// Cells of two slots put most of the default scene's points in overflow
+/// chains (spec/wire-format.md 7.4): the shader follows them as the CPU
+/// does, pixel for pixel.
+#[test]
+fn gpu_reconstruction_follows_overflow_chains_as_the_cpu() {
+    let Some(ctx) = client_context() else { return };
+    let scene = psao_scene::default_scene();
+    let mut config = psao_tests::scenes::pipeline_config(64.0, 16);
+    config.layout.cell_capacity = 2;
+    config.layout.points_per_cell = 8.0;
+    let mut p = Pipeline::new(scene.clone(), config).unwrap();
+    let mut client = psao_codec::Decoder::new(psao_codec::Limits::default());
+    client.receive(&p.keyframe().unwrap().bytes).unwrap();
+    let links = client
+        .mirror()
+        .instances()
+        .flat_map(|(_, m)| {
+            let d = *m.def();
+            m.buckets()
+                .iter()
+                .filter(move |e| !e.is_empty() && d.link_of_key(e.key).is_some_and(|(_, l)| l > 0))
+        })
+        .count();
+    assert!(links > 1000, "only {links} overflow links");
+    let g = gbuffer_at(&scene, 0.0);
+    let pass = GpuReconstruct::new(&ctx).unwrap();
+    let gm = GpuMirror::new(&ctx, client.mirror()).unwrap();
+    let cpu = psao_image(client.mirror(), &g).unwrap().ao;
+    let gpu = pass.run(&ctx, &gm, &g).unwrap();
+    let (share, worst) = agreement(&cpu, &gpu);
+    assert!(
+        share == 1.0,
+        "{:.3}% within 1/255, worst {worst}",
+        share * 100.0
+    );
+}

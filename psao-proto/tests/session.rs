@@ -184,6 +184,66 @@ fn a_client_may_offer_point_format_0_alone() {
     assert_eq!(e.close_code(), CloseCode::CapabilityMismatch);
 }
 
+/// Overflow chains (spec/wire-format.md 7.4) are negotiated by HELLO's and
+/// WELCOME's flags bit 1: a server whose frames use them refuses a client
+/// that did not offer them, naming them, and tells one that did; a client
+/// closes on a WELCOME announcing chains it did not offer. Bit 2 stays
+/// reserved.
+#[test]
+fn overflow_chains_are_negotiated() {
+    let chained = Offer {
+        overflow: true,
+        ..offer()
+    };
+    let offers = Hello {
+        overflow: true,
+        ..hello()
+    };
+    assert!(negotiate(&offers, &chained).unwrap().overflow);
+    assert!(!negotiate(&offers, &offer()).unwrap().overflow);
+    let e = negotiate(&hello(), &chained).unwrap_err();
+    assert_eq!(e.close_code(), CloseCode::CapabilityMismatch);
+    assert!(e.to_string().contains("overflow chains"), "{e}");
+    // The bytes: flags bit 1 reads back; bit 2 is reserved.
+    let mut b = bytes(Control::Hello(offers)).to_vec();
+    let mut input = &b[..];
+    assert_eq!(
+        psao_proto::control::ControlReader::new()
+            .read(&mut input)
+            .unwrap(),
+        Some(Control::Hello(offers))
+    );
+    let last = b.len() - 1;
+    b[last] |= 0b100;
+    let mut input = &b[..];
+    assert!(
+        psao_proto::control::ControlReader::new()
+            .read(&mut input)
+            .is_err()
+    );
+    // A client offers chains by default; one that does not closes on a
+    // WELCOME with them.
+    let hello_of = |c: &mut ClientSession| {
+        let t = c.take_transmit().expect("HELLO goes out first");
+        let mut input = &t[..];
+        match psao_proto::control::ControlReader::new().read(&mut input) {
+            Ok(Some(Control::Hello(h))) => h,
+            other => panic!("{other:?}"),
+        }
+    };
+    assert!(hello_of(&mut ClientSession::new(ClientConfig::default())).overflow);
+    let mut flat = ClientSession::new(ClientConfig {
+        no_overflow: true,
+        ..ClientConfig::default()
+    });
+    let h = hello_of(&mut flat);
+    assert!(!h.overflow);
+    let mut w = negotiate(&h, &offer()).unwrap();
+    w.overflow = true;
+    let e = flat.on_control(&bytes(Control::Welcome(w))).unwrap_err();
+    assert_eq!(e.close_code(), CloseCode::CapabilityMismatch);
+}
+
 fn bytes(c: Control) -> Bytes {
     c.to_bytes().freeze()
 }

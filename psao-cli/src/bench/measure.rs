@@ -88,6 +88,9 @@ pub struct Settings {
     /// Deforming instances keep their points in bind space (point format
     /// 1; else posed, format 0: the baseline).
     pub bind_space: bool,
+    /// Full cells continue in overflow chains (spec/wire-format.md 7.4;
+    /// else their extra points are dropped: the baseline).
+    pub overflow: bool,
     /// Which measured frames are saved as images.
     pub image_frames: ImageFrames,
 }
@@ -183,6 +186,7 @@ impl Settings {
             radius: AoParams::default().radius,
             fill_buried: true,
             bind_space: true,
+            overflow: true,
             image_frames: ImageFrames::List(vec![0]),
         }
     }
@@ -639,6 +643,7 @@ fn measure_psao(
     let mut config = crate::cmd::common::pipeline_config(density, s.point_rays, s.radius);
     config.fill_buried = s.fill_buried;
     config.bind_space = s.bind_space;
+    config.layout.overflow = s.overflow;
     let started = Instant::now();
     say("setup");
     let backend = match s.backend {

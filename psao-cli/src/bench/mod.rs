@@ -127,6 +127,11 @@ pub struct BenchArgs {
     /// instead of in their mesh's bind space (point format 1).
     #[arg(long)]
     posed_deforming: bool,
+    /// Drop the points a full cell has no slot for (the baseline) instead
+    /// of continuing the cell in an overflow chain (spec/wire-format.md
+    /// 7.4).
+    #[arg(long)]
+    no_overflow: bool,
 }
 
 impl BenchArgs {
@@ -161,6 +166,7 @@ impl BenchArgs {
         settings.image_frames = self.image_frames.clone();
         settings.fill_buried = !self.no_fill_buried;
         settings.bind_space = !self.posed_deforming;
+        settings.overflow = !self.no_overflow;
         settings
     }
 }

@@ -76,7 +76,7 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}; {}); client times are the AO work per frame on {} threads.\n",
+        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}; {}; {}); client times are the AO work per frame on {} threads.\n",
         s.width,
         s.height,
         s.frames,
@@ -96,6 +96,11 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
             "deforming meshes' points in bind space"
         } else {
             "deforming meshes' points posed: --posed-deforming"
+        },
+        if s.overflow {
+            "full cells continue in overflow chains"
+        } else {
+            "points beyond a full cell dropped: --no-overflow"
         },
         std::thread::available_parallelism().map_or(1, |n| n.get())
     );

@@ -59,6 +59,11 @@ pub struct Args {
     /// not know point format 1 (bind space, spec/wire-format.md 6.1).
     #[arg(long)]
     posed_deforming: bool,
+    /// Drop the points a full cell has no slot for instead of continuing
+    /// it in an overflow chain (spec/wire-format.md 7.4), for clients that
+    /// do not offer chains in their HELLO.
+    #[arg(long)]
+    no_overflow: bool,
 }
 
 /// What the server holds for the scene, in a line: triangles, instances
@@ -111,11 +116,12 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         scene_name: name,
         ..ServerConfig::default()
     };
-    let pipeline = PipelineConfig {
+    let mut pipeline = PipelineConfig {
         cull: args.cull.then(ViewerCull::default),
         bind_space: !args.posed_deforming,
         ..pipeline_config(args.density, args.rays, args.radius)
     };
+    pipeline.layout.overflow = !args.no_overflow;
     for w in super::common::scale_warnings(&scene, args.density, args.radius)? {
         eprintln!("warning: {w}");
     }

@@ -62,7 +62,10 @@ pub fn assert_chains_compacted(t: &GridTable) {
             let (cell, link) = def
                 .link_of_key(e.key)
                 .unwrap_or_else(|| panic!("key {} names no link", e.key));
-            chains.entry(def.key(cell)).or_default().push((link, e.cell));
+            chains
+                .entry(def.key(cell))
+                .or_default()
+                .push((link, e.cell));
         }
     }
     for (key, mut links) in chains {
@@ -73,7 +76,10 @@ pub fn assert_chains_compacted(t: &GridTable) {
             let n = t.cell_len(cell);
             assert!(n > 0, "chain of key {key}: link {i} is empty");
             if i < last {
-                assert_eq!(n, def.cell_capacity, "chain of key {key}: link {i} not full");
+                assert_eq!(
+                    n, def.cell_capacity,
+                    "chain of key {key}: link {i} not full"
+                );
             }
         }
     }

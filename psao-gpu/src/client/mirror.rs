@@ -311,6 +311,11 @@ impl GpuMirror {
                     g.params[2] = 1.0;
                 }
             }
+            if d.overflow {
+                // Full cells continue in overflow chains (the shader's
+                // flag: the translation column's unused w).
+                g.to_local[3][3] = 1.0;
+            }
             table[id] = g;
         }
         table

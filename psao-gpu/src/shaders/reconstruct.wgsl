@@ -11,7 +11,8 @@
 
 struct PsaoInstance {
     // World-to-local transform: columns of the inverse linear part, and
-    // the inverse's translation (w unused).
+    // the inverse's translation (w unused, but to_local_t.w: 1 when a full
+    // cell continues in an overflow chain, spec/wire-format.md 7.4).
     to_local_x: vec4<f32>,
     to_local_y: vec4<f32>,
     to_local_z: vec4<f32>,
@@ -90,6 +91,30 @@ fn psao_find_cell(inst: PsaoInstance, key: u32) -> u32 {
     return PSAO_EMPTY;
 }
 
+// (sum of weights, sum of weighted AO, 1 when every slot is allocated)
+// over the points of pool cell `found`, whose grid cell's minimum corner
+// is `lo`.
+fn psao_cell_sums(inst: PsaoInstance, found: u32, lo: vec3<f32>, x: vec3<f32>, n: vec3<f32>, r: f32) -> vec3<f32> {
+    let cell = inst.cell_size.xyz;
+    let cap = inst.arrays.y;
+    let start = inst.arrays.w + found * cap;
+    var sum_w = 0.0;
+    var sum = 0.0;
+    for (var s = 0u; s < cap; s = s + 1u) {
+        let w = psao_words[start + s];
+        if ((w & PSAO_ALLOC) == 0u) {
+            return vec3<f32>(sum_w, sum, 0.0);
+        }
+        let q = vec3<f32>(vec3<u32>((w >> 16u) & 31u, (w >> 21u) & 31u, (w >> 26u) & 31u));
+        let p = lo + ((q + 0.5) / 32.0) * cell;
+        let n_p = psao_normals[(w >> 8u) & 0xFFu].xyz;
+        let a = psao_weight(p, n_p, x, n, r, inst.params.x, inst.params.y, inst.cell_size.w);
+        sum_w = sum_w + a;
+        sum = sum + a * (f32(w & 0xFFu) / 255.0);
+    }
+    return vec3<f32>(sum_w, sum, 1.0);
+}
+
 // (sum of weights, sum of weighted AO) over the 2x2x2 cells around x.
 fn psao_sums(inst: PsaoInstance, x: vec3<f32>, n: vec3<f32>, r: f32) -> vec2<f32> {
     let origin = inst.origin.xyz;
@@ -108,24 +133,18 @@ fn psao_sums(inst: PsaoInstance, x: vec3<f32>, n: vec3<f32>, r: f32) -> vec2<f32
                 }
                 let cu = vec3<u32>(c);
                 let key = cu.x + cu.y * inst.dims.x * 17u + cu.z * inst.dims.x * inst.dims.y * 31u;
-                let found = psao_find_cell(inst, key);
-                if (found == PSAO_EMPTY) {
-                    continue;
-                }
                 let lo = origin + vec3<f32>(cu) * cell;
-                let cap = inst.arrays.y;
-                let start = inst.arrays.w + found * cap;
-                for (var s = 0u; s < cap; s = s + 1u) {
-                    let w = psao_words[start + s];
-                    if ((w & PSAO_ALLOC) == 0u) {
+                // The cell's own key, then each link of its overflow chain
+                // while the one before is full (spec/wire-format.md 7.4).
+                var found = psao_find_cell(inst, key);
+                for (var link = 1u; found != PSAO_EMPTY; link = link + 1u) {
+                    let part = psao_cell_sums(inst, found, lo, x, n, r);
+                    sum_w = sum_w + part.x;
+                    sum = sum + part.y;
+                    if (part.z == 0.0 || link > 16u || inst.to_local_t.w != 1.0) {
                         break;
                     }
-                    let q = vec3<f32>(vec3<u32>((w >> 16u) & 31u, (w >> 21u) & 31u, (w >> 26u) & 31u));
-                    let p = lo + ((q + 0.5) / 32.0) * cell;
-                    let n_p = psao_normals[(w >> 8u) & 0xFFu].xyz;
-                    let a = psao_weight(p, n_p, x, n, r, inst.params.x, inst.params.y, inst.cell_size.w);
-                    sum_w = sum_w + a;
-                    sum = sum + a * (f32(w & 0xFFu) / 255.0);
+                    found = psao_find_cell(inst, key + link * inst.dims.x);
                 }
             }
         }
