@@ -568,7 +568,9 @@ fn vectors() -> Vec<Vector> {
         )],
     ));
     // Overflow chains (section 7.4): DEF with OVERFLOW (byte 44 = 0x80).
-    // Dx = 4, so link j of cell (1,0,0) (key 1) has key 1 + 4j.
+    // Dx = 4, so link j of cell (1,0,0) (key 1) has key 1 + 4j, in bucket
+    // (1 + j * 0x9E3779B9) mod 8: link 1 in bucket 2.
+    assert_eq!(1u32.wrapping_add(0x9E37_79B9) & 7, 2);
     let chained = InstanceDef {
         overflow: true,
         ..DEF
@@ -578,7 +580,7 @@ fn vectors() -> Vec<Vector> {
         5,
         vec![
             define(1, &chained),
-            buckets(1, &[(1, &[(1, 0)]), (5, &[(5, 1)])]),
+            buckets(1, &[(1, &[(1, 0)]), (2, &[(5, 1)])]),
             cells_full(1, &[(0, &[W1, W2, w3, w4]), (1, &[w7, w8])]),
             END.to_vec(),
         ],
@@ -586,7 +588,7 @@ fn vectors() -> Vec<Vector> {
     .bytes();
     list.push(v(
         "52-overflow-chain",
-        "OVERFLOW: cell (1,0,0) (key 1, bucket 1) is full in pool cell 0 and goes on in its link 1 (key 1 + 1*Dx = 5, bucket 5), pool cell 1, with two more points: six points in a cell of 4 slots. Then a delta moves the chain's last point into slot 1 of link 0, as an encoder does when a point leaves, and the cell holds five.",
+        "OVERFLOW: cell (1,0,0) (key 1, bucket 1) is full in pool cell 0 and goes on in its link 1 (key 1 + 1*Dx = 5, in bucket (1 + 0x9E3779B9) mod 8 = 2), pool cell 1, with two more points: six points in a cell of 4 slots. Then a delta moves the chain's last point into slot 1 of link 0, as an encoder does when a point leaves, and the cell holds five.",
         vec![
             chain_kf.clone(),
             delta(
@@ -602,10 +604,25 @@ fn vectors() -> Vec<Vector> {
     ));
     list.push(v(
         "53-overflow-key-beyond-links",
-        "OVERFLOW: key 272 = 0 + 4*68 (r' = 68, y = 68 div 17 = 4 = Dy) is no link of any cell of the 4x4x4 grid.",
+        "OVERFLOW: key 276 = 0 + 4*69 (r' = 69, y = 69 div 17 = 4 = Dy, j = 69 mod 17 = 1) is no link of any cell of the 4x4x4 grid.",
         vec![
             chain_kf,
-            delta(6, 5, vec![buckets(1, &[(0, &[(272, 2)])]), END.to_vec()]).bytes(),
+            delta(6, 5, vec![buckets(1, &[(4, &[(276, 2)])]), END.to_vec()]).bytes(),
+        ],
+    ));
+    list.push(v(
+        "55-overflow-link-wrong-bucket",
+        "OVERFLOW: link key 5 filed in bucket 5 (its own key mod T) instead of bucket 2 (section 7.4).",
+        vec![
+            key(
+                5,
+                vec![
+                    define(1, &chained),
+                    buckets(1, &[(1, &[(1, 0)]), (5, &[(5, 1)])]),
+                    END.to_vec(),
+                ],
+            )
+            .bytes(),
         ],
     ));
     list.push(after_kf(

@@ -29,6 +29,12 @@ pub const OVERFLOW_FLAG: u8 = 0x80;
 /// at most `17 * cell_capacity` points.
 pub const MAX_OVERFLOW_LINKS: u8 = 16;
 
+/// The odd multiplier that spreads a cell's links over the table: link `j`
+/// of the cell with key `k` lives in bucket `(k + j * LINK_HASH) mod T`
+/// (spec/wire-format.md 7.4), which differs for every `j < T` whatever
+/// the grid's dims.
+pub const LINK_HASH: u32 = 0x9E37_79B9;
+
 /// One hash bucket entry as laid out in memory: `(cell key, cell index)`,
 /// both `u32::MAX` when empty. `#[repr(C)]`, 8 bytes, so an array of them
 /// can be uploaded to a GPU as it is.
@@ -244,8 +250,24 @@ impl InstanceDef {
         k as u32
     }
 
-    /// The bucket a key hashes to: `key mod table_size`.
+    /// The bucket link `link` of the chain of the cell with key
+    /// `cell_key` lives in: `(cell_key + link * LINK_HASH) mod T`, which
+    /// for link 0 is `cell_key mod T` (spec/wire-format.md 7.4).
+    pub fn bucket_of_link(&self, cell_key: u32, link: u8) -> u32 {
+        cell_key.wrapping_add((link as u32).wrapping_mul(LINK_HASH)) & (self.table_size() - 1)
+    }
+
+    /// The bucket a key lives in: `key mod T` for a cell's own key (and a
+    /// key that names nothing), and for a link key of an instance with
+    /// [`overflow`](Self::overflow) the bucket of
+    /// [`bucket_of_link`](Self::bucket_of_link).
     pub fn bucket_of_key(&self, key: u32) -> u32 {
+        if self.overflow
+            && let Some((cell, link)) = self.link_of_key(key)
+            && link > 0
+        {
+            return self.bucket_of_link(self.key(cell), link);
+        }
         key & (self.table_size() - 1)
     }
 }

@@ -90,7 +90,7 @@ pub use pipeline::{Pipeline, SetupProgress, SetupStage};
 pub use points::generate::{
     Anchor, MAX_SPAWNED_POINTS, PointSet, TILE_POINTS, eliminate, generate_points,
 };
-pub use points::layout::{LayoutParams, layout};
+pub use points::layout::{LayoutParams, fit_to_points, layout};
 pub use precision::{
     MAX_ULP_PER_AO_RADIUS, MAX_ULP_PER_POINT_SPACING, check_precision, f32_spacing,
 };

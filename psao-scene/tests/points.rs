@@ -1,7 +1,7 @@
 //! Point generation, elimination and grid layout.
 
 use glam::{Affine3A, Vec3};
-use psao_codec::{GridTable, Placement};
+use psao_codec::{GridTable, InstanceDef, Placement};
 use psao_scene::*;
 
 fn nearest(points: &[Vec3]) -> Vec<f32> {
@@ -224,16 +224,71 @@ fn layout_holds_every_point_of_a_box() {
     let s = table.stats();
     assert_eq!(s.out_of_grid, 0);
     assert_eq!(s.bucket_overflow + s.pool_exhausted, 0, "{s:?}");
-    // Box edges and corners crowd cells: a few drops (under 3%), counted.
-    // Cells are at least twice the interpolation radius (the Poisson disk
-    // radius, about the point spacing), so a face crossing a cell puts
-    // about 4.6 points in it, and edges and corners fill its 7 slots.
+    // Box edges and corners crowd cells: cells are at least twice the
+    // interpolation radius (the Poisson disk radius, about the point
+    // spacing), so a face crossing a cell puts about 4.6 points in it, and
+    // edges and corners fill its 7 slots. Overflow chains (the default)
+    // keep every point; without them a few are dropped (under 3%), counted.
+    assert!(def.overflow);
+    assert_eq!(s.dropped, 0, "{s:?}");
+    assert!(matches!(table.placement(0), Placement::Stored { .. }));
+    let flat = InstanceDef {
+        overflow: false,
+        ..def
+    };
+    let mut table = GridTable::new(0, flat, pts.len() as u32).unwrap();
+    for (i, (p, n)) in pts.positions.iter().zip(&pts.normals).enumerate() {
+        table.set_point(i as u32, *p, *n, 1.0).unwrap();
+    }
+    let s = table.stats();
     assert!(
-        s.dropped as usize * 33 < pts.len(),
+        s.dropped > 0 && s.dropped as usize * 33 < pts.len(),
         "{s:?} of {}",
         pts.len()
     );
-    assert!(matches!(table.placement(0), Placement::Stored { .. }));
+    assert_eq!(s.dropped as u64, s.cell_overflow);
+}
+
+/// A grid laid out for less area than the mesh has (as a folded mesh's
+/// cells outnumber its area estimate's) fills its buckets and pool;
+/// `fit_to_points` sizes both to the points' own cells, and every point
+/// is stored.
+#[test]
+fn fit_to_points_grows_a_short_table_and_pool() {
+    let m = Mesh::cuboid(Vec3::new(-1.0, 0.0, -2.0), Vec3::new(1.0, 0.5, 2.0));
+    let pts = generate_points(&m, 400.0, 5).unwrap();
+    let short = layout(
+        0,
+        m.bounds().unwrap(),
+        m.area() / 40.0,
+        pts.len() / 40,
+        pts.radius,
+        &LayoutParams::default(),
+    )
+    .unwrap();
+    let fill = |def: InstanceDef| {
+        let mut t = GridTable::new(0, def, pts.len() as u32).unwrap();
+        for (i, (p, n)) in pts.positions.iter().zip(&pts.normals).enumerate() {
+            t.set_point(i as u32, *p, *n, 1.0).unwrap();
+        }
+        t.stats()
+    };
+    let before = fill(short);
+    assert!(before.dropped > 0, "{before:?}");
+    let fitted = fit_to_points(short, &pts.positions);
+    assert!(fitted.cell_pool > short.cell_pool && fitted.table_log2 >= short.table_log2);
+    assert_eq!(
+        (fitted.origin, fitted.cell_size, fitted.dims),
+        (short.origin, short.cell_size, short.dims),
+        "the grid itself is kept"
+    );
+    let after = fill(fitted);
+    assert_eq!(after.dropped, 0, "{after:?}");
+    // A grid already large enough is kept as it is.
+    assert_eq!(
+        fit_to_points(fitted, &pts.positions).cell_pool,
+        fitted.cell_pool
+    );
 }
 
 #[test]

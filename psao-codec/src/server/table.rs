@@ -506,20 +506,20 @@ impl GridTable {
         self.cell_key[cell as usize] - link * self.def.dims.x
     }
 
-    /// The cell filed under `key`, if any.
-    fn find(&self, key: u32) -> Option<u32> {
+    /// The cell filed under `key` in `bucket`, if any.
+    fn find(&self, key: u32, bucket: u32) -> Option<u32> {
         let cap = self.def.bucket_capacity as usize;
-        let start = self.def.bucket_of_key(key) as usize * cap;
-        let len = self.bucket_len[self.def.bucket_of_key(key) as usize] as usize;
+        let start = bucket as usize * cap;
+        let len = self.bucket_len[bucket as usize] as usize;
         self.buckets[start..start + len]
             .iter()
             .find(|e| e.key == key)
             .map(|e| e.cell)
     }
 
-    /// Files a free cell under `key` as link `link` of its chain.
-    fn new_cell(&mut self, key: u32, link: u8) -> Result<u32, Loc> {
-        let bucket = self.def.bucket_of_key(key);
+    /// Files a free cell under `key` in `bucket` as link `link` of its
+    /// chain.
+    fn new_cell(&mut self, key: u32, bucket: u32, link: u8) -> Result<u32, Loc> {
         let cap = self.def.bucket_capacity as usize;
         let len = self.bucket_len[bucket as usize] as usize;
         if len == cap {
@@ -554,9 +554,10 @@ impl GridTable {
     fn insert(&mut self, id: u32, key: u32, word: u32) -> Loc {
         for link in 0..=self.max_links() {
             let link_key = self.def.link_key(key, link);
-            let cell = match self.find(link_key) {
+            let bucket = self.def.bucket_of_link(key, link);
+            let cell = match self.find(link_key, bucket) {
                 Some(cell) => cell,
-                None => match self.new_cell(link_key, link) {
+                None => match self.new_cell(link_key, bucket, link) {
                     Ok(cell) => cell,
                     Err(dropped) => return dropped,
                 },
@@ -585,7 +586,10 @@ impl GridTable {
         let mut link = self.cell_link[cell as usize];
         while link < self.max_links() && self.cell_len[last as usize] == self.def.cell_capacity {
             link += 1;
-            match self.find(self.def.link_key(key, link)) {
+            match self.find(
+                self.def.link_key(key, link),
+                self.def.bucket_of_link(key, link),
+            ) {
                 Some(next) => last = next,
                 None => break,
             }
@@ -627,7 +631,9 @@ impl GridTable {
 
     fn free_cell(&mut self, cell: u32) {
         let key = self.cell_key[cell as usize];
-        let bucket = self.def.bucket_of_key(key);
+        let bucket = self
+            .def
+            .bucket_of_link(self.grid_key(cell), self.cell_link[cell as usize]);
         let cap = self.def.bucket_capacity as usize;
         let start = bucket as usize * cap;
         let len = self.bucket_len[bucket as usize] as usize;

@@ -6,7 +6,8 @@
 // format 1 (spec/wire-format.md 6.1; `psao_bind_space(instance)` is true:
 // a skinned or morphing mesh whose points stay in its bind space), pass
 // the surface's bind-space position and normal instead: the undeformed
-// vertex attributes, interpolated like the deformed ones. The bindings are
+// vertex attributes, interpolated like the deformed ones. A full cell's
+// overflow chain (spec/wire-format.md 7.4) is followed. The bindings are
 // group 0, bindings 0-3; replace `@group(0)` in the text to move them.
 
 struct PsaoInstance {
@@ -75,10 +76,10 @@ fn psao_weight(p: vec3<f32>, n_p: vec3<f32>, x: vec3<f32>, n_x: vec3<f32>, r: f3
     return a;
 }
 
-// The cell pool index of `key`, or PSAO_EMPTY.
-fn psao_find_cell(inst: PsaoInstance, key: u32) -> u32 {
+// The cell pool index of `key` in bucket `bucket`, or PSAO_EMPTY.
+fn psao_find_cell(inst: PsaoInstance, key: u32, bucket: u32) -> u32 {
     let cap = inst.arrays.x;
-    let first = inst.arrays.z + (key & inst.dims.w) * cap;
+    let first = inst.arrays.z + bucket * cap;
     for (var i = 0u; i < cap; i = i + 1u) {
         let e = psao_buckets[first + i];
         if (e.x == PSAO_EMPTY) {
@@ -136,7 +137,7 @@ fn psao_sums(inst: PsaoInstance, x: vec3<f32>, n: vec3<f32>, r: f32) -> vec2<f32
                 let lo = origin + vec3<f32>(cu) * cell;
                 // The cell's own key, then each link of its overflow chain
                 // while the one before is full (spec/wire-format.md 7.4).
-                var found = psao_find_cell(inst, key);
+                var found = psao_find_cell(inst, key, key & inst.dims.w);
                 for (var link = 1u; found != PSAO_EMPTY; link = link + 1u) {
                     let part = psao_cell_sums(inst, found, lo, x, n, r);
                     sum_w = sum_w + part.x;
@@ -144,7 +145,8 @@ fn psao_sums(inst: PsaoInstance, x: vec3<f32>, n: vec3<f32>, r: f32) -> vec2<f32
                     if (part.z == 0.0 || link > 16u || inst.to_local_t.w != 1.0) {
                         break;
                     }
-                    found = psao_find_cell(inst, key + link * inst.dims.x);
+                    // Link j: key k + j Dx, in bucket (k + j * 0x9E3779B9) mod T.
+                    found = psao_find_cell(inst, key + link * inst.dims.x, (key + link * 0x9E3779B9u) & inst.dims.w);
                 }
             }
         }

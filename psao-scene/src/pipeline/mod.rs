@@ -47,7 +47,7 @@ use crate::model::alpha::AlphaMask;
 use crate::model::pose::Pose;
 use crate::model::scene::{Instance, Scene, check_transform};
 use crate::points::generate::{PointSet, check_density, generate_points};
-use crate::points::layout::layout;
+use crate::points::layout::{fit_to_points, layout};
 use crate::precision::check_precision;
 use crate::trace::ao::AoTracer;
 use crate::trace::geometry::TriangleBvh;
@@ -413,6 +413,9 @@ impl Pipeline {
             if bind {
                 def.point_format = psao_codec::POINT_FORMAT_BIND32;
             }
+            // The area estimate undercounts folded and crowded meshes'
+            // cells: the table and pool hold the points' own.
+            let def = fit_to_points(def, &points.positions);
             let table = GridTable::new(i as u32, def, points.len().max(1) as u32)?;
             let (vertices, vertex_normals) = scene.deformed(i, &pose);
             let (mut positions, mut normals) = (Vec::new(), Vec::new());

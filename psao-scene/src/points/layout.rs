@@ -170,3 +170,45 @@ pub fn layout(
         .map_err(|error| SceneError::Grid { instance, error })?;
     Ok(def)
 }
+
+/// Grows a laid-out grid's table and pool to hold `positions` (instance
+/// points where the grid stores them) when the area estimate of [`layout`]
+/// falls short: on a folded or crowded mesh (a skin's bind pose, a
+/// model's overlapping parts) more cells are occupied, and with
+/// [`InstanceDef::overflow`] crowded cells take links of their chains, so
+/// buckets fill and points are dropped. The cells the points need (each
+/// occupied cell, and with chains `ceil(n / cell_capacity)` for a cell of
+/// `n` points) are counted, a quarter is added for motion, and the table
+/// (`4 x cells / bucket_capacity` entries, a power of two) and the pool
+/// (twice the cells) are sized as [`layout`] sizes them, never smaller
+/// than it did and within the default receiver limits.
+pub fn fit_to_points(def: InstanceDef, positions: &[Vec3]) -> InstanceDef {
+    let mut per_cell: std::collections::HashMap<u32, u32> = Default::default();
+    for &p in positions {
+        if let Some(c) = def.cell_of(p) {
+            *per_cell.entry(def.key(c)).or_default() += 1;
+        }
+    }
+    let cap = def.cell_capacity as u64;
+    let needed: u64 = per_cell
+        .values()
+        .map(|&n| {
+            if def.overflow {
+                (n as u64).div_ceil(cap)
+            } else {
+                1
+            }
+        })
+        .sum();
+    let cells = needed + needed / 4;
+    let limits = Limits::default();
+    let buckets = (4 * cells).div_ceil(def.bucket_capacity as u64).max(1);
+    let table_log2 = (64 - (buckets - 1).leading_zeros()).min(limits.max_table_log2 as u32) as u8;
+    let cell_pool = (2 * cells).min(limits.max_cell_pool as u64) as u32;
+    let grown = InstanceDef {
+        table_log2: def.table_log2.max(table_log2),
+        cell_pool: def.cell_pool.max(cell_pool),
+        ..def
+    };
+    if grown.validate().is_ok() { grown } else { def }
+}

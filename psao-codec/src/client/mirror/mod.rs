@@ -86,8 +86,13 @@ impl InstanceMirror {
     /// The cell index holding `key`, by the lookup the spec describes:
     /// scan the key's bucket until the first empty entry.
     pub fn find_cell(&self, key: u32) -> Option<u32> {
+        self.find_in(key, self.def.bucket_of_key(key))
+    }
+
+    /// The cell index filed under `key` in `bucket`.
+    fn find_in(&self, key: u32, bucket: u32) -> Option<u32> {
         let cap = self.def.bucket_capacity as usize;
-        let b = self.def.bucket_of_key(key) as usize * cap;
+        let b = bucket as usize * cap;
         self.buckets[b..b + cap]
             .iter()
             .take_while(|e| !e.is_empty())
@@ -105,13 +110,16 @@ impl InstanceMirror {
         } else {
             0
         };
-        let mut next = self.find_cell(key);
+        let mut next = self.find_in(key, self.def.bucket_of_link(key, 0));
         let mut link = 0u8;
         std::iter::from_fn(move || {
             let cell = next.take()?;
             if link < links && self.cell_full(cell) {
                 link += 1;
-                next = self.find_cell(self.def.link_key(key, link));
+                next = self.find_in(
+                    self.def.link_key(key, link),
+                    self.def.bucket_of_link(key, link),
+                );
             }
             Some(cell)
         })
