@@ -40,6 +40,9 @@ fuzz_target!(|data: &[u8]| {
                 // Bind space half the time: negotiation refuses clients
                 // without point format 1.
                 point_format: which / 4 % 2,
+                // Overflow chains half the time, independently: refused
+                // to clients without flags.overflow.
+                overflow: which / 8 % 2 == 1,
                 frame_rate: 60,
                 scene: "fuzz".into(),
                 culling: true,
