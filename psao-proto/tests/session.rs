@@ -154,14 +154,6 @@ fn point_format_one_is_negotiated() {
 /// alone, and closes on a WELCOME that chose format 1 anyway.
 #[test]
 fn a_client_may_offer_point_format_0_alone() {
-    let hello_of = |c: &mut ClientSession| {
-        let t = c.take_transmit().expect("HELLO goes out first");
-        let mut input = &t[..];
-        match psao_proto::control::ControlReader::new().read(&mut input) {
-            Ok(Some(Control::Hello(h))) => h,
-            other => panic!("{other:?}"),
-        }
-    };
     let mut both = ClientSession::new(ClientConfig::default());
     assert_eq!(hello_of(&mut both).point_formats, 0b11);
     let mut only = ClientSession::new(ClientConfig {
@@ -223,14 +215,6 @@ fn overflow_chains_are_negotiated() {
     );
     // A client offers chains by default; one that does not closes on a
     // WELCOME with them.
-    let hello_of = |c: &mut ClientSession| {
-        let t = c.take_transmit().expect("HELLO goes out first");
-        let mut input = &t[..];
-        match psao_proto::control::ControlReader::new().read(&mut input) {
-            Ok(Some(Control::Hello(h))) => h,
-            other => panic!("{other:?}"),
-        }
-    };
     assert!(hello_of(&mut ClientSession::new(ClientConfig::default())).overflow);
     let mut flat = ClientSession::new(ClientConfig {
         no_overflow: true,
