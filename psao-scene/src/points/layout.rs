@@ -128,6 +128,16 @@ pub fn layout(
     loop {
         let d = (extent / c).floor() + 1.0 + 2.0 * margin;
         dims = UVec3::new(d.x as u32, d.y as u32, d.z as u32).max(UVec3::ONE);
+        // Odd Dx and Dy make eq. 1's strides along y and z (17 Dx and
+        // 31 Dx Dy) odd, so that `key mod T` (T a power of two) runs through
+        // every bucket along each axis: with even ones a row of cells
+        // along z reaches only T / 2^k buckets (a 32 x 32 x 139 grid's
+        // columns: 1 in 8), and a long shape fills them.
+        let odd = UVec3::new(dims.x | 1, dims.y | 1, dims.z);
+        if d.max_element() < u32::MAX as f32 && key_fits(odd) {
+            dims = odd;
+            break;
+        }
         if d.max_element() < u32::MAX as f32 && key_fits(dims) {
             break;
         }
