@@ -436,3 +436,39 @@ fn points_and_the_whole_setup_do_not_depend_on_the_thread_count() {
     };
     assert_eq!(in_pool(1, &keyframe), in_pool(3, &keyframe));
 }
+
+/// Eq. 1's `key mod T` clusters on some grids whatever the load: a column
+/// of a 32 x 32 x 139 grid reaches 1 bucket in 8 of a 2^13-bucket table,
+/// and 139 cells overfill them. `fit_to_points` doubles the table until the
+/// points' keys fit, and none is dropped.
+#[test]
+fn fit_to_points_doubles_a_table_whose_buckets_the_keys_overfill() {
+    let def = InstanceDef {
+        origin: Vec3::ZERO,
+        cell_size: Vec3::ONE,
+        dims: glam::UVec3::new(32, 32, 139),
+        table_log2: 13,
+        bucket_capacity: 8,
+        cell_capacity: 7,
+        cell_pool: 4096,
+        point_format: 0,
+        overflow: true,
+        radius: 0.4,
+        t_n: 0.1,
+        t_d: 0.7,
+    };
+    let column: Vec<Vec3> = (0..139)
+        .map(|z| Vec3::new(0.5, 0.5, z as f32 + 0.5))
+        .collect();
+    let fill = |def: InstanceDef| {
+        let mut t = GridTable::new(0, def, column.len() as u32).unwrap();
+        for (i, p) in column.iter().enumerate() {
+            t.set_point(i as u32, *p, Vec3::Y, 1.0).unwrap();
+        }
+        t.stats()
+    };
+    assert!(fill(def).bucket_overflow > 0);
+    let fitted = fit_to_points(def, &column);
+    assert!(fitted.table_log2 > def.table_log2, "{fitted:?}");
+    assert_eq!(fill(fitted).dropped, 0);
+}

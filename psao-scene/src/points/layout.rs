@@ -2,7 +2,7 @@
 //! bounds and point density, hash table sized as the paper does.
 
 use glam::{UVec3, Vec3};
-use psao_codec::{InstanceDef, Limits, POINT_FORMAT_PACKED32, key_fits};
+use psao_codec::{InstanceDef, Limits, MAX_OVERFLOW_LINKS, POINT_FORMAT_PACKED32, key_fits};
 
 use crate::error::{SceneError, check_param};
 use crate::precision::f32_spacing;
@@ -191,7 +191,9 @@ pub fn layout(
 /// `n` points) are counted, a quarter is added for motion, and the table
 /// (`4 x cells / bucket_capacity` entries, a power of two) and the pool
 /// (twice the cells) are sized as [`layout`] sizes them, never smaller
-/// than it did and within the default receiver limits.
+/// than it did and within the default receiver limits. Where the points'
+/// keys and links would still overfill a bucket, the table doubles, up to
+/// four times.
 pub fn fit_to_points(def: InstanceDef, positions: &[Vec3]) -> InstanceDef {
     let mut per_cell: std::collections::HashMap<u32, u32> = Default::default();
     for &p in positions {
@@ -215,10 +217,35 @@ pub fn fit_to_points(def: InstanceDef, positions: &[Vec3]) -> InstanceDef {
     let buckets = (4 * cells).div_ceil(def.bucket_capacity as u64).max(1);
     let table_log2 = (64 - (buckets - 1).leading_zeros()).min(limits.max_table_log2 as u32) as u8;
     let cell_pool = (2 * cells).min(limits.max_cell_pool as u64) as u32;
-    let grown = InstanceDef {
+    let mut grown = InstanceDef {
         table_log2: def.table_log2.max(table_log2),
         cell_pool: def.cell_pool.max(cell_pool),
         ..def
     };
+    // Where the points' own keys and links would overfill a bucket, the
+    // table doubles (a few times at most, within the limits): eq. 1's
+    // `key mod T` clusters on some grids whatever the load.
+    for _ in 0..4 {
+        let mut load: std::collections::HashMap<u32, u32> = Default::default();
+        for (&key, &n) in &per_cell {
+            let links = if grown.overflow {
+                (n as u64).div_ceil(cap).min(MAX_OVERFLOW_LINKS as u64 + 1)
+            } else {
+                1
+            };
+            for link in 0..links as u8 {
+                *load.entry(grown.bucket_of_link(key, link)).or_default() += 1;
+            }
+        }
+        let crowded = load.values().any(|&n| n > grown.bucket_capacity as u32);
+        let larger = InstanceDef {
+            table_log2: grown.table_log2 + 1,
+            ..grown
+        };
+        if !crowded || larger.table_log2 > limits.max_table_log2 || larger.validate().is_err() {
+            break;
+        }
+        grown = larger;
+    }
     if grown.validate().is_ok() { grown } else { def }
 }
