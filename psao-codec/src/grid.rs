@@ -108,6 +108,12 @@ impl InstanceDef {
         self.point_format | if self.overflow { OVERFLOW_FLAG } else { 0 }
     }
 
+    /// Links a cell's chain may have beyond the cell itself:
+    /// [`MAX_OVERFLOW_LINKS`] with [`overflow`](Self::overflow), else 0.
+    pub fn max_links(&self) -> u8 {
+        if self.overflow { MAX_OVERFLOW_LINKS } else { 0 }
+    }
+
     /// Number of buckets.
     pub fn table_size(&self) -> u32 {
         1u32 << self.table_log2

@@ -14,7 +14,7 @@
 use glam::Vec3;
 
 use crate::error::{DefError, EncodeError};
-use crate::grid::{BucketEntry, InstanceDef, MAX_CELL_CAPACITY, MAX_OVERFLOW_LINKS};
+use crate::grid::{BucketEntry, InstanceDef, MAX_CELL_CAPACITY};
 use crate::wire::point::{POSITION_QUANTA, PointWord, quantize_ao};
 
 /// Where a point id stands.
@@ -539,20 +539,11 @@ impl GridTable {
         Ok(cell)
     }
 
-    /// Links beyond a cell's own that its chain may have.
-    fn max_links(&self) -> u8 {
-        if self.def.overflow {
-            MAX_OVERFLOW_LINKS
-        } else {
-            0
-        }
-    }
-
     /// Stores a point in the first link of its cell's chain with room
     /// (the last one, or a new one after it), since every link but the
     /// last is full.
     fn insert(&mut self, id: u32, key: u32, word: u32) -> Loc {
-        for link in 0..=self.max_links() {
+        for link in 0..=self.def.max_links() {
             let link_key = self.def.link_key(key, link);
             let bucket = self.def.bucket_of_link(key, link);
             let cell = match self.find(link_key, bucket) {
@@ -584,7 +575,8 @@ impl GridTable {
         let key = self.grid_key(cell);
         let mut last = cell;
         let mut link = self.cell_link[cell as usize];
-        while link < self.max_links() && self.cell_len[last as usize] == self.def.cell_capacity {
+        while link < self.def.max_links() && self.cell_len[last as usize] == self.def.cell_capacity
+        {
             link += 1;
             match self.find(
                 self.def.link_key(key, link),

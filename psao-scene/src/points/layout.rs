@@ -2,7 +2,7 @@
 //! bounds and point density, hash table sized as the paper does.
 
 use glam::{UVec3, Vec3};
-use psao_codec::{InstanceDef, Limits, MAX_OVERFLOW_LINKS, POINT_FORMAT_PACKED32, key_fits};
+use psao_codec::{InstanceDef, Limits, POINT_FORMAT_PACKED32, key_fits};
 
 use crate::error::{SceneError, check_param};
 use crate::precision::f32_spacing;
@@ -150,10 +150,7 @@ pub fn layout(
     let expected_cells = ((area as f64 / (c as f64 * c as f64)) * 1.5)
         .ceil()
         .max(1.0) as u64;
-    let buckets = (4 * expected_cells)
-        .div_ceil(p.bucket_capacity as u64)
-        .max(1);
-    let table_log2 = 64 - (buckets - 1).leading_zeros();
+    let table_log2 = table_log2_for(expected_cells, p.bucket_capacity);
     let total_cells = dims.x as u64 * dims.y as u64 * dims.z as u64;
     let cell_pool = (2 * expected_cells).clamp(16, total_cells.max(16));
     // Receivers with default limits must accept the instance.
@@ -201,21 +198,15 @@ pub fn fit_to_points(def: InstanceDef, positions: &[Vec3]) -> InstanceDef {
             *per_cell.entry(def.key(c)).or_default() += 1;
         }
     }
+    // Pool cells a grid cell of n points takes: its links, up to the
+    // chain's end (points past it are dropped anyway).
     let cap = def.cell_capacity as u64;
-    let needed: u64 = per_cell
-        .values()
-        .map(|&n| {
-            if def.overflow {
-                (n as u64).div_ceil(cap)
-            } else {
-                1
-            }
-        })
-        .sum();
+    let links = |n: u32| (n as u64).div_ceil(cap).min(def.max_links() as u64 + 1);
+    let needed: u64 = per_cell.values().map(|&n| links(n)).sum();
     let cells = needed + needed / 4;
     let limits = Limits::default();
-    let buckets = (4 * cells).div_ceil(def.bucket_capacity as u64).max(1);
-    let table_log2 = (64 - (buckets - 1).leading_zeros()).min(limits.max_table_log2 as u32) as u8;
+    let table_log2 =
+        table_log2_for(cells, def.bucket_capacity).min(limits.max_table_log2 as u32) as u8;
     let cell_pool = (2 * cells).min(limits.max_cell_pool as u64) as u32;
     let mut grown = InstanceDef {
         table_log2: def.table_log2.max(table_log2),
@@ -228,12 +219,7 @@ pub fn fit_to_points(def: InstanceDef, positions: &[Vec3]) -> InstanceDef {
     for _ in 0..4 {
         let mut load: std::collections::HashMap<u32, u32> = Default::default();
         for (&key, &n) in &per_cell {
-            let links = if grown.overflow {
-                (n as u64).div_ceil(cap).min(MAX_OVERFLOW_LINKS as u64 + 1)
-            } else {
-                1
-            };
-            for link in 0..links as u8 {
+            for link in 0..links(n) as u8 {
                 *load.entry(grown.bucket_of_link(key, link)).or_default() += 1;
             }
         }
@@ -248,4 +234,11 @@ pub fn fit_to_points(def: InstanceDef, positions: &[Vec3]) -> InstanceDef {
         grown = larger;
     }
     if grown.validate().is_ok() { grown } else { def }
+}
+
+/// The paper's table size for `cells` expected cells: `4 x cells /
+/// bucket_capacity` buckets, rounded up to a power of two (its log2).
+fn table_log2_for(cells: u64, bucket_capacity: u8) -> u32 {
+    let buckets = (4 * cells).div_ceil(bucket_capacity as u64).max(1);
+    64 - (buckets - 1).leading_zeros()
 }

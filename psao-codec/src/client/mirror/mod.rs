@@ -105,11 +105,7 @@ impl InstanceMirror {
     /// overflow chain while the one before it is full (spec/wire-format.md
     /// 7.4). `key` must be a cell's own key (eq. 1).
     pub fn chain(&self, key: u32) -> impl Iterator<Item = u32> + '_ {
-        let links = if self.def.overflow {
-            crate::grid::MAX_OVERFLOW_LINKS
-        } else {
-            0
-        };
+        let links = self.def.max_links();
         let mut next = self.find_in(key, self.def.bucket_of_link(key, 0));
         let mut link = 0u8;
         std::iter::from_fn(move || {
