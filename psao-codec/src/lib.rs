@@ -57,7 +57,9 @@ pub mod wire;
 
 pub use client::decoder::Decoder;
 pub use client::mirror::{Change, Changes, Event, InstanceMirror, Mirror, Transform};
-pub use client::reconstruct::{WeightParams, base_cell, reconstruct_ao, weight, world_to_local};
+pub use client::reconstruct::{
+    WeightParams, base_cell, for_each_candidate, reconstruct_ao, weight, world_to_local,
+};
 pub use error::{DecodeError, DefError, EncodeError, MessageError};
 pub use grid::{
     BucketEntry, EMPTY_KEY, InstanceDef, MAX_BUCKET_CAPACITY, MAX_CELL_CAPACITY,

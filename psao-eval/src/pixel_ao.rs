@@ -6,7 +6,8 @@
 //! covered; differences of PSNR between methods on the same G-buffer do
 //! not).
 
-use psao_codec::{Mirror, reconstruct_ao, world_to_local};
+use glam::Vec3;
+use psao_codec::{InstanceMirror, Mirror, reconstruct_ao, world_to_local};
 use rayon::prelude::*;
 
 use crate::gbuffer::{GBuffer, NO_INSTANCE};
@@ -66,14 +67,7 @@ pub fn psao_image(mirror: &Mirror, g: &GBuffer) -> Result<ClientImage, SceneErro
                     if id == NO_INSTANCE {
                         return 1.0;
                     }
-                    let local = mirror.instance(id).and_then(|inst| {
-                        if inst.def().bind_space() {
-                            // Point format 1: looked up in bind space.
-                            return Some((inst, (g.bind_position[k], g.bind_normal[k])));
-                        }
-                        let m = inst.transform()?.affine();
-                        world_to_local(&m, g.position[k], g.normal[k]).map(|x| (inst, x))
-                    });
+                    let local = pixel_local(mirror, g, k);
                     match local {
                         Some((inst, (x, n))) => reconstruct_ao(inst, x, n),
                         None => {
@@ -93,4 +87,27 @@ pub fn psao_image(mirror: &Mirror, g: &GBuffer) -> Result<ClientImage, SceneErro
         image.unknown += unknown;
     }
     Ok(image)
+}
+
+/// Pixel `k`'s instance in the mirror and its surface point in that
+/// instance's lookup space: bind space for an instance of point format 1,
+/// else local space through the transform the mirror received. `None` for
+/// an uncovered pixel, an instance the mirror does not hold, or one without
+/// a usable transform yet.
+pub(crate) fn pixel_local<'m>(
+    mirror: &'m Mirror,
+    g: &GBuffer,
+    k: usize,
+) -> Option<(&'m InstanceMirror, (Vec3, Vec3))> {
+    let id = g.instance[k];
+    if id == NO_INSTANCE {
+        return None;
+    }
+    let inst = mirror.instance(id)?;
+    if inst.def().bind_space() {
+        // Point format 1: looked up in bind space.
+        return Some((inst, (g.bind_position[k], g.bind_normal[k])));
+    }
+    let m = inst.transform()?.affine();
+    world_to_local(&m, g.position[k], g.normal[k]).map(|x| (inst, x))
 }

@@ -88,7 +88,8 @@ pub use pipeline::config::{DEFAULT_MAX_POINTS, PipelineConfig, ViewerCull, Views
 pub use pipeline::report::FrameReport;
 pub use pipeline::{Pipeline, SetupProgress, SetupStage};
 pub use points::generate::{
-    Anchor, MAX_SPAWNED_POINTS, PointSet, TILE_POINTS, eliminate, generate_points,
+    Anchor, MAX_SPAWNED_POINTS, MIN_SPAWNED, PointSet, TILE_POINTS, eliminate, generate_points,
+    generate_points_with,
 };
 pub use points::layout::{LayoutParams, fit_to_points, layout};
 pub use precision::{

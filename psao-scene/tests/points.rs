@@ -26,7 +26,8 @@ fn plane() -> Mesh {
 #[test]
 fn counts_positions_and_normals() {
     let m = plane();
-    let p = generate_points(&m, 100.0, 3).unwrap();
+    // Elimination's points alone (gap filling adds a few: below).
+    let p = generate_points_with(&m, 100.0, 3, false).unwrap();
     assert_eq!(p.len(), 400, "8 m^2 x 100 spawned, half kept");
     assert!(p.positions.iter().all(|q| q.z == 0.0
         && q.x >= 0.0
@@ -40,7 +41,7 @@ fn counts_positions_and_normals() {
 
     let mut two = plane();
     two.double_sided = true;
-    let q = generate_points(&two, 100.0, 3).unwrap();
+    let q = generate_points_with(&two, 100.0, 3, false).unwrap();
     assert_eq!(q.len(), 800);
     assert_eq!(q.normals.iter().filter(|n| n.z < 0.0).count(), 400);
 }
@@ -50,7 +51,7 @@ fn elimination_spreads_points_apart() {
     let m = plane();
     // Compare with an independent uniform set of the same size over the
     // same rectangle.
-    let kept = generate_points(&m, 200.0, 11).unwrap();
+    let kept = generate_points_with(&m, 200.0, 11, false).unwrap();
     let uniform_set: Vec<Vec3> = (0..800u32)
         .map(|k| Vec3::new(uniform(99, 0, k) * 4.0, uniform(99, 1, k) * 2.0, 0.0))
         .collect();
@@ -115,10 +116,10 @@ fn large_meshes_are_eliminated_in_tiles_as_evenly_as_small_ones() {
     // 8 m^2 at 75,000 per m^2: 600,000 spawned, in 10 tiles of 65,536
     // eliminated in parallel; the spread matches a small mesh's.
     let m = plane();
-    let big = generate_points(&m, 75_000.0, 5).unwrap();
+    let big = generate_points_with(&m, 75_000.0, 5, false).unwrap();
     assert_eq!(big.len(), 300_000);
     const { assert!(600_000 > 2 * TILE_POINTS, "the big mesh is tiled") };
-    let small = generate_points(&m, 2_000.0, 5).unwrap();
+    let small = generate_points_with(&m, 2_000.0, 5, false).unwrap();
     let share = |p: &PointSet| {
         let nn = nearest_grid(&p.positions, p.radius);
         let close = nn.iter().filter(|&&d| d < 0.375 * p.radius).count() as f64;
@@ -471,4 +472,104 @@ fn fit_to_points_doubles_a_table_whose_buckets_the_keys_overfill() {
     let fitted = fit_to_points(def, &column);
     assert!(fitted.table_log2 > def.table_log2, "{fitted:?}");
     assert_eq!(fill(fitted).dropped, 0);
+}
+
+/// Share of `spots` (position, normal) with a point of `p` facing the same
+/// side (dot > 0.1, the client's T_n) within `reach`.
+fn covered_share(p: &PointSet, spots: &[(Vec3, Vec3)], reach: f32) -> f64 {
+    let hit = spots
+        .iter()
+        .filter(|(x, n)| {
+            p.positions
+                .iter()
+                .zip(&p.normals)
+                .any(|(q, m)| q.distance(*x) < reach && m.dot(*n) > 0.1)
+        })
+        .count();
+    hit as f64 / spots.len() as f64
+}
+
+/// Spots spread uniformly over the faces of an axis-aligned box, with the
+/// faces' outward normals.
+fn box_spots(min: Vec3, max: Vec3, count: u32) -> Vec<(Vec3, Vec3)> {
+    let size = max - min;
+    (0..count)
+        .map(|k| {
+            let (u, v) = (uniform(7, 0, k), uniform(7, 1, k));
+            let axis = (k % 3) as usize;
+            let side = (k / 3) % 2;
+            let mut n = Vec3::ZERO;
+            n[axis] = if side == 0 { -1.0 } else { 1.0 };
+            let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
+            let mut x = min;
+            x[axis] = if side == 0 { min[axis] } else { max[axis] };
+            x[a] += u * size[a];
+            x[b] += v * size[b];
+            (x, n)
+        })
+        .collect()
+}
+
+#[test]
+fn gap_filling_covers_strips_thinner_than_the_spacing() {
+    // A 2 m bar 1 cm thick: at 400 points/m^2 its long faces (2 dm^2
+    // each) spawn about 8 points and keep 4, half a metre apart, while
+    // the interpolation radius is under 8 cm.
+    let (min, max) = (Vec3::ZERO, Vec3::new(2.0, 0.01, 0.01));
+    let bar = Mesh::cuboid(min, max);
+    let spots = box_spots(min, max, 3000);
+    let filled = generate_points(&bar, 400.0, 5).unwrap();
+    let bare = generate_points_with(&bar, 400.0, 5, false).unwrap();
+    assert_eq!(filled.radius, bare.radius, "the same spacing");
+    let r = filled.radius;
+    let (f1, b1) = (
+        covered_share(&filled, &spots, r),
+        covered_share(&bare, &spots, r),
+    );
+    assert!(
+        b1 < 0.5,
+        "elimination alone covers {b1} of the bar within r"
+    );
+    assert!(f1 > 0.97, "filled covers {f1} within r");
+    assert_eq!(covered_share(&filled, &spots, 2.0 * r), 1.0, "within 2r");
+    // Every kept point of the bare set is kept, and the fill's points lie
+    // on the bar with its faces' normals.
+    assert!(filled.len() > bare.len());
+    for (p, n) in filled.positions.iter().zip(&filled.normals) {
+        assert!(p.cmpge(min - 1e-6).all() && p.cmple(max + 1e-6).all());
+        assert!((n.length() - 1.0).abs() < 1e-5);
+    }
+    // Deterministic.
+    assert_eq!(filled, generate_points(&bar, 400.0, 5).unwrap());
+}
+
+#[test]
+fn gap_filling_adds_little_on_open_surfaces() {
+    let m = plane().subdivided(2);
+    let filled = generate_points(&m, 200.0, 11).unwrap();
+    let bare = generate_points_with(&m, 200.0, 11, false).unwrap();
+    assert_eq!(bare.len(), 800);
+    let extra = filled.len() - bare.len();
+    assert!(
+        extra * 100 < bare.len() * 5,
+        "{extra} points added to {}",
+        bare.len()
+    );
+}
+
+#[test]
+fn a_mesh_smaller_than_two_points_still_gets_points() {
+    // 1 cm^2 at 100 points/m^2: 0.01 points' worth of area.
+    let tiny = Mesh::quad(Vec3::ZERO, Vec3::X * 0.01, Vec3::Y * 0.01);
+    assert!(
+        generate_points_with(&tiny, 100.0, 1, false)
+            .unwrap()
+            .is_empty()
+    );
+    let p = generate_points(&tiny, 100.0, 1).unwrap();
+    assert!(
+        p.len() >= MIN_SPAWNED / 2,
+        "{} points on a mesh spawning {MIN_SPAWNED}",
+        p.len()
+    );
 }

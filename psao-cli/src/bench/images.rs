@@ -144,7 +144,40 @@ fn write_frame_images(out: &Path, stem: &str, f: &Frame, shown: &Shown) -> anyho
             hit as u8 as f32,
         ]
     })?;
+    if !shown.open_causes.is_empty() {
+        open_causes_png(f, &shown.open_causes)
+            .save(out.join(format!("{stem}-open-causes.png")))
+            .with_context(|| format!("{stem}-open-causes.png"))?;
+    }
     side_by_side(&out.join(format!("{stem}-frame.png")), f, shown)
+}
+
+/// Colours of the open causes, in [`psao_eval::OpenCause`]'s order:
+/// instance unknown magenta, no point red, normal orange, distance yellow,
+/// direction cyan, points open blue.
+pub const OPEN_CAUSE_COLOURS: [[u8; 3]; 6] = [
+    [255, 0, 255],
+    [255, 0, 0],
+    [255, 140, 0],
+    [255, 255, 0],
+    [0, 255, 255],
+    [40, 90, 255],
+];
+
+/// The reference AO, dimmed, with each pixel left open where the reference
+/// is dark painted in its cause's colour ([`OPEN_CAUSE_COLOURS`]).
+fn open_causes_png(f: &Frame, causes: &[u8]) -> image::RgbImage {
+    let (w, h) = (f.gbuffer.width, f.gbuffer.height);
+    image::RgbImage::from_fn(w, h, |x, y| {
+        let k = (y * w + x) as usize;
+        match causes.get(k).copied().unwrap_or(0) {
+            0 => {
+                let v = (f.reference[k].clamp(0.0, 1.0) * 160.0) as u8;
+                Rgb([v, v, v])
+            }
+            c => Rgb(OPEN_CAUSE_COLOURS[(c as usize - 1).min(5)]),
+        }
+    })
 }
 
 /// The images of a saved frame with their labels: the reference first,

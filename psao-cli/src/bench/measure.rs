@@ -91,6 +91,10 @@ pub struct Settings {
     /// Full cells continue in overflow chains (spec/wire-format.md 7.4;
     /// else their extra points are dropped: the baseline).
     pub overflow: bool,
+    /// Gaps that sample elimination leaves on thin strips are filled, and
+    /// small meshes spawn a few points (else elimination's points alone:
+    /// the baseline).
+    pub fill_gaps: bool,
     /// Which measured frames are saved as images.
     pub image_frames: ImageFrames,
 }
@@ -187,6 +191,7 @@ impl Settings {
             fill_buried: true,
             bind_space: true,
             overflow: true,
+            fill_gaps: true,
             image_frames: ImageFrames::List(vec![0]),
         }
     }
@@ -343,7 +348,7 @@ impl Errors {
             let e = ((t - r) as f64).powi(2);
             self.sse += e;
             *self.sse_by_instance.entry(id).or_default() += e;
-            if t >= 0.999 && r < 0.9 {
+            if t >= psao_eval::SHOWN_OPEN && r < psao_eval::REFERENCE_DARK {
                 self.sse_open_where_dark += e;
             }
             if r > super::model::OPEN && t < r - super::model::DARKER {
@@ -368,6 +373,7 @@ impl Errors {
             open_where_dark: self.sse_open_where_dark / total,
             dark_where_open: self.sse_dark_where_open / total,
             dark_where_open_px: self.dark_where_open_px as f64 / self.covered.max(1) as f64,
+            open_causes: Vec::new(),
         }
     }
 
@@ -527,6 +533,7 @@ pub fn measure_scene(
             .map(|&frame| Shown {
                 frame,
                 images: Vec::new(),
+                open_causes: Vec::new(),
             })
             .collect(),
     };
@@ -548,8 +555,8 @@ pub fn measure_scene(
             &say,
         )
         .with_context(|| format!("{name}: {label}"))?;
-        for (k, img) in kept {
-            showcase.add(k, label.clone(), img);
+        for (k, img, causes) in kept {
+            showcase.add_with_causes(k, label.clone(), img, causes);
         }
         rows.push(row);
         bar.inc(1);
@@ -626,7 +633,7 @@ pub fn measure_scene(
 }
 
 /// A frame's index and a method's AO image of it.
-type KeptImage = (usize, Vec<f32>);
+type KeptImage = (usize, Vec<f32>, Vec<u8>);
 
 /// Measures PSAO at one (density, server rate); also returns its images
 /// of the frames in `keep` (indices into `frames`), and only those.
@@ -644,6 +651,7 @@ fn measure_psao(
     config.fill_buried = s.fill_buried;
     config.bind_space = s.bind_space;
     config.layout.overflow = s.overflow;
+    config.fill_gaps = s.fill_gaps;
     let started = Instant::now();
     say("setup");
     let backend = match s.backend {
@@ -662,6 +670,7 @@ fn measure_psao(
         .sum();
     let period = 1.0 / rate as f64;
     let (mut errors, mut ms, mut unknown) = (Errors::default(), 0.0, 0usize);
+    let mut open = psao_eval::OpenReasons::default();
     let mut kept = Vec::new();
     for (k, f) in frames.iter().enumerate() {
         say(&format!("frame {}/{}", k + 1, frames.len()));
@@ -688,8 +697,23 @@ fn measure_psao(
         ms += t.elapsed().as_secs_f64() * 1e3;
         unknown += img.unknown;
         errors.add(f, &img.ao)?;
+        open.merge(&psao_eval::open_reasons(
+            client.mirror(),
+            &f.gbuffer,
+            &f.reference,
+            &img.ao,
+        ));
         if keep.contains(&k) {
-            kept.push((k, img.ao));
+            let causes: Vec<u8> = (0..img.ao.len())
+                .map(|p| {
+                    let open = img.ao[p] >= psao_eval::SHOWN_OPEN
+                        && f.reference[p] < psao_eval::REFERENCE_DARK;
+                    open.then(|| psao_eval::open_cause(client.mirror(), &f.gbuffer, p))
+                        .flatten()
+                        .map_or(0, |c| c as u8 + 1)
+                })
+                .collect();
+            kept.push((k, img.ao, causes));
         }
     }
     // Server time and bit rate: consecutive ticks at the server rate.
@@ -728,6 +752,12 @@ fn measure_psao(
             .sum(),
     );
     row.unknown_px = unknown;
+    let total = errors.sse.max(f64::MIN_POSITIVE);
+    row.breakdown.open_causes = open
+        .causes()
+        .into_iter()
+        .map(|(name, c)| (name, c.sse / total))
+        .collect();
     Ok((row, kept))
 }
 

@@ -132,6 +132,11 @@ pub struct BenchArgs {
     /// 7.4).
     #[arg(long)]
     no_overflow: bool,
+    /// Keep sample elimination's points alone (the baseline) instead of
+    /// filling the gaps it leaves on strips thinner than the point spacing
+    /// and spawning a few points on meshes smaller than two points' area.
+    #[arg(long)]
+    no_gap_fill: bool,
 }
 
 impl BenchArgs {
@@ -167,6 +172,7 @@ impl BenchArgs {
         settings.fill_buried = !self.no_fill_buried;
         settings.bind_space = !self.posed_deforming;
         settings.overflow = !self.no_overflow;
+        settings.fill_gaps = !self.no_gap_fill;
         settings
     }
 }

@@ -90,6 +90,9 @@ pub struct Breakdown {
     /// Share of covered pixels that are dark where the reference is open
     /// (as `dark_where_open`).
     pub dark_where_open_px: f64,
+    /// PSAO: why the pixels counted in `open_where_dark` were left open,
+    /// each cause's squared error a share of the total.
+    pub open_causes: Vec<(&'static str, f64)>,
 }
 
 /// A reference at least this bright counts as open for
@@ -130,8 +133,17 @@ impl Showcase {
     /// Adds `label`'s AO image of frame `frame` (dropped if that frame is
     /// not saved).
     pub fn add(&mut self, frame: usize, label: String, ao: Vec<f32>) {
+        self.add_with_causes(frame, label, ao, Vec::new());
+    }
+
+    /// As [`add`](Self::add), with the PSAO image's open-cause map
+    /// ([`Shown::open_causes`]).
+    pub fn add_with_causes(&mut self, frame: usize, label: String, ao: Vec<f32>, causes: Vec<u8>) {
         if let Some(shown) = self.frames.iter_mut().find(|s| s.frame == frame) {
             shown.images.push((label, ao));
+            if !causes.is_empty() {
+                shown.open_causes = causes;
+            }
         }
     }
 }
@@ -143,6 +155,10 @@ pub struct Shown {
     /// (label, AO image) per method shown, in table order; the reference
     /// is the frame's own ([`Frame::reference`]).
     pub images: Vec<(String, Vec<f32>)>,
+    /// Per pixel, why the shown PSAO configuration left it open where the
+    /// reference is dark ([`psao_eval::OpenCause`] as its index + 1), 0
+    /// elsewhere; empty until that configuration is measured.
+    pub open_causes: Vec<u8>,
 }
 
 /// Everything measured on one scene.

@@ -76,7 +76,7 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}; {}; {}); client times are the AO work per frame on {} threads.\n",
+        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}; {}; {}; {}); client times are the AO work per frame on {} threads.\n",
         s.width,
         s.height,
         s.frames,
@@ -101,6 +101,11 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
             "full cells continue in overflow chains"
         } else {
             "points beyond a full cell dropped: --no-overflow"
+        },
+        if s.fill_gaps {
+            "gaps on thin strips filled"
+        } else {
+            "elimination's points alone: --no-gap-fill"
         },
         std::thread::available_parallelism().map_or(1, |n| n.get())
     );
@@ -274,8 +279,20 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
                 format!("instance {id} ({kind}) {:.0}%", share * 100.0)
             })
             .collect();
+        let causes: Vec<String> = row
+            .breakdown
+            .open_causes
+            .iter()
+            .filter(|(_, share)| *share > 0.0)
+            .map(|(name, share)| format!("{name} {:.1}%", share * 100.0))
+            .collect();
+        let causes = if causes.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", causes.join(", "))
+        };
         format!(
-            "{}: {}; {:.0}% in pixels left open where the reference is dark; {:.0}% in the {:.3}% of pixels at least {} darker than an open reference (above {})",
+            "{}: {}; {:.0}% in pixels left open where the reference is dark{causes}; {:.0}% in the {:.3}% of pixels at least {} darker than an open reference (above {})",
             row.method.label(),
             top.join(", "),
             row.breakdown.open_where_dark * 100.0,

@@ -99,11 +99,23 @@ pub fn reconstruct_ao(inst: &InstanceMirror, x: Vec3, n: Vec3) -> f32 {
 /// The weight sum and the weighted AO sum of eq. 4 over the 2x2x2 cells
 /// around `x`.
 fn weighted_sum(inst: &InstanceMirror, x: Vec3, n: Vec3, params: &WeightParams) -> (f32, f32) {
+    let (mut sum_w, mut sum) = (0.0f32, 0.0f32);
+    for_each_candidate(inst, x, |p, n_p, ao| {
+        let a = weight(p, n_p, x, n, params);
+        sum_w += a;
+        sum += a * ao;
+    });
+    (sum_w, sum)
+}
+
+/// Calls `f(position, normal, ao)` for every point eq. 4 weighs at
+/// instance-local `x`: the points of the 2x2x2 cells around it, each
+/// cell's whole overflow chain included, in local space.
+pub fn for_each_candidate(inst: &InstanceMirror, x: Vec3, mut f: impl FnMut(Vec3, Vec3, f32)) {
     let d = *inst.def();
     let normals = normal_table();
     let base = base_cell(inst, x);
     let dims = d.dims.as_ivec3();
-    let (mut sum_w, mut sum) = (0.0f32, 0.0f32);
     for dz in 0..2 {
         for dy in 0..2 {
             for dx in 0..2 {
@@ -116,16 +128,12 @@ fn weighted_sum(inst: &InstanceMirror, x: Vec3, n: Vec3, params: &WeightParams) 
                 for cell in inst.chain(d.key(c)) {
                     for w in inst.cell_points(cell) {
                         let p = min + w.frac() * d.cell_size;
-                        let n_p = normals[w.fields().normal as usize];
-                        let a = weight(p, n_p, x, n, params);
-                        sum_w += a;
-                        sum += a * w.ao();
+                        f(p, normals[w.fields().normal as usize], w.ao());
                     }
                 }
             }
         }
     }
-    (sum_w, sum)
 }
 
 /// Maps a world position and unit normal into instance-local space with the

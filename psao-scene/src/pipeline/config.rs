@@ -92,6 +92,14 @@ pub struct PipelineConfig {
     /// `buried` module), or are traced like any other (false: the
     /// baseline).
     pub fill_buried: bool,
+    /// Spawned points that sample elimination left with no kept point
+    /// facing their way within the radius are kept too, and every mesh
+    /// side of positive area spawns at least
+    /// [`MIN_SPAWNED`](crate::MIN_SPAWNED) points (true: thin strips and
+    /// small meshes are covered; see
+    /// [`generate_points_with`](crate::generate_points_with)), or the
+    /// points are elimination's alone (false: the baseline).
+    pub fill_gaps: bool,
     /// Most points the whole scene may keep, checked against an estimate
     /// from the scene's area before any point is made
     /// ([`SceneError::TooManyPoints`](crate::SceneError::TooManyPoints)):
@@ -138,6 +146,7 @@ impl Default for PipelineConfig {
             split_bvh: true,
             cull: None,
             fill_buried: true,
+            fill_gaps: true,
             max_points: DEFAULT_MAX_POINTS,
             bind_space: true,
         }

@@ -46,7 +46,7 @@ use crate::error::{SceneError, check_param};
 use crate::model::alpha::AlphaMask;
 use crate::model::pose::Pose;
 use crate::model::scene::{Instance, Scene, check_transform};
-use crate::points::generate::{PointSet, check_density, generate_points};
+use crate::points::generate::{PointSet, check_density, generate_points_with};
 use crate::points::layout::{fit_to_points, layout};
 use crate::precision::check_precision;
 use crate::trace::ao::AoTracer;
@@ -379,7 +379,12 @@ impl Pipeline {
             let mesh = &scene.meshes[inst.mesh];
             let seed = config.seed ^ ((i as u64) << 32);
             let deforms = scene.deforms(i);
-            let mut points = generate_points(mesh, config.density * area_scales[i], seed)?;
+            let mut points = generate_points_with(
+                mesh,
+                config.density * area_scales[i],
+                seed,
+                config.fill_gaps,
+            )?;
             let rest = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ZERO));
             // A bind-space grid covers the mesh as it is stored; a posed
             // one every place its deformation takes the points.

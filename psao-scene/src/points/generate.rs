@@ -112,8 +112,28 @@ pub const MAX_SPAWNED_POINTS: usize = 1 << 26;
 /// Spawns `density` points per unit area over `mesh` (both sides of a
 /// double-sided mesh, each with its own normal), rejects those in
 /// alpha-mask holes, then eliminates half of the rest per side by weighted
-/// sample elimination. Deterministic for a seed.
+/// sample elimination and fills the gaps that leaves on thin strips
+/// ([`generate_points_with`] with `fill_gaps`). Deterministic for a seed.
 pub fn generate_points(mesh: &Mesh, density: f32, seed: u64) -> Result<PointSet, SceneError> {
+    generate_points_with(mesh, density, seed, true)
+}
+
+/// Fewest points spawned on a mesh side of positive area: a mesh smaller
+/// than two points' worth of area (a bolt, a thin trim) still gets a few
+/// points rather than none, so its pixels are not left open.
+pub const MIN_SPAWNED: usize = 8;
+
+/// As [`generate_points`]; with `fill_gaps`, a spawned point that
+/// elimination left with no kept point facing its way within the
+/// interpolation radius (`2 r_max`) is kept too (`gaps.rs`): strips
+/// narrower than the point spacing keep a point every radius, not their
+/// share of the area. Without it, the points are elimination's alone.
+pub fn generate_points_with(
+    mesh: &Mesh,
+    density: f32,
+    seed: u64,
+    fill_gaps: bool,
+) -> Result<PointSet, SceneError> {
     // Any positive density: the mesh's own units may be millimetres under
     // a node that scales them up (or metres for a model 7 mm across); the
     // spawned count below is what is bounded.
@@ -128,10 +148,17 @@ pub fn generate_points(mesh: &Mesh, density: f32, seed: u64) -> Result<PointSet,
         MAX_SPAWNED_POINTS as f64,
         "spawned points per side at most 2^26 (finite area)",
     )?;
-    let spawned = spawned.round() as usize;
-    if spawned < 2 {
+    if spawned <= 0.0 {
         return Ok(PointSet::default());
     }
+    let spawned = spawned.round() as usize;
+    let spawned = if fill_gaps {
+        spawned.max(MIN_SPAWNED)
+    } else if spawned < 2 {
+        return Ok(PointSet::default());
+    } else {
+        spawned
+    };
     let sides: &[f32] = if mesh.double_sided {
         &[1.0, -1.0]
     } else {
@@ -139,12 +166,24 @@ pub fn generate_points(mesh: &Mesh, density: f32, seed: u64) -> Result<PointSet,
     };
     let mut out = PointSet::default();
     for (s, &sign) in sides.iter().enumerate() {
-        let (pos, nrm, anchors) = spawn(mesh, spawned, seed ^ ((s as u64) << 40));
+        let (mut pos, mut nrm, mut anchors) = spawn(mesh, spawned, seed ^ ((s as u64) << 40));
         // Holes take their share of the area: the solid area is the
         // accepted fraction of the whole.
         let keep = pos.len() / 2;
         let solid_area = area * pos.len() as f32 / spawned as f32;
         let (kept, radius) = eliminate(&pos, &nrm, keep, solid_area);
+        let kept = if fill_gaps && !kept.is_empty() {
+            // Candidates along every triangle, so a strip thinner than
+            // the spacing has some to fill with whatever its area.
+            let reach = 2.0 * radius;
+            let (p, n, a) = super::gaps::candidates(mesh, reach, seed ^ ((s as u64) << 40));
+            pos.extend(p);
+            nrm.extend(n);
+            anchors.extend(a);
+            super::gaps::fill_gaps(&pos, &nrm, kept, reach)
+        } else {
+            kept
+        };
         out.radius = out.radius.max(2.0 * radius);
         for i in kept {
             out.positions.push(pos[i]);
@@ -174,7 +213,17 @@ fn spawn_one(
     let pick = uniform(seed, 0, k) as f64 * total;
     let t = cdf.partition_point(|&c| c <= pick).min(tris - 1);
     let (r1, r2) = (uniform(seed, 1, k).sqrt(), uniform(seed, 2, k));
-    let (wa, wb, wc) = (1.0 - r1, r1 * (1.0 - r2), r1 * r2);
+    point_on(mesh, t, [1.0 - r1, r1 * (1.0 - r2), r1 * r2])
+}
+
+/// The point of triangle `t` at barycentric weights `[wa, wb, wc]`, with
+/// its interpolated unit normal (the face's where those cancel) and its
+/// anchor; `None` in an alpha-mask hole.
+pub(crate) fn point_on(
+    mesh: &Mesh,
+    t: usize,
+    [wa, wb, wc]: [f32; 3],
+) -> Option<(Vec3, Vec3, Anchor)> {
     if !mesh.solid(t, [wa, wb, wc]) {
         return None;
     }
