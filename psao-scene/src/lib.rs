@@ -84,7 +84,7 @@ pub use model::scene::{Instance, MIN_TRANSFORM_RATIO, Scene, invertible};
 pub use model::skin::{Skin, SkinWeights};
 pub use morton::morton_order;
 pub use pipeline::backend::AoBackend;
-pub use pipeline::config::{DEFAULT_MAX_POINTS, PipelineConfig, ViewerCull, Views};
+pub use pipeline::config::{DEFAULT_MAX_POINTS, PipelineConfig, RayBudget, ViewerCull, Views};
 pub use pipeline::report::FrameReport;
 pub use pipeline::{Pipeline, SetupProgress, SetupStage};
 pub use points::generate::{
@@ -103,6 +103,7 @@ pub use scenes::stage::{
     front_share, setting, stage,
 };
 pub use trace::ao::{
-    AoParams, AoResult, AoTracer, ChangedPoints, Estimator, MAX_RAYS, RAY_SUM_LANES, ray_offset,
+    AoParams, AoResult, AoTracer, ChangedPoints, Estimator, MAX_RAYS, PointRays, RAY_SUM_LANES,
+    ao_of_scores, ray_offset,
 };
 pub use trace::geometry::{Geometry, Layer, TriangleBvh, TriangleMask, barycentric};

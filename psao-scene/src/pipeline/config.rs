@@ -4,6 +4,7 @@
 
 use psao_codec::{EncoderConfig, Thresholds};
 
+pub use super::budget::RayBudget;
 use crate::model::camera::Frustum;
 use crate::points::layout::LayoutParams;
 use crate::trace::ao::AoParams;
@@ -113,6 +114,25 @@ pub struct PipelineConfig {
     /// moved and re-sent with every pose (false: format 0 only, for
     /// clients that know no other, and the baseline).
     pub bind_space: bool,
+    /// A static point that motion may reach re-traces only the rays that
+    /// enter what moved (the boxes of the moving instances before and
+    /// after the step), and is not traced at all when none does; with the
+    /// CPU tracer, its other rays' scores are kept from its last trace
+    /// (the pipeline's `ray_cache`, up to
+    /// [`ray_cache_bytes`](Self::ray_cache_bytes)). Frames are the same,
+    /// byte for byte, as with every reached point traced in full (true);
+    /// or every point within reach of motion is traced in full (false:
+    /// the baseline).
+    pub ray_reuse: bool,
+    /// Most bytes the kept ray scores take (64 MiB: about 400,000 points
+    /// of 32 rays); beyond it, points are traced in full.
+    pub ray_cache_bytes: u64,
+    /// How many rays a step may trace ([`RayBudget::Unlimited`]: every
+    /// point motion reached, in its step).
+    pub budget: RayBudget,
+    /// Under a budget, the most steps a point waits: one that waited this
+    /// long is traced whatever the budget (8).
+    pub max_wait: u32,
 }
 
 impl PipelineConfig {
@@ -143,6 +163,10 @@ impl Default for PipelineConfig {
             layout: LayoutParams::default(),
             encoder: EncoderConfig::default(),
             skip: true,
+            ray_reuse: true,
+            ray_cache_bytes: 64 << 20,
+            budget: RayBudget::Unlimited,
+            max_wait: 8,
             split_bvh: true,
             cull: None,
             fill_buried: true,

@@ -3,15 +3,60 @@
 //! (all of them when forced) are set in their instance's table, whose
 //! changes the next frame carries.
 
+use std::time::Duration;
+
 use glam::{Affine3A, Vec3};
 use psao_codec::SentPoint;
+use rayon::prelude::*;
 
 use super::Pipeline;
+use super::budget::{Candidate, RayBudget, select};
+use super::ray_cache::key;
+use super::reach::{MotionBoxes, RayMask, reached_rays};
 use crate::error::SceneError;
 use crate::model::pose::normal_matrix;
-use crate::trace::ao::{AoTracer, ChangedPoints};
+use crate::morton::morton_order;
+use crate::trace::ao::{AoResult, AoTracer, ChangedPoints, PointRays, ao_of_scores};
+
+/// What a step's motion means for tracing ([`Pipeline::trace_step`]).
+pub(super) struct StepMotion {
+    /// Where what moved was, before and after the step.
+    pub boxes: MotionBoxes,
+    /// Per instance, whether it moved or deformed: its points are traced
+    /// in full.
+    pub changed: Vec<bool>,
+    /// The step's period, seconds (an automatic budget's share of it).
+    pub period: f64,
+    /// Time the step took before tracing.
+    pub elapsed: Duration,
+}
+
+/// What [`Pipeline::trace_step`] did.
+pub(super) struct StepTrace {
+    pub traced: u64,
+    pub rays: u64,
+    pub updated: u64,
+    pub unreached: u64,
+    pub rays_kept: u64,
+    pub budget: Option<u64>,
+    pub overdue: u64,
+}
+
+/// How one point is traced this step.
+#[derive(Clone, Debug)]
+enum Plan {
+    /// Motion reaches none of its rays and nothing waits: not traced.
+    Skip,
+    /// Every ray; `reached` are those motion reached (all of a moving
+    /// instance's).
+    Full { reached: RayMask },
+    /// Only `need` (motion's `reached` ones and those it reached while
+    /// the point waited), the others' scores kept.
+    Rays { need: RayMask, reached: RayMask },
+}
 
 /// Points of every instance traced together, in world space.
+#[derive(Default)]
 struct Batch {
     /// Stable ids: instance `i`'s points are numbered after the points of
     /// the instances before it.
@@ -24,6 +69,21 @@ struct Batch {
     owner: Vec<(usize, u32)>,
     /// What clients hold of each (cells numbered across instances).
     sent: Vec<SentPoint>,
+}
+
+impl Batch {
+    /// The entries at `at` (ascending), in that order.
+    fn select(&self, at: &[usize]) -> Batch {
+        let mut out = Batch::default();
+        for &b in at {
+            out.ids.push(self.ids[b]);
+            out.points.push(self.points[b]);
+            out.normals.push(self.normals[b]);
+            out.owner.push(self.owner[b]);
+            out.sent.push(self.sent[b]);
+        }
+        out
+    }
 }
 
 impl Pipeline {
@@ -53,6 +113,242 @@ impl Pipeline {
             result.rays,
             result.changed.len() as u64 + filled,
         ))
+    }
+
+    /// Traces what a step's motion needs: the points listed in `which` and
+    /// those waiting from earlier steps, each only where motion can reach
+    /// its rays (with [`PipelineConfig::ray_reuse`]), within the step's ray
+    /// budget; sets the ones past the thresholds. Buried points take their
+    /// donors' AO as in [`Self::trace_and_update`].
+    ///
+    /// [`PipelineConfig::ray_reuse`]: super::config::PipelineConfig::ray_reuse
+    pub(super) fn trace_step(
+        &mut self,
+        tracer: Option<&AoTracer>,
+        which: &[Vec<u32>],
+        motion: &StepMotion,
+    ) -> Result<StepTrace, SceneError> {
+        let mut lists = self.traced_only(which).unwrap_or_else(|| which.to_vec());
+        for k in self.waiting.keys() {
+            let (i, p) = ((k >> 32) as usize, k as u32);
+            if let Some(l) = lists.get_mut(i) {
+                l.push(p);
+            }
+        }
+        for l in &mut lists {
+            l.sort_unstable();
+            l.dedup();
+        }
+        let batch = self.batch(&lists, false);
+        let plans = self.plan(&batch, motion);
+        let rays = self.config.ao.rays;
+        let budget = match self.config.budget {
+            RayBudget::Unlimited => None,
+            RayBudget::Rays(n) => Some(n),
+            RayBudget::Auto { share } => {
+                let left = share as f64 * motion.period - motion.elapsed.as_secs_f64();
+                Some(if self.ray_ns > 0.0 {
+                    (left.max(0.0) * 1e9 / self.ray_ns) as u64
+                } else {
+                    u64::MAX
+                })
+            }
+        };
+        // The points to trace, as budget candidates.
+        let (mut at, mut cands) = (Vec::new(), Vec::new());
+        let mut unreached = 0u64;
+        for (b, plan) in plans.iter().enumerate() {
+            let (cost, reached) = match plan {
+                Plan::Skip => {
+                    unreached += 1;
+                    continue;
+                }
+                Plan::Full { reached } => (rays, reached),
+                Plan::Rays { need, reached } => (need.count(), reached),
+            };
+            let (i, k) = batch.owner[b];
+            at.push(b);
+            cands.push(Candidate {
+                cost,
+                reached: reached.count() as f32 / rays.max(1) as f32,
+                age: self.waiting.get(key(i, k)).map_or(0, |w| w.0),
+            });
+        }
+        let (chosen, _) = select(&cands, budget, self.config.max_wait);
+        let overdue = if budget.is_some() {
+            cands
+                .iter()
+                .filter(|c| c.age >= self.config.max_wait)
+                .count() as u64
+        } else {
+            0
+        };
+        let mut take = Vec::new();
+        for ((&b, &go), _) in at.iter().zip(&chosen).zip(&cands) {
+            let (i, k) = batch.owner[b];
+            let key = key(i, k);
+            if go {
+                self.waiting.done(key);
+                take.push(b);
+                continue;
+            }
+            match &plans[b] {
+                Plan::Rays { reached, .. } => {
+                    self.ray_cache.mark_stale(key, reached);
+                    self.waiting.wait(key, false);
+                }
+                _ => {
+                    self.ray_cache.forget(key);
+                    self.waiting.wait(key, true);
+                }
+            }
+        }
+        let sub = batch.select(&take);
+        let sub_plans: Vec<&Plan> = take.iter().map(|&b| &plans[b]).collect();
+        let result = if self.backend.is_some() {
+            self.trace_batch(tracer, &sub, false)?
+        } else {
+            let owned = tracer.is_none().then(|| self.tracer(false));
+            let tracer = tracer.or(owned.as_ref()).expect("a tracer");
+            self.trace_planned(tracer, &sub, &sub_plans)?
+        };
+        let (traced, rays_cast) = (sub.ids.len() as u64, result.rays);
+        let planned: u64 = sub_plans
+            .iter()
+            .map(|p| match p {
+                Plan::Rays { need, .. } => need.count() as u64,
+                _ => rays as u64,
+            })
+            .sum();
+        self.apply(&sub.owner, &result)?;
+        let touched: Vec<bool> = lists.iter().map(|w| !w.is_empty()).collect();
+        let filled = if self.instances.iter().any(|s| !s.buried.ids.is_empty()) {
+            self.fill_buried(&touched, false)?
+        } else {
+            0
+        };
+        Ok(StepTrace {
+            traced,
+            rays: rays_cast,
+            updated: result.changed.len() as u64 + filled,
+            unreached,
+            rays_kept: (traced * rays as u64).saturating_sub(planned),
+            budget,
+            overdue,
+        })
+    }
+
+    /// How each point of `batch` is traced this step: in full for a moving
+    /// instance (or without ray reuse); for a static one only the rays
+    /// motion reaches (and those it reached while the point waited), with
+    /// the other rays' scores kept where the CPU tracer keeps them, in
+    /// full where it has none; not at all when none is reached and the
+    /// point does not wait.
+    fn plan(&self, batch: &Batch, motion: &StepMotion) -> Vec<Plan> {
+        let ao = self.config.ao;
+        let rays = ao.rays;
+        // Without skipping every point is traced in full (the baseline).
+        let reuse = self.config.ray_reuse && self.config.skip;
+        let cache = reuse && self.backend.is_none();
+        let (waiting_list, ray_cache) = (&self.waiting, &self.ray_cache);
+        (0..batch.ids.len())
+            .into_par_iter()
+            .map(|b| {
+                let (i, k) = batch.owner[b];
+                let key = key(i, k);
+                if !reuse || motion.changed[i] {
+                    return Plan::Full {
+                        reached: RayMask::all(rays),
+                    };
+                }
+                let waiting = waiting_list.get(key);
+                let entry = if cache { ray_cache.get(key) } else { None };
+                let reached =
+                    match PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao) {
+                        Some(r) => reached_rays(
+                            &r,
+                            rays,
+                            &motion.boxes,
+                            ao.estimator,
+                            ao.radius,
+                            entry.map(|e| &e.scores[..]),
+                        ),
+                        // Nothing to trace from: a full trace is cheap (open).
+                        None => RayMask::all(rays),
+                    };
+                match entry {
+                    Some(e) if !waiting.is_some_and(|w| w.1) => {
+                        let mut need = reached.clone();
+                        need.union(&e.stale);
+                        if need.is_empty() {
+                            Plan::Skip
+                        } else {
+                            Plan::Rays { need, reached }
+                        }
+                    }
+                    _ if reached.is_empty() && waiting.is_none() => Plan::Skip,
+                    _ => Plan::Full { reached },
+                }
+            })
+            .collect()
+    }
+
+    /// Traces `batch` on the CPU by `plans`: a full trace casts every ray
+    /// (and keeps the scores of a static instance's point), a partial one
+    /// casts its needed rays over the kept scores. Each AO is the kept and
+    /// new scores added in the tracer's order: what a full trace gives.
+    fn trace_planned(
+        &mut self,
+        tracer: &AoTracer,
+        batch: &Batch,
+        plans: &[&Plan],
+    ) -> Result<ChangedPoints, SceneError> {
+        let ao = self.config.ao;
+        ao.validate()?;
+        let rays = ao.rays as usize;
+        let order = morton_order(&batch.points);
+        let cache = &self.ray_cache;
+        let keep = self.config.ray_reuse && self.config.skip;
+        let mut done: Vec<(usize, f32, u64, Option<Vec<f32>>)> = order
+            .par_iter()
+            .map(|&b| {
+                let (i, k) = batch.owner[b];
+                let key = key(i, k);
+                let (id, p, n) = (batch.ids[b], batch.points[b], batch.normals[b]);
+                let mut scores = vec![0.0f32; rays];
+                let kept = match plans[b] {
+                    Plan::Rays { need, .. } => cache.get(key).map(|e| (e, need)),
+                    _ => None,
+                };
+                let cast = match kept {
+                    Some((e, need)) => {
+                        scores.copy_from_slice(&e.scores);
+                        tracer.trace_point_rays(id, p, n, &ao, &mut scores, |r| need.has(r))
+                    }
+                    // A full trace (or, were its scores gone, a partial one).
+                    None => tracer.trace_point_rays(id, p, n, &ao, &mut scores, |_| true),
+                };
+                let value = ao_of_scores(&scores);
+                (b, value, cast, Some(scores))
+            })
+            .collect();
+        done.sort_unstable_by_key(|d| d.0);
+        let mut result = AoResult {
+            ao: Vec::with_capacity(done.len()),
+            rays: 0,
+        };
+        for (b, value, cast, scores) in &mut done {
+            result.ao.push(*value);
+            result.rays += *cast;
+            let (i, k) = batch.owner[*b];
+            // Static points keep their scores for the next reach.
+            if keep && !self.instances[i].dynamic {
+                if let Some(s) = scores.take() {
+                    self.ray_cache.store(key(i, k), &s);
+                }
+            }
+        }
+        ChangedPoints::compare(&result, &batch.sent, &self.config.thresholds)
     }
 
     /// The listed points of each instance in world space, with what clients

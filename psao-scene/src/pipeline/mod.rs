@@ -29,10 +29,13 @@
 //! what a frame did.
 
 pub(crate) mod backend;
+pub(crate) mod budget;
 mod buried;
 mod bvh;
 pub(crate) mod config;
 mod dirty;
+mod ray_cache;
+mod reach;
 pub(crate) mod report;
 mod step;
 
@@ -217,6 +220,13 @@ pub struct Pipeline {
     frame: u64,
     /// What culling culls to.
     views: Views,
+    /// Static points' ray scores from their last trace.
+    ray_cache: ray_cache::RayCache,
+    /// Points the ray budget put off to a later step.
+    waiting: budget::Waiting,
+    /// Nanoseconds a ray costs, measured over the last steps (from setup's
+    /// trace at first): what an automatic budget divides by.
+    ray_ns: f64,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -486,6 +496,7 @@ impl Pipeline {
             .into_iter()
             .collect::<Result<Vec<_>, _>>()?;
         let skin_groups = skin_groups(&scene, &dynamic);
+        let ray_cache = ray_cache::RayCache::new(config.ao.rays, config.ray_cache_bytes);
         let mut pipeline = Pipeline {
             scene,
             backend,
@@ -502,6 +513,9 @@ impl Pipeline {
             time: 0.0,
             frame: 0,
             views: Views::CameraPath,
+            ray_cache,
+            waiting: budget::Waiting::default(),
+            ray_ns: 0.0,
         };
         if pipeline.config.fill_buried {
             pipeline.find_buried(progress)?;
@@ -515,6 +529,7 @@ impl Pipeline {
             .sum();
         let tracer = pipeline.backend.is_none().then(|| pipeline.tracer(false));
         let mut traced = 0u64;
+        let trace_started = std::time::Instant::now();
         progress(SetupProgress {
             stage: SetupStage::Trace,
             done: 0,
@@ -560,6 +575,10 @@ impl Pipeline {
                 touched.clear();
                 room = TRACE_BATCH;
             }
+        }
+        let rays = total * pipeline.config.ao.rays as u64;
+        if rays > 0 {
+            pipeline.ray_ns = trace_started.elapsed().as_nanos() as f64 / rays as f64;
         }
         // Buried points take their donors' AO once every point is traced.
         pipeline.fill_buried(&vec![true; counts.len()], true)?;
@@ -625,8 +644,8 @@ impl Pipeline {
     }
 
     /// Bytes the pipeline holds for its instances (points, skinned
-    /// vertices, tables, bookkeeping; allocated capacity) and its BVHs'
-    /// triangles: the server's memory for the scene, without what the
+    /// vertices, tables, bookkeeping, kept ray scores; allocated capacity)
+    /// and its BVHs' triangles: the server's memory for the scene, without what the
     /// allocator keeps aside.
     pub fn memory_bytes(&self) -> u64 {
         let bvh = |b: &Option<Arc<TriangleBvh>>| b.as_ref().map_or(0, |b| b.memory_bytes());
@@ -637,6 +656,14 @@ impl Pipeline {
             + bvh(&self.static_layer)
             + bvh(&self.whole_layer)
             + self.skin_groups.iter().map(|g| bvh(&g.bvh)).sum::<u64>()
+            + self.ray_cache.memory_bytes()
+            + self.waiting.memory_bytes()
+    }
+
+    /// Static points whose ray scores are kept for partial re-traces
+    /// ([`PipelineConfig::ray_reuse`]).
+    pub fn kept_ray_points(&self) -> usize {
+        self.ray_cache.len()
     }
 
     /// World transform of instance `i` now.

@@ -15,6 +15,24 @@ pub struct FrameReport {
     pub culled: u64,
     /// Rays cast.
     pub rays: u64,
+    /// Points within reach of motion whose rays all miss what moved: not
+    /// traced, their AO is what it was
+    /// ([`PipelineConfig::ray_reuse`](crate::PipelineConfig::ray_reuse)).
+    pub unreached: u64,
+    /// Rays of traced points whose scores were kept from their last trace
+    /// instead of being cast again.
+    pub rays_kept: u64,
+    /// The step's ray budget (`None`: unlimited).
+    pub budget: Option<u64>,
+    /// Points that need tracing but wait for a later step (the ray
+    /// budget), after this step.
+    pub waiting: u64,
+    /// The longest any of them has waited, in steps.
+    pub oldest_wait: u32,
+    /// Points traced whatever the budget because they had waited
+    /// [`PipelineConfig::max_wait`](crate::PipelineConfig::max_wait)
+    /// steps: a budget too small for the motion.
+    pub overdue: u64,
     /// Points whose change passed the thresholds (set in their table).
     pub updated: u64,
     /// Transforms sent.
@@ -41,12 +59,22 @@ pub struct FrameReport {
 
 impl FrameReport {
     /// Adds `other`'s counts and times to this one (`points` is kept as the
-    /// larger of the two).
+    /// larger of the two, `waiting` is `other`'s, the later one's, and
+    /// `oldest_wait` the larger).
     pub fn accumulate(&mut self, other: &FrameReport) {
         self.points = self.points.max(other.points);
         self.traced += other.traced;
         self.culled += other.culled;
         self.rays += other.rays;
+        self.unreached += other.unreached;
+        self.rays_kept += other.rays_kept;
+        self.overdue += other.overdue;
+        self.budget = match (self.budget, other.budget) {
+            (Some(a), Some(b)) => Some(a + b),
+            (a, b) => a.or(b),
+        };
+        self.waiting = other.waiting;
+        self.oldest_wait = self.oldest_wait.max(other.oldest_wait);
         self.updated += other.updated;
         self.transforms += other.transforms;
         self.deformed += other.deformed;

@@ -9,6 +9,8 @@ use glam::Vec3;
 use psao_codec::EncodedFrame;
 
 use super::config::{ViewerCull, Views};
+use super::dirty::StepMotion;
+use super::reach::MotionBoxes;
 use super::report::FrameReport;
 use super::{Pipeline, bounds_of};
 use crate::error::{SceneError, check_param};
@@ -16,6 +18,7 @@ use crate::model::camera::Frustum;
 use crate::model::mesh::transformed_bounds;
 use crate::model::scene::check_transform;
 use crate::trace::ao::{AoParams, AoTracer, ray_offset};
+use crate::trace::geometry::RAY_LEAD;
 
 /// Where a step's animation moved or deformed instances.
 struct Motion {
@@ -28,6 +31,8 @@ struct Motion {
     /// The world box each change swept (before and after), grown by what
     /// an AO ray reaches ([`grow`]).
     swept: Vec<(Vec3, Vec3)>,
+    /// The same boxes, not grown: where what moved was, before and after.
+    boxes: Vec<(Vec3, Vec3)>,
 }
 
 /// A box grown by what an AO ray from inside it reaches. A ray reaches R
@@ -70,13 +75,40 @@ impl Pipeline {
         let tracer = self.update_bvhs(&motion, anything);
         report.t_bvh = t2.elapsed();
         let t3 = Instant::now();
-        if anything {
-            let (traced, rays, updated) = self.trace_and_update(tracer.as_ref(), &which, false)?;
-            report.traced = traced;
-            report.rays = rays;
-            report.updated = updated;
+        if anything || self.waiting.len() > 0 {
+            let step = StepMotion {
+                boxes: MotionBoxes::new(motion.boxes.iter().copied(), 4.0 * RAY_LEAD),
+                changed: motion.changed.clone(),
+                period: dt as f64,
+                elapsed: t0.elapsed(),
+            };
+            let tracer = match tracer {
+                Some(t) => Some(t),
+                // Only waiting points to trace: the tracer is built now.
+                None if self.backend.is_none() => Some(self.tracer(false)),
+                None => None,
+            };
+            let done = self.trace_step(tracer.as_ref(), &which, &step)?;
+            report.traced = done.traced;
+            report.rays = done.rays;
+            report.updated = done.updated;
+            report.unreached = done.unreached;
+            report.rays_kept = done.rays_kept;
+            report.budget = done.budget;
+            report.overdue = done.overdue;
         }
+        report.waiting = self.waiting.len() as u64;
+        report.oldest_wait = self.waiting.oldest();
         report.t_trace = t3.elapsed();
+        if report.rays >= 1024 {
+            // The cost of a ray, for an automatic budget: a running mean.
+            let ns = report.t_trace.as_nanos() as f64 / report.rays as f64;
+            self.ray_ns = if self.ray_ns > 0.0 {
+                0.7 * self.ray_ns + 0.3 * ns
+            } else {
+                ns
+            };
+        }
         let t4 = Instant::now();
         let frame = self.encode(&motion.moved, &mut report)?;
         report.t_encode = t4.elapsed();
@@ -97,6 +129,7 @@ impl Pipeline {
             changed: vec![false; self.instances.len()],
             deformed: Vec::new(),
             swept: Vec::new(),
+            boxes: Vec::new(),
         };
         for (i, s) in self.instances.iter_mut().enumerate() {
             if !s.dynamic {
@@ -159,9 +192,9 @@ impl Pipeline {
                 report.deformed += 1;
                 motion.deformed.push(i);
             }
-            motion
-                .swept
-                .push(grow(&ao, (before.0.min(after.0), before.1.max(after.1))));
+            let both = (before.0.min(after.0), before.1.max(after.1));
+            motion.swept.push(grow(&ao, both));
+            motion.boxes.push(both);
             if next != s.transform || placed {
                 s.transform = next;
                 s.transform_seq = s.transform_seq.wrapping_add(1);
@@ -229,7 +262,7 @@ impl Pipeline {
             || (self.views == Views::CameraPath && self.scene.camera.is_none());
         let reach = cull.margin + self.config.ao.radius;
         let mut waiting = 0u64;
-        for (s, w) in self.instances.iter_mut().zip(which.iter_mut()) {
+        for (i, (s, w)) in self.instances.iter_mut().zip(which.iter_mut()).enumerate() {
             for &k in w.iter() {
                 s.pending[k as usize] = true;
             }
@@ -250,6 +283,9 @@ impl Pipeline {
                     *pending = false;
                     w.push(k as u32);
                 } else {
+                    // Motion may reach its rays while it waits out of
+                    // view: it is traced in full when it comes back.
+                    self.ray_cache.forget(super::ray_cache::key(i, k as u32));
                     waiting += 1;
                 }
             }

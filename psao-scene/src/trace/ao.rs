@@ -241,50 +241,153 @@ impl AoTracer {
         if self.top.is_empty() {
             return 1.0;
         }
-        if p.rays == 0 || !point.is_finite() {
+        let Some(rays) = PointRays::new(id, point, normal, p) else {
             return 1.0;
+        };
+        let mut sums = [0.0f32; RAY_SUM_LANES as usize];
+        for k in 0..p.rays {
+            sums[(k % RAY_SUM_LANES) as usize] += rays.score(self, k);
+        }
+        sums.iter().fold(0.0, |total, &s| total + s) / p.rays as f32
+    }
+
+    /// Each ray's score at one point (`scores[k]` for ray `k`, the terms
+    /// [`ao_of_scores`] adds up to the point's AO), traced only for the
+    /// rays `k` with `trace(k)`; the others are left as they are. Returns
+    /// the rays traced. A point with no rays to trace from (see
+    /// [`PointRays::new`]) scores 1 on every ray; so does every ray
+    /// against an empty tracer. `p` must be valid and `scores` hold
+    /// `p.rays` values.
+    pub fn trace_point_rays(
+        &self,
+        id: u32,
+        point: Vec3,
+        normal: Vec3,
+        p: &AoParams,
+        scores: &mut [f32],
+        trace: impl Fn(u32) -> bool,
+    ) -> u64 {
+        let rays = PointRays::new(id, point, normal, p).filter(|_| !self.top.is_empty());
+        let mut traced = 0;
+        for (k, s) in (0..p.rays).zip(scores.iter_mut()) {
+            if trace(k) {
+                *s = rays.as_ref().map_or(1.0, |r| r.score(self, k));
+                traced += 1;
+            }
+        }
+        traced
+    }
+}
+
+/// A point's AO from its rays' scores: the partial sums of
+/// [`RAY_SUM_LANES`] lanes added in order, divided by the ray count,
+/// exactly as [`AoTracer::trace_ids`] adds them (so scores kept from one
+/// trace and partly re-traced give the same bits as a full trace).
+pub fn ao_of_scores(scores: &[f32]) -> f32 {
+    if scores.is_empty() {
+        return 1.0;
+    }
+    let mut sums = [0.0f32; RAY_SUM_LANES as usize];
+    for (k, &s) in scores.iter().enumerate() {
+        sums[k % RAY_SUM_LANES as usize] += s;
+    }
+    sums.iter().fold(0.0, |total, &s| total + s) / scores.len() as f32
+}
+
+/// The rays of one point, in their fixed order: ray `k`'s direction and
+/// length depend on the point's id, normal and the parameters alone, so
+/// the same point traces the same rays whenever it is traced.
+pub struct PointRays {
+    origin: Vec3A,
+    n: Vec3,
+    t1: Vec3,
+    t2: Vec3,
+    id: u32,
+    shift: u32,
+    p: AoParams,
+}
+
+impl PointRays {
+    /// The rays of point `id` at `point` with `normal` (normalized here;
+    /// no direction gives +Z). `None` when there is nothing to trace from:
+    /// no rays, a non-finite point, or one within a ray offset of the
+    /// largest f32 (its AO is 1).
+    pub fn new(id: u32, point: Vec3, normal: Vec3, p: &AoParams) -> Option<PointRays> {
+        if p.rays == 0 || !point.is_finite() {
+            return None;
         }
         let n = normal.try_normalize().unwrap_or(Vec3::Z);
         let (t1, t2) = n.any_orthonormal_pair();
         let bias = ray_offset(p.bias, point);
         let origin = Vec3A::from(point + n * bias);
         if !origin.is_finite() {
-            // Within a ray offset of the largest f32: nothing to trace from.
-            return 1.0;
+            return None;
         }
         let shift = hash(p.seed as u32 ^ hash(id ^ hash((p.seed >> 32) as u32)));
-        let mut sums = [0.0f32; RAY_SUM_LANES as usize];
-        for k in 0..p.rays {
-            let sum = &mut sums[(k % RAY_SUM_LANES) as usize];
-            // Stratified in r1 (one stratum per ray), random within.
-            let r1 = (k as f32 + uniform(p.seed, id, 3 * k)) / p.rays as f32;
-            let r2 = uniform(p.seed, id, 3 * k + 1);
-            let (s, c) = (std::f32::consts::TAU * r2).sin_cos();
-            let rr = r1.sqrt();
-            let dir = t1 * (rr * c) + t2 * (rr * s) + n * (1.0 - r1).max(0.0).sqrt();
-            let dir = Vec3A::from(dir);
-            match p.estimator {
-                Estimator::ClosestHit => {
-                    let t = match self.top.closest(&self.layers, origin, dir, p.radius) {
-                        Some(lead) => p.radius.min(lead - RAY_LEAD),
-                        None => p.radius,
-                    };
-                    *sum += t / p.radius;
-                }
-                Estimator::LaineKarras => {
-                    // Lengths from a golden-ratio sequence, rotated per
-                    // point: evenly spread over [0, 1) and uncorrelated
-                    // with the direction strata.
-                    let u = (k.wrapping_mul(GOLDEN).wrapping_add(shift) >> 8) as f32
-                        / (1u32 << 24) as f32;
-                    let len = u * p.radius;
-                    if self.top.misses(&self.layers, origin, dir, len) {
-                        *sum += 1.0;
-                    }
+        Some(PointRays {
+            origin,
+            n,
+            t1,
+            t2,
+            id,
+            shift,
+            p: *p,
+        })
+    }
+
+    /// Where every ray starts.
+    pub fn origin(&self) -> Vec3A {
+        self.origin
+    }
+
+    /// Ray `k`'s unit direction and the length it is traced to (the
+    /// radius for closest-hit rays, `u R` for Laine-Karras ones).
+    pub fn ray(&self, k: u32) -> (Vec3A, f32) {
+        let p = &self.p;
+        // Stratified in r1 (one stratum per ray), random within.
+        let r1 = (k as f32 + uniform(p.seed, self.id, 3 * k)) / p.rays as f32;
+        let r2 = uniform(p.seed, self.id, 3 * k + 1);
+        let (s, c) = (std::f32::consts::TAU * r2).sin_cos();
+        let rr = r1.sqrt();
+        let dir = self.t1 * (rr * c) + self.t2 * (rr * s) + self.n * (1.0 - r1).max(0.0).sqrt();
+        let len = match p.estimator {
+            Estimator::ClosestHit => p.radius,
+            // Lengths from a golden-ratio sequence, rotated per point:
+            // evenly spread over [0, 1) and uncorrelated with the
+            // direction strata.
+            Estimator::LaineKarras => {
+                let u = (k.wrapping_mul(GOLDEN).wrapping_add(self.shift) >> 8) as f32
+                    / (1u32 << 24) as f32;
+                u * p.radius
+            }
+        };
+        (Vec3A::from(dir), len)
+    }
+
+    /// Ray `k`'s score against `tracer`: `min(t, R) / R` for a
+    /// closest-hit ray, 1 or 0 for a Laine-Karras one (misses or not).
+    pub fn score(&self, tracer: &AoTracer, k: u32) -> f32 {
+        let (dir, len) = self.ray(k);
+        let p = &self.p;
+        match p.estimator {
+            Estimator::ClosestHit => {
+                let t = match tracer
+                    .top
+                    .closest(&tracer.layers, self.origin, dir, p.radius)
+                {
+                    Some(lead) => p.radius.min(lead - RAY_LEAD),
+                    None => p.radius,
+                };
+                t / p.radius
+            }
+            Estimator::LaineKarras => {
+                if tracer.top.misses(&tracer.layers, self.origin, dir, len) {
+                    1.0
+                } else {
+                    0.0
                 }
             }
         }
-        sums.iter().fold(0.0, |total, &s| total + s) / p.rays as f32
     }
 }
 

@@ -28,7 +28,7 @@ use crate::model::mesh::transformed_bounds;
 /// the binary BVH's by 0.044 RMSE (`tests/stability.rs`). Starting rays
 /// this far back, with `tmin` at the true origin, puts every box they can
 /// hit beyond that clamp and still counts hits from the origin on.
-pub(super) const RAY_LEAD: f32 = 2e-4;
+pub(crate) const RAY_LEAD: f32 = 2e-4;
 
 /// The alpha mask of one triangle: the mask and the triangle's vertex
 /// indices in the mesh the mask belongs to.

@@ -1,0 +1,175 @@
+//! The ray budget of a step: which of the points that need tracing are
+//! traced now, and which wait for a later step.
+//!
+//! Points are taken in order of priority until the budget is spent:
+//! first every point that has waited [`PipelineConfig::max_wait`]
+//! steps (so none starves, and none lags a full re-trace by more than that
+//! many steps), then by the share of their rays motion reached (a moving
+//! instance's points and those right beside what moves first: the most
+//! their AO can change), then the longest waiting, then in point order. A
+//! point that does not fit is passed over for smaller ones.
+//!
+//! [`PipelineConfig::max_wait`]: super::config::PipelineConfig::max_wait
+
+use rustc_hash::FxHashMap;
+
+/// How many rays one step may trace.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum RayBudget {
+    /// No limit: every point that motion reached is traced in its step
+    /// (the baseline).
+    Unlimited,
+    /// At most this many rays per step (points that waited
+    /// `max_wait` steps are traced beyond it).
+    Rays(u64),
+    /// The rays that `share` of the step's period affords at the cost of
+    /// a ray measured over the last steps (from setup's trace at first),
+    /// less the time the step's other phases took.
+    Auto {
+        /// The share of the period, in (0, 1].
+        share: f32,
+    },
+}
+
+/// One point that needs tracing this step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Candidate {
+    /// Rays to trace.
+    pub cost: u32,
+    /// Share of its rays that motion reached (1 for a full trace).
+    pub reached: f32,
+    /// Steps it has waited.
+    pub age: u32,
+}
+
+/// Which candidates are traced this step under `budget` rays (`None`: all
+/// of them), in the order of the module's rules; `chosen[i]` for
+/// candidate `i`. Returns the choices and the rays they cost.
+pub fn select(cands: &[Candidate], budget: Option<u64>, max_wait: u32) -> (Vec<bool>, u64) {
+    let Some(budget) = budget else {
+        return (
+            vec![true; cands.len()],
+            cands.iter().map(|c| c.cost as u64).sum(),
+        );
+    };
+    let mut order: Vec<usize> = (0..cands.len()).collect();
+    order.sort_by(|&a, &b| {
+        let (x, y) = (&cands[a], &cands[b]);
+        (y.age >= max_wait)
+            .cmp(&(x.age >= max_wait))
+            .then(y.reached.total_cmp(&x.reached))
+            .then(y.age.cmp(&x.age))
+            .then(a.cmp(&b))
+    });
+    let mut chosen = vec![false; cands.len()];
+    let mut spent = 0u64;
+    for i in order {
+        let c = &cands[i];
+        if c.age >= max_wait || spent + c.cost as u64 <= budget {
+            chosen[i] = true;
+            spent += c.cost as u64;
+        }
+    }
+    (chosen, spent)
+}
+
+/// The points waiting for a later step, by (instance, point) key: the
+/// steps each has waited, and whether it needs a full trace (it has no
+/// kept scores; else its reached rays are marked stale in the cache).
+#[derive(Clone, Debug, Default)]
+pub struct Waiting {
+    points: FxHashMap<u64, (u32, bool)>,
+}
+
+impl Waiting {
+    /// A waiting point's age and whether it needs a full trace.
+    pub fn get(&self, key: u64) -> Option<(u32, bool)> {
+        self.points.get(&key).copied()
+    }
+
+    /// Keeps `key` waiting one step more (`full`: it needs a full trace,
+    /// which stays so once set).
+    pub fn wait(&mut self, key: u64, full: bool) {
+        let e = self.points.entry(key).or_insert((0, false));
+        e.0 += 1;
+        e.1 |= full;
+    }
+
+    /// Takes `key` off the list (it was traced).
+    pub fn done(&mut self, key: u64) {
+        self.points.remove(&key);
+    }
+
+    /// The waiting keys, ascending.
+    pub fn keys(&self) -> Vec<u64> {
+        let mut k: Vec<u64> = self.points.keys().copied().collect();
+        k.sort_unstable();
+        k
+    }
+
+    /// Points waiting.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// The longest wait, in steps.
+    pub fn oldest(&self) -> u32 {
+        self.points.values().map(|v| v.0).max().unwrap_or(0)
+    }
+
+    /// Bytes held (capacity).
+    pub fn memory_bytes(&self) -> u64 {
+        self.points.capacity() as u64 * 24
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn c(cost: u32, reached: f32, age: u32) -> Candidate {
+        Candidate { cost, reached, age }
+    }
+
+    #[test]
+    fn unlimited_takes_everything() {
+        let (ch, spent) = select(&[c(32, 1.0, 0), c(4, 0.1, 0)], None, 8);
+        assert_eq!(ch, vec![true, true]);
+        assert_eq!(spent, 36);
+    }
+
+    #[test]
+    fn the_budget_goes_to_the_most_reached_and_the_oldest_first() {
+        let cands = [c(32, 1.0, 0), c(8, 0.25, 0), c(8, 0.25, 3), c(4, 0.5, 0)];
+        // 44 rays: the full trace, the half-reached, then the older of the
+        // two quarter-reached ones.
+        let (ch, spent) = select(&cands, Some(44), 8);
+        assert_eq!(ch, vec![true, false, true, true]);
+        assert_eq!(spent, 44);
+        // Too little for the full trace: smaller ones still go.
+        let (ch, _) = select(&cands, Some(20), 8);
+        assert_eq!(ch, vec![false, true, true, true]);
+    }
+
+    #[test]
+    fn nothing_waits_past_max_wait() {
+        let cands = [c(32, 1.0, 0), c(8, 0.25, 8)];
+        let (ch, spent) = select(&cands, Some(0), 8);
+        assert_eq!(ch, vec![false, true], "the old one goes over the budget");
+        assert_eq!(spent, 8);
+    }
+
+    #[test]
+    fn waiting_points_age_and_keep_needing_a_full_trace() {
+        let mut w = Waiting::default();
+        w.wait(5, true);
+        w.wait(5, false);
+        w.wait(2, false);
+        assert_eq!(w.get(5), Some((2, true)));
+        assert_eq!(w.keys(), vec![2, 5]);
+        assert_eq!(w.oldest(), 2);
+        w.done(5);
+        assert_eq!(w.len(), 1);
+        assert_eq!(w.get(5), None);
+    }
+}

@@ -1,0 +1,226 @@
+//! Which rays of a static point a step's motion can reach: a ray whose
+//! segment enters none of the boxes the moving instances occupied before
+//! and after the step hits what it hit before, so its score is unchanged,
+//! bit for bit (the same ray against the same static triangles). A point
+//! none of whose rays can be reached keeps its AO without a trace; one
+//! with some re-traces only those when its other rays' scores are kept
+//! ([`super::ray_cache`]).
+
+use glam::{Vec3, Vec3A};
+
+use crate::trace::ao::{Estimator, PointRays};
+use crate::trace::geometry::RAY_LEAD;
+
+/// A set of rays of one point, one bit per ray.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct RayMask {
+    rays: u32,
+    words: Vec<u64>,
+}
+
+impl RayMask {
+    /// No ray of `rays`.
+    pub fn none(rays: u32) -> RayMask {
+        RayMask {
+            rays,
+            words: vec![0; (rays as usize).div_ceil(64)],
+        }
+    }
+
+    /// Every ray of `rays`.
+    pub fn all(rays: u32) -> RayMask {
+        let mut m = RayMask::none(rays);
+        for k in 0..rays {
+            m.set(k);
+        }
+        m
+    }
+
+    /// Adds ray `k` (of those the mask was made for; others are ignored).
+    pub fn set(&mut self, k: u32) {
+        if k >= self.rays {
+            return;
+        }
+        if let Some(w) = self.words.get_mut(k as usize / 64) {
+            *w |= 1 << (k % 64);
+        }
+    }
+
+    /// Whether ray `k` is in the set.
+    pub fn has(&self, k: u32) -> bool {
+        self.words
+            .get(k as usize / 64)
+            .is_some_and(|w| w & (1 << (k % 64)) != 0)
+    }
+
+    /// Adds every ray of `other`.
+    pub fn union(&mut self, other: &RayMask) {
+        if self.words.len() < other.words.len() {
+            self.words.resize(other.words.len(), 0);
+            self.rays = other.rays;
+        }
+        for (a, b) in self.words.iter_mut().zip(&other.words) {
+            *a |= b;
+        }
+    }
+
+    /// Rays in the set.
+    pub fn count(&self) -> u32 {
+        self.words.iter().map(|w| w.count_ones()).sum()
+    }
+
+    /// Whether the set is empty.
+    pub fn is_empty(&self) -> bool {
+        self.words.iter().all(|&w| w == 0)
+    }
+}
+
+/// The world boxes a step's motion occupied: per moving or deforming
+/// instance, its bounds before and after the step together, padded
+/// against rounding in the ray-box test.
+#[derive(Clone, Debug, Default)]
+pub struct MotionBoxes {
+    boxes: Vec<(Vec3A, Vec3A)>,
+}
+
+impl MotionBoxes {
+    /// The boxes, each padded by `pad` plus a part that grows with its
+    /// coordinates (so that rounding in the slab test never misses a
+    /// triangle the tracer would hit).
+    pub fn new(boxes: impl IntoIterator<Item = (Vec3, Vec3)>, pad: f32) -> MotionBoxes {
+        MotionBoxes {
+            boxes: boxes
+                .into_iter()
+                .map(|(lo, hi)| {
+                    let far = lo.abs().max(hi.abs()).max_element();
+                    let p = Vec3::splat(pad + far * (1.0 / (1u32 << 18) as f32));
+                    (Vec3A::from(lo - p), Vec3A::from(hi + p))
+                })
+                .collect(),
+        }
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.boxes.is_empty()
+    }
+
+    /// The distance along the ray from `origin` in unit direction `dir`
+    /// at which it first enters any box, if it does before `len`.
+    fn entry(&self, origin: Vec3A, dir: Vec3A, len: f32) -> Option<f32> {
+        let (o, d) = (origin.to_array(), dir.to_array());
+        let mut best: Option<f32> = None;
+        'boxes: for &(lo, hi) in &self.boxes {
+            let (lo, hi) = (lo.to_array(), hi.to_array());
+            let (mut near, mut far) = (0.0f32, len);
+            for a in 0..3 {
+                if d[a] == 0.0 {
+                    // Parallel to this slab: inside it or never.
+                    if o[a] < lo[a] || o[a] > hi[a] {
+                        continue 'boxes;
+                    }
+                    continue;
+                }
+                let (t1, t2) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
+                near = near.max(t1.min(t2));
+                far = far.min(t1.max(t2));
+            }
+            if near <= far && best.is_none_or(|t| near < t) {
+                best = Some(near);
+            }
+        }
+        best
+    }
+}
+
+/// The rays of a point (`rays`, its `count` rays) that `motion` can
+/// reach. With `scores` (the rays' scores of the last trace, closest-hit
+/// estimator), a ray that enters the boxes only beyond what it hit then
+/// is not reached either: the hit is static and still nearer. Without
+/// them, a ray is reached if its whole length enters a box.
+pub fn reached_rays(
+    rays: &PointRays,
+    count: u32,
+    motion: &MotionBoxes,
+    estimator: Estimator,
+    radius: f32,
+    scores: Option<&[f32]>,
+) -> RayMask {
+    let mut mask = RayMask::none(count);
+    if motion.is_empty() {
+        return mask;
+    }
+    for k in 0..count {
+        let (dir, len) = rays.ray(k);
+        let Some(t_in) = motion.entry(rays.origin(), dir, len) else {
+            continue;
+        };
+        let hit_before = match (estimator, scores.and_then(|s| s.get(k as usize))) {
+            // The last trace hit at `score * R` (less the lead the tracer
+            // takes off): a box entered beyond it changes nothing.
+            (Estimator::ClosestHit, Some(&s)) if s < 1.0 => t_in > s * radius + 2.0 * RAY_LEAD,
+            _ => false,
+        };
+        if !hit_before {
+            mask.set(k);
+        }
+    }
+    mask
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::trace::ao::AoParams;
+
+    #[test]
+    fn masks_count_and_combine() {
+        let mut m = RayMask::none(70);
+        assert!(m.is_empty());
+        m.set(3);
+        m.set(69);
+        m.set(70); // past the end: ignored
+        assert_eq!(m.count(), 2);
+        assert!(m.has(69) && !m.has(4));
+        let mut all = RayMask::all(70);
+        assert_eq!(all.count(), 70);
+        all.union(&m);
+        assert_eq!(all.count(), 70);
+    }
+
+    #[test]
+    fn rays_reach_a_box_above_and_not_one_below() {
+        let p = AoParams {
+            rays: 64,
+            ..AoParams::default()
+        };
+        let rays = PointRays::new(7, Vec3::ZERO, Vec3::Y, &p).unwrap();
+        let above = MotionBoxes::new(
+            [(Vec3::new(-0.2, 0.1, -0.2), Vec3::new(0.2, 0.3, 0.2))],
+            0.0,
+        );
+        let below = MotionBoxes::new(
+            [(Vec3::new(-1.0, -0.5, -1.0), Vec3::new(1.0, -0.1, 1.0))],
+            0.0,
+        );
+        let far = MotionBoxes::new([(Vec3::splat(5.0), Vec3::splat(6.0))], 0.0);
+        let r = |m: &MotionBoxes| reached_rays(&rays, 64, m, Estimator::ClosestHit, 0.6, None);
+        let up = r(&above);
+        assert!(up.count() > 10 && up.count() < 64, "{}", up.count());
+        assert!(r(&below).is_empty(), "the hemisphere faces away");
+        assert!(r(&far).is_empty(), "beyond the radius");
+        // Each reached ray does enter the box; each other one does not.
+        for k in 0..64 {
+            let (d, len) = rays.ray(k);
+            let enters = above.entry(rays.origin(), d, len).is_some();
+            assert_eq!(enters, up.has(k), "ray {k}");
+        }
+        // A ray whose last hit was nearer than the box is not reached.
+        let scores = vec![0.1f32; 64]; // hits at 6 cm, the box at 10 cm and up
+        let kept = reached_rays(&rays, 64, &above, Estimator::ClosestHit, 0.6, Some(&scores));
+        assert!(kept.is_empty(), "{}", kept.count());
+        let open = vec![1.0f32; 64];
+        let again = reached_rays(&rays, 64, &above, Estimator::ClosestHit, 0.6, Some(&open));
+        assert_eq!(again, up);
+    }
+}

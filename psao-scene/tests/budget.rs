@@ -1,0 +1,160 @@
+//! The ray budget and ray reuse (issue 20): rays motion cannot reach are
+//! not cast again, frames stay byte-identical, and under a budget no point
+//! waits longer than `max_wait` steps.
+
+use glam::{Affine3A, Vec3};
+use psao_codec::PointWord;
+use psao_scene::*;
+
+fn config(estimator: Estimator) -> PipelineConfig {
+    PipelineConfig {
+        density: 32.0,
+        ao: AoParams {
+            rays: 24,
+            estimator,
+            ..AoParams::default()
+        },
+        ..PipelineConfig::default()
+    }
+}
+
+/// Every frame's bytes and report over `ticks` steps of 1/30 s.
+fn run(scene: &Scene, c: PipelineConfig, ticks: u32) -> (Vec<Vec<u8>>, Vec<FrameReport>) {
+    let mut p = Pipeline::new(scene.clone(), c).unwrap();
+    let (mut frames, mut reports) = (Vec::new(), Vec::new());
+    frames.push(p.keyframe().unwrap().bytes.to_vec());
+    for _ in 0..ticks {
+        let (f, r) = p.step(1.0 / 30.0).unwrap();
+        frames.push(f.map(|f| f.bytes.to_vec()).unwrap_or_default());
+        reports.push(r);
+    }
+    (frames, reports)
+}
+
+fn total(r: &[FrameReport], f: impl Fn(&FrameReport) -> u64) -> u64 {
+    r.iter().map(f).sum()
+}
+
+#[test]
+fn reused_rays_give_the_same_frames_byte_for_byte() {
+    for (scene, name) in [
+        (default_scene(), "default"),
+        (cesium_man_scene(), "cesium man"),
+    ] {
+        for est in [Estimator::ClosestHit, Estimator::LaineKarras] {
+            let (a, ra) = run(&scene, config(est), 24);
+            let (b, rb) = run(
+                &scene,
+                PipelineConfig {
+                    ray_reuse: false,
+                    ..config(est)
+                },
+                24,
+            );
+            assert!(a == b, "{name} {est:?}: ray reuse changed a frame");
+            let (rays_a, rays_b) = (total(&ra, |r| r.rays), total(&rb, |r| r.rays));
+            assert!(
+                rays_a * 10 < rays_b * 9,
+                "{name} {est:?}: {rays_a} rays against {rays_b}"
+            );
+            assert!(total(&ra, |r| r.unreached) > 0, "{name} {est:?}");
+            assert_eq!(total(&rb, |r| r.unreached + r.rays_kept), 0);
+            if est == Estimator::ClosestHit {
+                assert!(total(&ra, |r| r.rays_kept) > 0, "{name}: scores kept");
+            }
+            assert!(ra.iter().all(|r| r.waiting == 0 && r.budget.is_none()));
+        }
+    }
+}
+
+/// A floor, and a box on an animated node (so it can be placed); the
+/// test places it.
+fn sliding_box() -> (Scene, usize) {
+    let mut s = Scene::default();
+    s.add(
+        Mesh::quad(Vec3::new(-3.0, 0.0, -3.0), Vec3::Z * 6.0, Vec3::X * 6.0).subdivided(3),
+        Affine3A::IDENTITY,
+    );
+    let node = s.add_node("box", None, Trs::default());
+    let b = s.add_on_node(
+        Mesh::cuboid(Vec3::new(-0.3, 0.0, -0.3), Vec3::new(0.3, 0.6, 0.3)),
+        node,
+    );
+    let (from, to) = (Vec3::new(-1.5, 0.0, 0.0), Vec3::new(1.5, 0.0, 0.0));
+    s.animations.push(Animation::translation(
+        "slide",
+        node,
+        &[(0.0, from), (2.0 / 3.0, to)],
+    ));
+    (s, b)
+}
+
+/// What clients hold of every point of instance `i`, against a full
+/// trace of the scene now: the largest AO difference.
+fn worst_held_error(p: &mut Pipeline, i: usize, base: u32, ao: &AoParams) -> f32 {
+    let tracer = p.current_tracer();
+    let (pos, nrm) = p.current_points(i).unwrap();
+    let m = p.transform(i).unwrap();
+    let world: Vec<Vec3> = pos.iter().map(|&q| m.transform_point3(q)).collect();
+    let ids: Vec<u32> = (0..pos.len() as u32).map(|k| base + k).collect();
+    let fresh = tracer.trace_ids(&ids, &world, nrm, ao).unwrap();
+    let table = p.table(i).unwrap();
+    (0..pos.len())
+        .filter_map(|k| match table.placement(k as u32) {
+            psao_codec::Placement::Stored { cell, slot } => {
+                Some((PointWord(table.cell(cell)[slot as usize]).ao() - fresh.ao[k]).abs())
+            }
+            _ => None,
+        })
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn under_a_budget_no_point_waits_past_max_wait_and_all_catch_up() {
+    let (scene, b) = sliding_box();
+    let c = PipelineConfig {
+        budget: RayBudget::Rays(240),
+        max_wait: 3,
+        ..config(Estimator::ClosestHit)
+    };
+    let ao = c.ao;
+    let mut p = Pipeline::new(scene.clone(), c).unwrap();
+    let mut waited = false;
+    for t in 0..40 {
+        if t < 20 {
+            // 3 m in 20 steps, then it rests where it was put.
+            let x = -1.5 + 0.15 * t as f32;
+            p.place_instance(b, Affine3A::from_translation(Vec3::new(x, 0.0, 0.0)))
+                .unwrap();
+        }
+        let (_, r) = p.step(1.0 / 30.0).unwrap();
+        // Reported on every step that traces.
+        assert!(r.rays == 0 || r.budget == Some(240), "{:?}", r.budget);
+        assert!(r.oldest_wait <= 3, "step {t}: waited {}", r.oldest_wait);
+        waited |= r.waiting > 0;
+        if r.overdue == 0 {
+            // Only points forced by their wait go past the budget.
+            assert!(r.rays <= 240, "step {t}: {} rays", r.rays);
+        }
+    }
+    assert!(waited, "the budget made points wait");
+    let (_, r) = p.step(1.0 / 30.0).unwrap();
+    assert_eq!(r.waiting, 0, "every point caught up once the box rests");
+    // What clients hold of the floor is what a full trace gives, within
+    // the send threshold (8 steps of 1/255).
+    let err = worst_held_error(&mut p, 0, 0, &ao);
+    assert!(err <= 8.5 / 255.0, "floor AO off by {err}");
+}
+
+#[test]
+fn an_automatic_budget_is_measured_and_reported() {
+    let c = PipelineConfig {
+        budget: RayBudget::Auto { share: 0.5 },
+        ..config(Estimator::ClosestHit)
+    };
+    let mut p = Pipeline::new(default_scene(), c).unwrap();
+    for _ in 0..5 {
+        let (_, r) = p.step(1.0 / 60.0).unwrap();
+        assert!(r.budget.is_some_and(|b| b > 0), "{:?}", r.budget);
+    }
+}
