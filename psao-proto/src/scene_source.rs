@@ -36,6 +36,8 @@ impl FrameSource for Pipeline {
             traced: report.traced,
             updated: report.updated,
             culled: report.culled,
+            waiting: report.waiting,
+            oldest_wait: report.oldest_wait,
         };
         Ok((frame, report))
     }

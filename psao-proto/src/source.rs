@@ -49,6 +49,12 @@ pub struct StepReport {
     pub updated: u64,
     /// Points waiting out of every client's view.
     pub culled: u64,
+    /// Points waiting for a later step's ray budget, after the step (the
+    /// latest step's, when summed).
+    pub waiting: u64,
+    /// The longest any point has waited for the budget, in steps (the
+    /// largest, when summed).
+    pub oldest_wait: u32,
 }
 
 impl StepReport {
@@ -57,6 +63,8 @@ impl StepReport {
         self.traced += other.traced;
         self.updated += other.updated;
         self.culled += other.culled;
+        self.waiting = other.waiting;
+        self.oldest_wait = self.oldest_wait.max(other.oldest_wait);
     }
 }
 

@@ -8,6 +8,11 @@
 //!   skipping is measured against);
 //! - `--no-split`: rebuild one BVH over everything when something moves
 //!   (the baseline of the static/moving BVH split);
+//! - `--no-ray-reuse`: trace every point within reach of motion in full
+//!   (the baseline of re-tracing only the rays motion reaches);
+//! - `--ray-budget N` (rays per frame) or `--ray-budget auto` (as many as
+//!   80% of the frame period affords): points past it wait, at most
+//!   `--max-wait` frames (8);
 //! - `--cull`: trace only near the viewer following the scene's camera
 //!   path;
 //! - `--scene NAME`: stream an embedded scene other than the default:
@@ -75,6 +80,16 @@ fn main() {
         skip,
         split_bvh,
         cull: flag("--cull").then(ViewerCull::default),
+        ray_reuse: !flag("--no-ray-reuse"),
+        budget: match arg("--ray-budget", String::new()).as_str() {
+            "" => RayBudget::Unlimited,
+            "auto" => RayBudget::Auto { share: 0.8 },
+            n => RayBudget::Rays(n.parse().unwrap_or_else(|_| {
+                eprintln!("error: --ray-budget takes a number of rays or auto");
+                std::process::exit(2)
+            })),
+        },
+        max_wait: arg("--max-wait", 8),
         ao: AoParams {
             rays,
             estimator: if flag("--lk") {
@@ -194,6 +209,21 @@ fn main() {
         sum.rays as f64 / n,
         sum.rays as f64 / sum.t_trace.as_secs_f64().max(1e-9) / 1e6
     );
+    println!(
+        "  ray reuse          {:.0} points per frame within reach but no ray reached, {:.0} rays per frame kept from the last trace; {} points with kept scores",
+        sum.unreached as f64 / n,
+        sum.rays_kept as f64 / n,
+        server.kept_ray_points()
+    );
+    if let Some(b) = sum.budget {
+        println!(
+            "  ray budget         {:.0} rays per frame; {} points waiting at the end, the longest wait {} frames; {:.1} points per frame traced past the budget (overdue)",
+            b as f64 / n,
+            sum.waiting,
+            sum.oldest_wait,
+            sum.overdue as f64 / n
+        );
+    }
     println!(
         "  points sent        {:.0} per frame (past the thresholds; dropped points retry)",
         sum.updated as f64 / n

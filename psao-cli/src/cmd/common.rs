@@ -10,8 +10,8 @@ use anyhow::{Context as _, bail};
 use psao_proto::tls::parse_fingerprint;
 use psao_proto::{ServerStats, Trust};
 use psao_scene::{
-    CameraPath, DEFAULT_FOV_DEGREES, Pipeline, PipelineConfig, Scene, SetupProgress, SetupStage,
-    default_scene, load_scene_file,
+    CameraPath, DEFAULT_FOV_DEGREES, Pipeline, PipelineConfig, RayBudget, Scene, SetupProgress,
+    SetupStage, default_scene, load_scene_file,
 };
 
 /// Where the viewer looks from: a fixed camera, a camera-path file, or
@@ -158,6 +158,44 @@ pub fn seconds_of(s: f32) -> Duration {
     Duration::from_secs_f32(if s.is_nan() { 0.0 } else { s.clamp(0.0, 1e7) })
 }
 
+/// Parses a ray budget argument: `auto` (the rays 80% of a frame's period
+/// affords at the measured cost of a ray), `none` (no limit: the
+/// baseline) or a number of rays per frame.
+pub fn parse_ray_budget(s: &str) -> Result<RayBudget, String> {
+    match s {
+        "auto" => Ok(RayBudget::Auto { share: 0.8 }),
+        "none" => Ok(RayBudget::Unlimited),
+        n => n
+            .parse::<u64>()
+            .map(RayBudget::Rays)
+            .map_err(|_| format!("expected auto, none or a number of rays per frame, not {n:?}")),
+    }
+}
+
+/// The ray budget options of the commands that run a server.
+#[derive(clap::Args, Clone, Debug)]
+pub struct BudgetArgs {
+    /// Rays the server may trace per frame: `auto` (what 80% of the frame
+    /// period affords at the measured cost of a ray, so the server holds
+    /// its rate), `none` (every point motion reaches, in its frame: the
+    /// baseline) or a number of rays. Points past it wait for a later
+    /// frame, the most reached first.
+    #[arg(long, default_value = "auto", value_parser = parse_ray_budget)]
+    pub ray_budget: RayBudget,
+    /// Under a budget, the most frames a point waits before it is traced
+    /// whatever the budget.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub max_wait: u32,
+}
+
+impl BudgetArgs {
+    /// Sets the budget in `config`.
+    pub fn apply(&self, config: &mut PipelineConfig) {
+        config.budget = self.ray_budget;
+        config.max_wait = self.max_wait;
+    }
+}
+
 /// The pipeline settings of `--density`, `--rays` and `--radius`. Every
 /// command's `--density` counts points kept per square metre, the paper's
 /// N (as `psao bench --densities` does); the pipeline spawns twice as many
@@ -274,11 +312,13 @@ pub fn status(s: &ServerStats, prev: &ServerStats, dt: f64) -> String {
         format!("{:5.1}", s.frame_age * 1e3)
     };
     format!(
-        "{:5.1} fps | {:6.3} Mbit/s per client | traced {:5.0}/frame | sent {:4.0}/frame | step {:5.2} ms | frame age {age} ms | {} clients",
+        "{:5.1} fps | {:6.3} Mbit/s per client | traced {:5.0}/frame | sent {:4.0}/frame | waiting {:5} (worst {:2} frames) | step {:5.2} ms | frame age {age} ms | {} clients",
         (s.frames - prev.frames) as f64 / dt,
         (s.written_bytes - prev.written_bytes) as f64 * 8.0 / dt / 1e6 / clients,
         (s.report.traced - prev.report.traced) as f64 / frames,
         (s.report.updated - prev.report.updated) as f64 / frames,
+        s.report.waiting,
+        s.report.oldest_wait,
         (s.step_time - prev.step_time).as_secs_f64() * 1e3 / frames,
         s.clients,
     )

@@ -57,6 +57,8 @@ pub struct Args {
     /// The camera the images (and, with --cull, the viewers) follow.
     #[command(flatten)]
     camera: CameraArgs,
+    #[command(flatten)]
+    budget: super::common::BudgetArgs,
 }
 
 /// Runs the demo: streams, prints, writes images, checks the mirrors.
@@ -72,6 +74,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         out,
         cull,
         camera,
+        budget,
     } = args;
     if !(seconds > 0.0 && seconds <= 3600.0) {
         bail!("--seconds must be in (0, 3600]");
@@ -87,10 +90,11 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         frame_rate: rate,
         ..ServerConfig::default()
     };
-    let pipeline = PipelineConfig {
+    let mut pipeline = PipelineConfig {
         cull: cull.then(ViewerCull::default),
         ..pipeline_config(density, rays, radius)
     };
+    budget.apply(&mut pipeline);
     println!("psao demo: preparing the default scene (points, grids, first trace)...");
     let t = Instant::now();
     let pipeline = pipeline_with_progress(scene, pipeline)?;

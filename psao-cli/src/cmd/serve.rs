@@ -64,6 +64,8 @@ pub struct Args {
     /// do not offer chains in their HELLO.
     #[arg(long)]
     no_overflow: bool,
+    #[command(flatten)]
+    budget: super::common::BudgetArgs,
 }
 
 /// What the server holds for the scene, in a line: triangles, instances
@@ -122,6 +124,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         ..pipeline_config(args.density, args.rays, args.radius)
     };
     pipeline.layout.overflow = !args.no_overflow;
+    args.budget.apply(&mut pipeline);
     for w in super::common::scale_warnings(&scene, args.density, args.radius)? {
         eprintln!("warning: {w}");
     }

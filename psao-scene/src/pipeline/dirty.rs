@@ -139,6 +139,7 @@ impl Pipeline {
             l.sort_unstable();
             l.dedup();
         }
+        let started = std::time::Instant::now();
         let batch = self.batch(&lists, false);
         let plans = self.plan(&batch, motion);
         let rays = self.config.ao.rays;
@@ -146,7 +147,11 @@ impl Pipeline {
             RayBudget::Unlimited => None,
             RayBudget::Rays(n) => Some(n),
             RayBudget::Auto { share } => {
-                let left = share as f64 * motion.period - motion.elapsed.as_secs_f64();
+                // What is left of the share once the step so far and the
+                // planning are paid for.
+                let left = share as f64 * motion.period
+                    - motion.elapsed.as_secs_f64()
+                    - started.elapsed().as_secs_f64();
                 Some(if self.ray_ns > 0.0 {
                     (left.max(0.0) * 1e9 / self.ray_ns) as u64
                 } else {
@@ -205,6 +210,7 @@ impl Pipeline {
         }
         let sub = batch.select(&take);
         let sub_plans: Vec<&Plan> = take.iter().map(|&b| &plans[b]).collect();
+        let casting = std::time::Instant::now();
         let result = if self.backend.is_some() {
             self.trace_batch(tracer, &sub, false)?
         } else {
@@ -213,6 +219,16 @@ impl Pipeline {
             self.trace_planned(tracer, &sub, &sub_plans)?
         };
         let (traced, rays_cast) = (sub.ids.len() as u64, result.rays);
+        if rays_cast >= 1024 {
+            // The cost of a ray, for an automatic budget: a running mean
+            // over the casting alone (planning is paid for apart).
+            let ns = casting.elapsed().as_nanos() as f64 / rays_cast as f64;
+            self.ray_ns = if self.ray_ns > 0.0 {
+                0.7 * self.ray_ns + 0.3 * ns
+            } else {
+                ns
+            };
+        }
         let planned: u64 = sub_plans
             .iter()
             .map(|p| match p {
@@ -251,6 +267,7 @@ impl Pipeline {
         let reuse = self.config.ray_reuse && self.config.skip;
         let cache = reuse && self.backend.is_none();
         let (waiting_list, ray_cache) = (&self.waiting, &self.ray_cache);
+        let unlimited = self.config.budget == RayBudget::Unlimited;
         (0..batch.ids.len())
             .into_par_iter()
             .map(|b| {
@@ -263,6 +280,12 @@ impl Pipeline {
                 }
                 let waiting = waiting_list.get(key);
                 let entry = if cache { ray_cache.get(key) } else { None };
+                if entry.is_none() && waiting.is_some() {
+                    // Waiting for a full trace: nothing to test.
+                    return Plan::Full {
+                        reached: RayMask::all(rays),
+                    };
+                }
                 let reached =
                     match PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao) {
                         Some(r) => reached_rays(
@@ -272,6 +295,10 @@ impl Pipeline {
                             ao.estimator,
                             ao.radius,
                             entry.map(|e| &e.scores[..]),
+                            // Traced in full anyway without kept scores:
+                            // the first reached ray decides, unless a
+                            // budget ranks by the share reached.
+                            entry.is_none() && unlimited,
                         ),
                         // Nothing to trace from: a full trace is cheap (open).
                         None => RayMask::all(rays),

@@ -105,10 +105,39 @@ impl MotionBoxes {
         self.boxes.is_empty()
     }
 
+    /// The boxes a hemisphere of rays can enter: those within `len` of
+    /// `origin` with a corner on the side `normal` faces. A point whose
+    /// hemisphere reaches none needs no ray tested (the reach of item 3 of
+    /// issue 20: not only the sphere around it).
+    pub fn in_hemisphere(&self, origin: Vec3A, normal: Vec3A, len: f32) -> MotionBoxes {
+        let boxes = self
+            .boxes
+            .iter()
+            .copied()
+            .filter(|&(lo, hi)| {
+                let nearest = origin.clamp(lo, hi);
+                if nearest.distance_squared(origin) > len * len {
+                    return false;
+                }
+                // A corner in front of the tangent plane (or on it).
+                let c = (0..8).map(|k| {
+                    Vec3A::new(
+                        if k & 1 == 0 { lo.x } else { hi.x },
+                        if k & 2 == 0 { lo.y } else { hi.y },
+                        if k & 4 == 0 { lo.z } else { hi.z },
+                    )
+                });
+                c.into_iter().any(|c| normal.dot(c - origin) >= 0.0)
+            })
+            .collect();
+        MotionBoxes { boxes }
+    }
+
     /// The distance along the ray from `origin` in unit direction `dir`
     /// at which it first enters any box, if it does before `len`.
     fn entry(&self, origin: Vec3A, dir: Vec3A, len: f32) -> Option<f32> {
         let (o, d) = (origin.to_array(), dir.to_array());
+        let inv = [1.0 / d[0], 1.0 / d[1], 1.0 / d[2]];
         let mut best: Option<f32> = None;
         'boxes: for &(lo, hi) in &self.boxes {
             let (lo, hi) = (lo.to_array(), hi.to_array());
@@ -121,7 +150,7 @@ impl MotionBoxes {
                     }
                     continue;
                 }
-                let (t1, t2) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
+                let (t1, t2) = ((lo[a] - o[a]) * inv[a], (hi[a] - o[a]) * inv[a]);
                 near = near.max(t1.min(t2));
                 far = far.min(t1.max(t2));
             }
@@ -137,7 +166,9 @@ impl MotionBoxes {
 /// reach. With `scores` (the rays' scores of the last trace, closest-hit
 /// estimator), a ray that enters the boxes only beyond what it hit then
 /// is not reached either: the hit is static and still nearer. Without
-/// them, a ray is reached if its whole length enters a box.
+/// them, a ray is reached if its whole length enters a box. With
+/// `first_only`, the search stops at the first reached ray (all that
+/// matters when every ray is traced anyway).
 pub fn reached_rays(
     rays: &PointRays,
     count: u32,
@@ -145,8 +176,15 @@ pub fn reached_rays(
     estimator: Estimator,
     radius: f32,
     scores: Option<&[f32]>,
+    first_only: bool,
 ) -> RayMask {
     let mut mask = RayMask::none(count);
+    if motion.is_empty() {
+        return mask;
+    }
+    // Only the boxes its hemisphere can reach (closest-hit rays and
+    // Laine-Karras ones are no longer than the radius).
+    let motion = &motion.in_hemisphere(rays.origin(), rays.normal(), radius);
     if motion.is_empty() {
         return mask;
     }
@@ -163,6 +201,9 @@ pub fn reached_rays(
         };
         if !hit_before {
             mask.set(k);
+            if first_only {
+                break;
+            }
         }
     }
     mask
@@ -204,7 +245,8 @@ mod tests {
             0.0,
         );
         let far = MotionBoxes::new([(Vec3::splat(5.0), Vec3::splat(6.0))], 0.0);
-        let r = |m: &MotionBoxes| reached_rays(&rays, 64, m, Estimator::ClosestHit, 0.6, None);
+        let r =
+            |m: &MotionBoxes| reached_rays(&rays, 64, m, Estimator::ClosestHit, 0.6, None, false);
         let up = r(&above);
         assert!(up.count() > 10 && up.count() < 64, "{}", up.count());
         assert!(r(&below).is_empty(), "the hemisphere faces away");
@@ -217,10 +259,34 @@ mod tests {
         }
         // A ray whose last hit was nearer than the box is not reached.
         let scores = vec![0.1f32; 64]; // hits at 6 cm, the box at 10 cm and up
-        let kept = reached_rays(&rays, 64, &above, Estimator::ClosestHit, 0.6, Some(&scores));
+        let kept = reached_rays(
+            &rays,
+            64,
+            &above,
+            Estimator::ClosestHit,
+            0.6,
+            Some(&scores),
+            false,
+        );
         assert!(kept.is_empty(), "{}", kept.count());
         let open = vec![1.0f32; 64];
-        let again = reached_rays(&rays, 64, &above, Estimator::ClosestHit, 0.6, Some(&open));
+        let again = reached_rays(
+            &rays,
+            64,
+            &above,
+            Estimator::ClosestHit,
+            0.6,
+            Some(&open),
+            false,
+        );
         assert_eq!(again, up);
+        // The first reached ray only.
+        let first = reached_rays(&rays, 64, &above, Estimator::ClosestHit, 0.6, None, true);
+        assert_eq!(first.count(), 1);
+        assert!((0..64).find(|&k| up.has(k)).is_some_and(|k| first.has(k)));
+        // A box behind the tangent plane, within the radius: not in the
+        // hemisphere.
+        assert!(below.in_hemisphere(rays.origin(), Vec3A::Y, 0.6).is_empty());
+        assert!(!above.in_hemisphere(rays.origin(), Vec3A::Y, 0.6).is_empty());
     }
 }

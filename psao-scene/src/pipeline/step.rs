@@ -100,15 +100,7 @@ impl Pipeline {
         report.waiting = self.waiting.len() as u64;
         report.oldest_wait = self.waiting.oldest();
         report.t_trace = t3.elapsed();
-        if report.rays >= 1024 {
-            // The cost of a ray, for an automatic budget: a running mean.
-            let ns = report.t_trace.as_nanos() as f64 / report.rays as f64;
-            self.ray_ns = if self.ray_ns > 0.0 {
-                0.7 * self.ray_ns + 0.3 * ns
-            } else {
-                ns
-            };
-        }
+
         let t4 = Instant::now();
         let frame = self.encode(&motion.moved, &mut report)?;
         report.t_encode = t4.elapsed();

@@ -340,6 +340,11 @@ impl PointRays {
         self.origin
     }
 
+    /// The unit normal the rays' hemisphere is about.
+    pub fn normal(&self) -> Vec3A {
+        Vec3A::from(self.n)
+    }
+
     /// Ray `k`'s unit direction and the length it is traced to (the
     /// radius for closest-hit rays, `u R` for Laine-Karras ones).
     pub fn ray(&self, k: u32) -> (Vec3A, f32) {
