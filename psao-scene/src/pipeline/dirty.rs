@@ -294,7 +294,7 @@ impl Pipeline {
                             &motion.boxes,
                             ao.estimator,
                             ao.radius,
-                            entry.map(|e| &e.scores[..]),
+                            entry.map(|e| (&e.scores[..], &e.rays[..])),
                             // Traced in full anyway without kept scores:
                             // the first reached ray decides, unless a
                             // budget ranks by the share reached.
@@ -350,7 +350,7 @@ impl Pipeline {
                 let cast = match kept {
                     Some((e, need)) => {
                         scores.copy_from_slice(&e.scores);
-                        tracer.trace_point_rays(id, p, n, &ao, &mut scores, |r| need.has(r))
+                        tracer.trace_kept_rays(id, p, n, &ao, &e.rays, &mut scores, |r| need.has(r))
                     }
                     // A full trace (or, were its scores gone, a partial one).
                     None => tracer.trace_point_rays(id, p, n, &ao, &mut scores, |_| true),
@@ -371,7 +371,17 @@ impl Pipeline {
             // Static points keep their scores for the next reach.
             if keep && !self.instances[i].dynamic {
                 if let Some(s) = scores.take() {
-                    self.ray_cache.store(key(i, k), &s);
+                    let (id, p, n) = (batch.ids[*b], batch.points[*b], batch.normals[*b]);
+                    self.ray_cache.store(key(i, k), &s, || {
+                        PointRays::new(id, p, n, &ao).map_or_else(Vec::new, |r| {
+                            (0..ao.rays)
+                                .map(|j| {
+                                    let (d, len) = r.ray(j);
+                                    Vec3::from(d).extend(len)
+                                })
+                                .collect()
+                        })
+                    });
                 }
             }
         }

@@ -10,6 +10,7 @@
 //! wait (the ray budget) keeps its scores and remembers which rays motion
 //! reached meanwhile (`stale`); a point put aside by culling loses them.
 
+use glam::Vec4;
 use rustc_hash::FxHashMap;
 
 use super::reach::RayMask;
@@ -22,6 +23,11 @@ pub struct Entry {
     pub scores: Box<[f32]>,
     /// Rays motion reached since they were traced.
     pub stale: RayMask,
+    /// Each ray's unit direction and length (`w`), as
+    /// [`PointRays::ray`](crate::trace::ao::PointRays::ray) gives them: a
+    /// static point's rays never change, and the reach test reads them
+    /// here instead of drawing them again.
+    pub rays: Box<[Vec4]>,
 }
 
 /// The kept scores of points, by (instance, point).
@@ -34,7 +40,7 @@ pub struct RayCache {
 
 /// Bytes one entry of `rays` rays takes, with the map's share.
 fn entry_bytes(rays: u32) -> u64 {
-    rays as u64 * 4 + (rays as u64).div_ceil(64) * 8 + 64
+    rays as u64 * 20 + (rays as u64).div_ceil(64) * 8 + 64
 }
 
 /// The key of point `k` of instance `i`.
@@ -57,15 +63,25 @@ impl RayCache {
         self.entries.get(&key)
     }
 
-    /// Stores a point's fresh scores (its stale rays cleared). A new point
+    /// Whether a new point would be stored (the cache is not full).
+    pub fn has_room(&self) -> bool {
+        self.entries.len() < self.max_entries
+    }
+
+    /// Stores a point's fresh scores (its stale rays cleared), with its
+    /// rays (`rays()` is called only for a point not held yet). A new point
     /// is not stored once the cache is full; returns whether it is held.
-    pub fn store(&mut self, key: u64, scores: &[f32]) -> bool {
+    pub fn store(&mut self, key: u64, scores: &[f32], rays: impl FnOnce() -> Vec<Vec4>) -> bool {
         if let Some(e) = self.entries.get_mut(&key) {
             e.scores.copy_from_slice(scores);
             e.stale = RayMask::none(self.rays);
             return true;
         }
-        if self.entries.len() >= self.max_entries || scores.len() != self.rays as usize {
+        if !self.has_room() || scores.len() != self.rays as usize {
+            return false;
+        }
+        let rays = rays();
+        if rays.len() != scores.len() {
             return false;
         }
         self.entries.insert(
@@ -73,6 +89,7 @@ impl RayCache {
             Entry {
                 scores: scores.into(),
                 stale: RayMask::none(self.rays),
+                rays: rays.into(),
             },
         );
         true
@@ -113,20 +130,29 @@ mod tests {
     #[test]
     fn stores_up_to_the_cap_and_tracks_stale_rays() {
         let mut c = RayCache::new(4, entry_bytes(4) * 2);
-        assert!(c.store(key(0, 1), &[1.0; 4]));
-        assert!(c.store(key(1, 1), &[0.5; 4]));
-        assert!(!c.store(key(2, 1), &[0.5; 4]), "full");
-        assert!(c.store(key(0, 1), &[0.25; 4]), "an update fits");
+        assert!(c.store(key(0, 1), &[1.0; 4], || vec![Vec4::ONE; 4]));
+        assert!(c.store(key(1, 1), &[0.5; 4], || vec![Vec4::ONE; 4]));
+        assert!(
+            !c.store(key(2, 1), &[0.5; 4], || vec![Vec4::ONE; 4]),
+            "full"
+        );
+        assert!(
+            c.store(key(0, 1), &[0.25; 4], || vec![Vec4::ONE; 4]),
+            "an update fits"
+        );
         assert_eq!(c.get(key(0, 1)).unwrap().scores[..], [0.25; 4]);
         let mut m = RayMask::none(4);
         m.set(2);
         assert!(c.mark_stale(key(1, 1), &m));
         assert!(!c.mark_stale(key(2, 1), &m));
         assert!(c.get(key(1, 1)).unwrap().stale.has(2));
-        c.store(key(1, 1), &[0.5; 4]);
+        c.store(key(1, 1), &[0.5; 4], || vec![Vec4::ONE; 4]);
         assert!(c.get(key(1, 1)).unwrap().stale.is_empty(), "traced again");
         c.forget(key(1, 1));
         assert_eq!(c.len(), 1);
-        assert!(!c.store(key(0, 2), &[0.5; 3]), "wrong ray count");
+        assert!(
+            !c.store(key(0, 2), &[0.5; 3], || vec![Vec4::ONE; 3]),
+            "wrong ray count"
+        );
     }
 }

@@ -6,7 +6,7 @@
 //! with some re-traces only those when its other rays' scores are kept
 //! ([`super::ray_cache`]).
 
-use glam::{Vec3, Vec3A};
+use glam::{Vec3, Vec3A, Vec4};
 
 use crate::trace::ao::{Estimator, PointRays};
 use crate::trace::geometry::RAY_LEAD;
@@ -168,16 +168,22 @@ impl MotionBoxes {
 /// is not reached either: the hit is static and still nearer. Without
 /// them, a ray is reached if its whole length enters a box. With
 /// `first_only`, the search stops at the first reached ray (all that
-/// matters when every ray is traced anyway).
+/// matters when every ray is traced anyway). `kept` are the rays'
+/// directions and lengths when they are kept (else they are drawn from
+/// `rays`), and `scores` their scores of the last trace.
 pub fn reached_rays(
     rays: &PointRays,
     count: u32,
     motion: &MotionBoxes,
     estimator: Estimator,
     radius: f32,
-    scores: Option<&[f32]>,
+    kept: Option<(&[f32], &[Vec4])>,
     first_only: bool,
 ) -> RayMask {
+    let (scores, dirs) = match kept {
+        Some((s, d)) => (Some(s), Some(d)),
+        None => (None, None),
+    };
     let mut mask = RayMask::none(count);
     if motion.is_empty() {
         return mask;
@@ -189,7 +195,10 @@ pub fn reached_rays(
         return mask;
     }
     for k in 0..count {
-        let (dir, len) = rays.ray(k);
+        let (dir, len) = match dirs.and_then(|d| d.get(k as usize)) {
+            Some(d) => (Vec3A::from(d.truncate()), d.w),
+            None => rays.ray(k),
+        };
         let Some(t_in) = motion.entry(rays.origin(), dir, len) else {
             continue;
         };
@@ -258,6 +267,12 @@ mod tests {
             assert_eq!(enters, up.has(k), "ray {k}");
         }
         // A ray whose last hit was nearer than the box is not reached.
+        let dirs: Vec<Vec4> = (0..64)
+            .map(|k| {
+                let (d, len) = rays.ray(k);
+                Vec3::from(d).extend(len)
+            })
+            .collect();
         let scores = vec![0.1f32; 64]; // hits at 6 cm, the box at 10 cm and up
         let kept = reached_rays(
             &rays,
@@ -265,7 +280,7 @@ mod tests {
             &above,
             Estimator::ClosestHit,
             0.6,
-            Some(&scores),
+            Some((&scores, &dirs)),
             false,
         );
         assert!(kept.is_empty(), "{}", kept.count());
@@ -276,7 +291,7 @@ mod tests {
             &above,
             Estimator::ClosestHit,
             0.6,
-            Some(&open),
+            Some((&open, &dirs)),
             false,
         );
         assert_eq!(again, up);

@@ -251,6 +251,33 @@ impl AoTracer {
         sums.iter().fold(0.0, |total, &s| total + s) / p.rays as f32
     }
 
+    /// As [`trace_point_rays`](Self::trace_point_rays) for rays whose
+    /// directions and lengths (`w`) are kept in `rays` (as
+    /// [`PointRays::ray`] gives them), traced where `trace(k)`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn trace_kept_rays(
+        &self,
+        id: u32,
+        point: Vec3,
+        normal: Vec3,
+        p: &AoParams,
+        rays: &[glam::Vec4],
+        scores: &mut [f32],
+        trace: impl Fn(u32) -> bool,
+    ) -> u64 {
+        let from = PointRays::new(id, point, normal, p).filter(|_| !self.top.is_empty());
+        let mut traced = 0;
+        for ((k, s), r) in (0..p.rays).zip(scores.iter_mut()).zip(rays) {
+            if trace(k) {
+                *s = from
+                    .as_ref()
+                    .map_or(1.0, |f| f.score_along(self, Vec3A::from(r.truncate()), r.w));
+                traced += 1;
+            }
+        }
+        traced
+    }
+
     /// Each ray's score at one point (`scores[k]` for ray `k`, the terms
     /// [`ao_of_scores`] adds up to the point's AO), traced only for the
     /// rays `k` with `trace(k)`; the others are left as they are. Returns
@@ -373,6 +400,12 @@ impl PointRays {
     /// closest-hit ray, 1 or 0 for a Laine-Karras one (misses or not).
     pub fn score(&self, tracer: &AoTracer, k: u32) -> f32 {
         let (dir, len) = self.ray(k);
+        self.score_along(tracer, dir, len)
+    }
+
+    /// The score of the ray along `dir` traced to `len` (one of
+    /// [`ray`](Self::ray)'s, kept), as [`score`](Self::score).
+    pub fn score_along(&self, tracer: &AoTracer, dir: Vec3A, len: f32) -> f32 {
         let p = &self.p;
         match p.estimator {
             Estimator::ClosestHit => {
