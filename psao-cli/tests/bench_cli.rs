@@ -109,6 +109,71 @@ fn bench_writes_its_table_charts_and_images() {
 }
 
 #[test]
+fn a_ray_budget_adds_budgeted_rows_beside_the_others() {
+    let out = out_dir("budget");
+    let run = Command::new(env!("CARGO_BIN_EXE_psao"))
+        .args([
+            "bench",
+            "--scenes",
+            "cesium-man",
+            "--width",
+            "32",
+            "--height",
+            "20",
+            "--frames",
+            "2",
+            "--reference-rays",
+            "8",
+            "--point-rays",
+            "8",
+            "--densities",
+            "16",
+            "--rates",
+            "60",
+            "--ray-budget",
+            "64",
+            "--max-wait",
+            "3",
+            "--image-frames",
+            "0",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "psao bench failed: {stderr}");
+    let csv = std::fs::read_to_string(out.join("bench.csv")).unwrap();
+    let methods: Vec<&str> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(1).unwrap())
+        .collect();
+    assert_eq!(methods.iter().filter(|m| **m == "psao").count(), 1, "{csv}");
+    assert_eq!(
+        methods.iter().filter(|m| **m == "psao-budget").count(),
+        1,
+        "{csv}"
+    );
+    let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
+    assert!(md.contains("| PSAO-16 @60 Hz budget |"), "{md}");
+    // The verdict compares it with the unbudgeted server and states the
+    // longest wait, which the budget's max_wait bounds.
+    let verdict = md
+        .lines()
+        .find(|l| l.starts_with("- PSAO-16 @60 Hz budget: server"))
+        .unwrap_or_else(|| panic!("{md}"));
+    let waited: u32 = verdict
+        .rsplit("no point waited more than ")
+        .next()
+        .and_then(|t| t.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{verdict}"));
+    assert!(waited <= 3, "{verdict}");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
 fn bench_refuses_bad_settings() {
     for (args, says) in [
         (vec!["--frames", "0"], "--frames"),
@@ -121,6 +186,10 @@ fn bench_refuses_bad_settings() {
             "unsupported scene format",
         ),
         (vec!["--radius", "0"], "--radius 0"),
+        (
+            vec!["--ray-budget", "lots"],
+            "expected auto, none or a number",
+        ),
         (
             vec!["--frames", "2", "--image-frames", "0,2"],
             "--image-frames 2 is out of range",

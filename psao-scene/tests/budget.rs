@@ -152,9 +152,14 @@ fn an_automatic_budget_is_measured_and_reported() {
         budget: RayBudget::Auto { share: 0.5 },
         ..config(Estimator::ClosestHit)
     };
+    let max_wait = c.max_wait;
     let mut p = Pipeline::new(default_scene(), c).unwrap();
-    for _ in 0..5 {
+    for _ in 0..12 {
+        // How many rays it allows depends on this machine's speed (and
+        // may be none on a loaded one): it is reported, and it never
+        // holds a point back past max_wait.
         let (_, r) = p.step(1.0 / 60.0).unwrap();
-        assert!(r.budget.is_some_and(|b| b > 0), "{:?}", r.budget);
+        assert!(r.budget.is_some(), "{r:?}");
+        assert!(r.oldest_wait <= max_wait, "{r:?}");
     }
 }

@@ -44,7 +44,7 @@ pub fn write_charts(out: &Path, r: &SceneResult) -> anyhow::Result<()> {
             finite
                 .iter()
                 .copied()
-                .filter(|row| matches!(row.method, Method::Psao { rate, .. } if Some(rate) == first_rate(r)))
+                .filter(|row| matches!(row.method, Method::Psao { rate, budget: false, .. } if Some(rate) == first_rate(r)))
                 .collect(),
         ),
         (
@@ -53,7 +53,7 @@ pub fn write_charts(out: &Path, r: &SceneResult) -> anyhow::Result<()> {
             finite
                 .iter()
                 .copied()
-                .filter(|row| matches!(row.method, Method::Psao { rate, .. } if Some(rate) != first_rate(r)))
+                .filter(|row| matches!(row.method, Method::Psao { rate, budget: false, .. } if Some(rate) != first_rate(r)))
                 .collect(),
         ),
         (

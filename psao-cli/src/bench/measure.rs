@@ -34,7 +34,7 @@ use psao_eval::{
     NO_INSTANCE, PosedScene, SaoParams, View, psao_image, ray_traced_ao, rmse, sao, ssim,
 };
 use psao_scene::{
-    AoBackend, AoParams, Camera, Estimator, Pipeline, Scene, SetupProgress, SetupStage,
+    AoBackend, AoParams, Camera, Estimator, Pipeline, RayBudget, Scene, SetupProgress, SetupStage,
 };
 
 use super::Backend;
@@ -95,6 +95,14 @@ pub struct Settings {
     /// small meshes spawn a few points (else elimination's points alone:
     /// the baseline).
     pub fill_gaps: bool,
+    /// A ray budget for the servers of extra PSAO configurations, one per
+    /// density at the first rate ("PSAO-N @R Hz budget"), beside the
+    /// unbudgeted ones (`None`: none). With one, every PSAO server steps
+    /// tick by tick to each measured frame (a budget is per tick), not in
+    /// one step.
+    pub budget: Option<RayBudget>,
+    /// Under the budget, the most steps a point waits.
+    pub max_wait: u32,
     /// Which measured frames are saved as images.
     pub image_frames: ImageFrames,
 }
@@ -192,6 +200,8 @@ impl Settings {
             bind_space: true,
             overflow: true,
             fill_gaps: true,
+            budget: None,
+            max_wait: 8,
             image_frames: ImageFrames::List(vec![0]),
         }
     }
@@ -303,10 +313,25 @@ impl Settings {
         out
     }
 
+    /// The budgeted PSAO configurations, (density, rate): every density
+    /// at the first rate, when a budget is set.
+    pub fn budget_configs(&self) -> Vec<(f32, u16)> {
+        if self.budget.is_none() {
+            return Vec::new();
+        }
+        let mut densities = self.densities.clone();
+        densities.sort_by(f32::total_cmp);
+        densities.dedup();
+        densities.iter().map(|&d| (d, self.rates[0])).collect()
+    }
+
     /// Progress units per scene: the reference, each PSAO configuration,
     /// each RTAO configuration and SAO.
     pub fn units_per_scene(&self) -> u64 {
-        1 + self.psao_configs().len() as u64 + self.rtao_rays.len() as u64 + 1
+        1 + self.psao_configs().len() as u64
+            + self.budget_configs().len() as u64
+            + self.rtao_rays.len() as u64
+            + 1
     }
 }
 
@@ -400,6 +425,7 @@ impl Errors {
             unknown_px: 0,
             extra_ms: None,
             breakdown: self.breakdown(),
+            worst_wait: None,
         }
     }
 }
@@ -540,17 +566,24 @@ pub fn measure_scene(
 
     let focus = s.focus_density();
     let first_rate = s.rates[0];
-    for (density, rate) in s.psao_configs() {
-        let method = Method::Psao { density, rate };
+    let configs = s.psao_configs().into_iter().map(|c| (c, false));
+    for ((density, rate), budget) in
+        configs.chain(s.budget_configs().into_iter().map(|c| (c, true)))
+    {
+        let method = Method::Psao {
+            density,
+            rate,
+            budget,
+        };
         let label = method.label();
         bar.set_message(format!("{name}: {label}"));
         let say = |what: &str| bar.set_message(format!("{name}: {label}: {what}"));
-        let shown = density == focus && rate == first_rate;
+        let shown = density == focus && rate == first_rate && !budget;
         let (row, kept) = measure_psao(
             &scene,
             &frames,
             s,
-            (density, rate),
+            (density, rate, budget),
             if shown { &keep } else { &[] },
             &say,
         )
@@ -642,12 +675,16 @@ fn measure_psao(
     scene: &Scene,
     frames: &[Frame],
     s: &Settings,
-    (density, rate): (f32, u16),
+    (density, rate, budget): (f32, u16, bool),
     keep: &[usize],
     say: &(dyn Fn(&str) + Sync),
 ) -> anyhow::Result<(Row, Vec<KeptImage>)> {
     // `density` counts points kept, as every command's --density does.
     let mut config = crate::cmd::common::pipeline_config(density, s.point_rays, s.radius);
+    if budget {
+        config.budget = s.budget.unwrap_or(RayBudget::Unlimited);
+        config.max_wait = s.max_wait;
+    }
     config.fill_buried = s.fill_buried;
     config.bind_space = s.bind_space;
     config.layout.overflow = s.overflow;
@@ -671,6 +708,7 @@ fn measure_psao(
     let period = 1.0 / rate as f64;
     let (mut errors, mut ms, mut unknown) = (Errors::default(), 0.0, 0usize);
     let mut open = psao_eval::OpenReasons::default();
+    let mut worst_wait = 0u32;
     let mut kept = Vec::new();
     for (k, f) in frames.iter().enumerate() {
         say(&format!("frame {}/{}", k + 1, frames.len()));
@@ -687,9 +725,19 @@ fn measure_psao(
             );
         }
         if dt > 1e-6 {
-            let (frame, _) = pipeline.step(dt as f32)?;
-            if let Some(frame) = frame {
-                client.receive(&frame.bytes).context("frame")?;
+            // With a budget in the run, every server steps tick by tick (a
+            // budget is per tick); else in one step to the frame's tick.
+            let steps = if s.budget.is_some() {
+                ((dt / period).round() as u64).max(1)
+            } else {
+                1
+            };
+            for _ in 0..steps {
+                let (frame, r) = pipeline.step((dt / steps as f64) as f32)?;
+                worst_wait = worst_wait.max(r.oldest_wait);
+                if let Some(frame) = frame {
+                    client.receive(&frame.bytes).context("frame")?;
+                }
             }
         }
         let t = Instant::now();
@@ -722,7 +770,8 @@ fn measure_psao(
     let (mut bytes, mut server_s, mut decode_s) = (0usize, 0.0f64, 0.0f64);
     for _ in 0..ticks {
         let t = Instant::now();
-        let (frame, _) = pipeline.step(period as f32)?;
+        let (frame, r) = pipeline.step(period as f32)?;
+        worst_wait = worst_wait.max(r.oldest_wait);
         server_s += t.elapsed().as_secs_f64();
         if let Some(frame) = frame {
             bytes += frame.bytes.len();
@@ -736,7 +785,11 @@ fn measure_psao(
     // frames that arrive per client frame (rate / 60 of them).
     let decode_ms = decode_s * 1e3 / ticks as f64 * rate as f64 / CLIENT_HZ;
     let mut row = errors.row(
-        Method::Psao { density, rate },
+        Method::Psao {
+            density,
+            rate,
+            budget,
+        },
         ms / frames.len() as f64 + decode_ms,
     );
     row.extra_ms = Some(decode_ms);
@@ -752,6 +805,7 @@ fn measure_psao(
             .sum(),
     );
     row.unknown_px = unknown;
+    row.worst_wait = Some(worst_wait);
     let total = errors.sse.max(f64::MIN_POSITIVE);
     row.breakdown.open_causes = open
         .causes()

@@ -137,6 +137,14 @@ pub struct BenchArgs {
     /// and spawning a few points on meshes smaller than two points' area.
     #[arg(long)]
     no_gap_fill: bool,
+    /// Add, per density, a PSAO configuration whose server traces within
+    /// this ray budget (`auto`: what 80% of the period affords on this
+    /// machine; or a number of rays per tick), beside the unbudgeted ones.
+    #[arg(long, value_parser = crate::cmd::common::parse_ray_budget)]
+    ray_budget: Option<psao_scene::RayBudget>,
+    /// Under --ray-budget, the most ticks a point waits.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    max_wait: u32,
 }
 
 impl BenchArgs {
@@ -173,6 +181,8 @@ impl BenchArgs {
         settings.bind_space = !self.posed_deforming;
         settings.overflow = !self.no_overflow;
         settings.fill_gaps = !self.no_gap_fill;
+        settings.budget = self.ray_budget;
+        settings.max_wait = self.max_wait;
         settings
     }
 }

@@ -15,6 +15,9 @@ pub enum Method {
         density: f32,
         /// Server rate, Hz.
         rate: u16,
+        /// Whether the server traces within a ray budget
+        /// ([`Settings::budget`](super::measure::Settings::budget)).
+        budget: bool,
     },
     /// Per-pixel ray-traced AO with this many rays per pixel.
     Rtao {
@@ -29,7 +32,12 @@ impl Method {
     /// Short name as in the paper's tables.
     pub fn label(&self) -> String {
         match self {
-            Method::Psao { density, rate } => format!("PSAO-{density} @{rate} Hz"),
+            Method::Psao {
+                density,
+                rate,
+                budget: false,
+            } => format!("PSAO-{density} @{rate} Hz"),
+            Method::Psao { density, rate, .. } => format!("PSAO-{density} @{rate} Hz budget"),
             Method::Rtao { rays } => format!("RTAO-{rays}spp"),
             Method::Sao => "SAO".into(),
         }
@@ -73,6 +81,9 @@ pub struct Row {
     pub extra_ms: Option<f64>,
     /// Where the squared error lies.
     pub breakdown: Breakdown,
+    /// PSAO: the longest any point waited for the ray budget, in ticks,
+    /// over the measured frames and the server ticks.
+    pub worst_wait: Option<u32>,
 }
 
 /// Where a method's squared error lies, over all frames.

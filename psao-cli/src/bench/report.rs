@@ -39,9 +39,16 @@ pub fn csv_text(results: &[SceneResult]) -> String {
     for r in results {
         for row in &r.rows {
             let (kind, density, rate, rays) = match row.method {
-                Method::Psao { density, rate } => {
-                    ("psao", density.to_string(), rate.to_string(), String::new())
-                }
+                Method::Psao {
+                    density,
+                    rate,
+                    budget,
+                } => (
+                    if budget { "psao-budget" } else { "psao" },
+                    density.to_string(),
+                    rate.to_string(),
+                    String::new(),
+                ),
                 Method::Rtao { rays } => ("rtao", String::new(), String::new(), rays.to_string()),
                 Method::Sao => ("sao", String::new(), String::new(), String::new()),
             };
@@ -166,7 +173,9 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
     let sweep: Vec<&Row> = r
         .rows
         .iter()
-        .filter(|row| matches!(row.method, Method::Psao { rate: q, .. } if q == rate))
+        .filter(
+            |row| matches!(row.method, Method::Psao { rate: q, budget: false, .. } if q == rate),
+        )
         .collect();
     if sweep.len() >= 2 {
         let falls = sweep.windows(2).all(|w| w[1].rmse <= w[0].rmse);
@@ -193,6 +202,7 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
             == Method::Psao {
                 density: focus,
                 rate,
+                budget: false,
             }
     });
     let sao = r.rows.iter().find(|row| row.method == Method::Sao);
@@ -302,6 +312,38 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
             super::model::OPEN
         )
     };
+    for b in r
+        .rows
+        .iter()
+        .filter(|row| matches!(row.method, Method::Psao { budget: true, .. }))
+    {
+        let Method::Psao { density, rate, .. } = b.method else {
+            continue;
+        };
+        let plain = r.rows.iter().find(|row| {
+            row.method
+                == Method::Psao {
+                    density,
+                    rate,
+                    budget: false,
+                }
+        });
+        if let (Some(p), Some(bs), Some(ps)) = (plain, b.server_ms, plain.and_then(|p| p.server_ms))
+        {
+            out.push(format!(
+                "{}: server {bs:.1} against {ps:.1} ms per tick ({:.2}x; {}), {:.2} against {:.2} dB PSNR ({:+.2} dB), {:.3} against {:.3} Mbit/s; no point waited more than {} ticks.",
+                b.method.label(),
+                bs / ps,
+                if bs <= 1000.0 / rate as f64 { "keeps the rate" } else { "slower than the rate" },
+                b.psnr,
+                p.psnr,
+                b.psnr - p.psnr,
+                b.mbit_s.unwrap_or(0.0),
+                p.mbit_s.unwrap_or(0.0),
+                b.worst_wait.unwrap_or(0)
+            ));
+        }
+    }
     if let (Some(p), Some(q)) = (psao, sao) {
         out.push(format!(
             "Where the squared error lies: {}. {}.",
@@ -313,7 +355,11 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
         .rows
         .iter()
         .filter_map(|row| match row.method {
-            Method::Psao { density, rate: q } if density == focus && q != rate => Some(format!(
+            Method::Psao {
+                density,
+                rate: q,
+                budget: false,
+            } if density == focus && q != rate => Some(format!(
                 "{q} Hz: {:.2} dB, {:.2} Mbit/s",
                 row.psnr,
                 row.mbit_s.unwrap_or(0.0)
