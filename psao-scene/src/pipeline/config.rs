@@ -128,7 +128,11 @@ pub struct PipelineConfig {
     /// of 32 rays); beyond it, points are traced in full.
     pub ray_cache_bytes: u64,
     /// How many rays a step may trace ([`RayBudget::Unlimited`]: every
-    /// point motion reached, in its step).
+    /// point motion reached, in its step). A backend
+    /// ([`AoBackend`](crate::AoBackend), such as psao-gpu's) keeps no ray
+    /// scores, so each point it traces costs all its rays: under a budget
+    /// it may put off other points than the CPU tracer would, and its
+    /// frames then differ from the CPU's; unbudgeted, they are the same.
     pub budget: RayBudget,
     /// Under a budget, the most steps a point waits: one that waited this
     /// long is traced whatever the budget (8).
