@@ -6,8 +6,10 @@
 //! steps (so none starves, and none lags a full re-trace by more than that
 //! many steps), then by the share of their rays motion reached (a moving
 //! instance's points and those right beside what moves first: the most
-//! their AO can change), then the longest waiting, then in point order. A
-//! point that does not fit is passed over for smaller ones.
+//! their AO can change) times the steps they have waited plus one (so
+//! the budget goes round the points rather than to the same ones each
+//! step), then the longest waiting, then in point order. A point that does
+//! not fit is passed over for smaller ones.
 //!
 //! [`PipelineConfig::max_wait`]: super::config::PipelineConfig::max_wait
 
@@ -53,11 +55,16 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, max_wait: u32) -> (Vec<b
         );
     };
     let mut order: Vec<usize> = (0..cands.len()).collect();
+    // The share reached, weighed by the steps waited: what motion
+    // reached most goes first, and a point gains on the others with every
+    // step it waits, so the budget goes round instead of to the same
+    // points every step.
+    let weight = |c: &Candidate| c.reached.max(1e-3) * (c.age as f32 + 1.0);
     order.sort_by(|&a, &b| {
         let (x, y) = (&cands[a], &cands[b]);
         (y.age >= max_wait)
             .cmp(&(x.age >= max_wait))
-            .then(y.reached.total_cmp(&x.reached))
+            .then(weight(y).total_cmp(&weight(x)))
             .then(y.age.cmp(&x.age))
             .then(a.cmp(&b))
     });
@@ -149,6 +156,25 @@ mod tests {
         // Too little for the full trace: smaller ones still go.
         let (ch, _) = select(&cands, Some(20), 8);
         assert_eq!(ch, vec![false, true, true, true]);
+    }
+
+    #[test]
+    fn the_budget_goes_round_the_points() {
+        // Four alike points, a budget for two: each step the two that
+        // waited go first, so no point waits two steps in a row.
+        let mut ages = [0u32; 4];
+        for _ in 0..6 {
+            let cands: Vec<Candidate> = ages.iter().map(|&a| c(8, 1.0, a)).collect();
+            let (ch, _) = select(&cands, Some(16), 8);
+            assert_eq!(ch.iter().filter(|&&x| x).count(), 2);
+            for (a, go) in ages.iter_mut().zip(ch) {
+                *a = if go { 0 } else { *a + 1 };
+            }
+            assert!(ages.iter().all(|&a| a <= 1), "{ages:?}");
+        }
+        // A point half as reached, waiting twice as long, ranks with them.
+        let (ch, _) = select(&[c(8, 1.0, 0), c(8, 0.5, 3)], Some(8), 8);
+        assert_eq!(ch, vec![false, true]);
     }
 
     #[test]
