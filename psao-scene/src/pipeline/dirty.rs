@@ -47,9 +47,9 @@ pub(super) struct StepTrace {
 enum Plan {
     /// Motion reaches none of its rays and nothing waits: not traced.
     Skip,
-    /// Every ray; `reached` are those motion reached (all of a moving
-    /// instance's).
-    Full { reached: RayMask },
+    /// Every ray; `reached` counts those motion reached (all of a moving
+    /// instance's), which ranks it under a budget.
+    Full { reached: u32 },
     /// Only `need` (motion's `reached` ones and those it reached while
     /// the point waited), the others' scores kept.
     Rays { need: RayMask, reached: RayMask },
@@ -168,14 +168,14 @@ impl Pipeline {
                     unreached += 1;
                     continue;
                 }
-                Plan::Full { reached } => (rays, reached),
-                Plan::Rays { need, reached } => (need.count(), reached),
+                Plan::Full { reached } => (rays, *reached),
+                Plan::Rays { need, reached } => (need.count(), reached.count()),
             };
             let (i, k) = batch.owner[b];
             at.push(b);
             cands.push(Candidate {
                 cost,
-                reached: reached.count() as f32 / rays.max(1) as f32,
+                reached: reached as f32 / rays.max(1) as f32,
                 age: self.waiting.get(key(i, k)).map_or(0, |w| w.0),
             });
         }
@@ -189,7 +189,7 @@ impl Pipeline {
             0
         };
         let mut take = Vec::new();
-        for ((&b, &go), _) in at.iter().zip(&chosen).zip(&cands) {
+        for (&b, &go) in at.iter().zip(&chosen) {
             let (i, k) = batch.owner[b];
             let key = key(i, k);
             if go {
@@ -274,17 +274,13 @@ impl Pipeline {
                 let (i, k) = batch.owner[b];
                 let key = key(i, k);
                 if !reuse || motion.changed[i] {
-                    return Plan::Full {
-                        reached: RayMask::all(rays),
-                    };
+                    return Plan::Full { reached: rays };
                 }
                 let waiting = waiting_list.get(key);
                 let entry = if cache { ray_cache.get(key) } else { None };
                 if entry.is_none() && waiting.is_some() {
                     // Waiting for a full trace: nothing to test.
-                    return Plan::Full {
-                        reached: RayMask::all(rays),
-                    };
+                    return Plan::Full { reached: rays };
                 }
                 let reached =
                     match PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao) {
@@ -314,7 +310,9 @@ impl Pipeline {
                         }
                     }
                     _ if reached.is_empty() && waiting.is_none() => Plan::Skip,
-                    _ => Plan::Full { reached },
+                    _ => Plan::Full {
+                        reached: reached.count(),
+                    },
                 }
             })
             .collect()
@@ -336,12 +334,18 @@ impl Pipeline {
         let order = morton_order(&batch.points);
         let cache = &self.ray_cache;
         let keep = self.config.ray_reuse && self.config.skip;
+        let instances = &self.instances;
         let mut done: Vec<(usize, f32, u64, Option<Vec<f32>>)> = order
             .par_iter()
             .map(|&b| {
                 let (i, k) = batch.owner[b];
                 let key = key(i, k);
                 let (id, p, n) = (batch.ids[b], batch.points[b], batch.normals[b]);
+                if !keep || instances[i].dynamic {
+                    // Nothing kept (a moving instance's point): the
+                    // tracer's own sum, no scores to hold.
+                    return (b, tracer.point_ao(id, p, n, &ao), ao.rays as u64, None);
+                }
                 let mut scores = vec![0.0f32; rays];
                 let kept = match plans[b] {
                     Plan::Rays { need, .. } => cache.get(key).map(|e| (e, need)),

@@ -360,6 +360,16 @@ impl Pipeline {
         let total = scene.instances.len() as u64;
         let done = std::sync::atomic::AtomicU64::new(0);
         config.ao.validate()?;
+        if let config::RayBudget::Auto { share } = config.budget {
+            check_param("budget share", share as f64, 1e-6, 1.0, "in (0, 1]")?;
+        }
+        check_param(
+            "max_wait",
+            config.max_wait as f64,
+            1.0,
+            u32::MAX as f64,
+            "at least 1 step",
+        )?;
         if let Some(c) = &config.cull {
             check_param("cull.aspect", c.aspect as f64, 1e-3, 1e3, "in [1e-3, 1e3]")?;
             check_param("cull.far", c.far as f64, 1e-3, 1e9, "in [1e-3, 1e9]")?;

@@ -258,7 +258,9 @@ impl Pipeline {
             for &k in w.iter() {
                 s.pending[k as usize] = true;
             }
-            w.clear();
+            // This step's own points; the others pending waited out of view.
+            let mut fresh = std::mem::take(w);
+            fresh.sort_unstable();
             // The points now (a rigid instance's are its points' own),
             // borrowed apart from the pending flags.
             let now = if s.positions.is_empty() {
@@ -274,6 +276,11 @@ impl Pipeline {
                 if everything || frusta.iter().any(|f| f.touches_sphere(p, reach)) {
                     *pending = false;
                     w.push(k as u32);
+                    if fresh.binary_search(&(k as u32)).is_err() {
+                        // Back in view after motion reached it out of view:
+                        // traced in full, whatever this step's reach says.
+                        self.waiting.wait(super::ray_cache::key(i, k as u32), true);
+                    }
                 } else {
                     // Motion may reach its rays while it waits out of
                     // view: it is traced in full when it comes back.

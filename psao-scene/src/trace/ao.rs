@@ -237,7 +237,7 @@ impl AoTracer {
 
     /// AO at one point; `id` selects its random numbers. `p` must be
     /// valid ([`AoParams::validate`]).
-    fn point_ao(&self, id: u32, point: Vec3, normal: Vec3, p: &AoParams) -> f32 {
+    pub(crate) fn point_ao(&self, id: u32, point: Vec3, normal: Vec3, p: &AoParams) -> f32 {
         if self.top.is_empty() {
             return 1.0;
         }
