@@ -630,6 +630,60 @@ fn vectors() -> Vec<Vector> {
         "Without OVERFLOW, key 5 (link 1 of cell (1,0,0) in a chained grid) names no cell.",
         vec![buckets(1, &[(5, &[(5, 1)])])],
     ));
+    // Section 3.2's compression rules, one vector per choice the spec makes.
+    let payload: Vec<u8> = kf.messages.concat();
+    let with_wire = |compression: u8, wire: Vec<u8>| {
+        let mut f = base_keyframe();
+        f.compression = compression;
+        f.wire = Some(wire);
+        f.bytes()
+    };
+    list.push(v(
+        "56-zstd-empty",
+        "A keyframe with compression 2, uncompressed_len 0 and no payload byte: zstd data is one or more zstd frames, so zero bytes are `decompress` (not `missing_end`, which the same frame uncompressed gives).",
+        vec![{
+            let mut f = key(1, Vec::new());
+            f.count = Some(1);
+            f.compression = 2;
+            f.wire = Some(Vec::new());
+            f.bytes()
+        }],
+    ));
+    list.push(v(
+        "57-zstd-window-too-large",
+        "The keyframe of 02 as one zstd frame written by hand (RFC 8878: no content size, one raw block) whose Window_Descriptor 0x89 asks for 2^27 + 2^24 bytes: above 2^27, so `decompress`.",
+        vec![with_wire(2, zstd_raw_frame(0x89, &payload))],
+    ));
+    list.push(v(
+        "58-zstd-window-at-limit",
+        "The same frame with Window_Descriptor 0x88 (exactly 2^27): accepted.",
+        vec![with_wire(2, zstd_raw_frame(0x88, &payload))],
+    ));
+    list.push(v(
+        "59-zstd-skippable-only",
+        "A zstd payload made only of a skippable frame (magic 0x184D2A53, 4 user bytes): it holds no zstd frame, so `decompress`.",
+        vec![with_wire(2, zstd_skippable(4))],
+    ));
+    let mut skip_then = zstd_skippable(4);
+    skip_then.extend(zstd_raw_frame(0x50, &payload));
+    list.push(v(
+        "60-zstd-skippable-then-frame",
+        "A skippable frame, then the keyframe of 02 as a hand-written zstd frame (window 2^20): the skippable frame is ignored, the frame applies.",
+        vec![with_wire(2, skip_then)],
+    ));
+    let (head, tail) = payload.split_at(payload.len() / 2);
+    let mut two = zstd_raw_frame(0x50, head);
+    two.extend(zstd_raw_frame(0x50, tail));
+    list.push(v(
+        "61-zstd-two-frames",
+        "The keyframe of 02's payload split over two zstd frames: decompressed one after the other, it applies.",
+        vec![with_wire(2, two)],
+    ));
+    list.push(v(
+        "62-lz4-end-of-block",
+        "The keyframe of 02 as an LZ4 block whose one match starts fewer than 12 bytes before the end: it decodes to the right bytes, but breaks the end-of-block rules, so `decompress` (section 3.2: MUST reject).",
+        vec![with_wire(1, lz4_late_match(&payload))],
+    ));
     assert_eq!(W1, word([1, 1, 3], 0x77, 200));
     assert_eq!(W2, word([0, 0, 0], 0x74, 64));
     list

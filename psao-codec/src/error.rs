@@ -150,6 +150,59 @@ pub enum MessageError {
     },
 }
 
+/// What was wrong with a compressed payload (error class `decompress`,
+/// spec/wire-format.md 3.2). Offsets count from the first payload byte.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Error)]
+#[non_exhaustive]
+pub enum DecompressFault {
+    /// zstd: the payload holds no zstd frame (it is empty, or made only of
+    /// skippable frames).
+    #[error("no zstd frame in the payload")]
+    NoFrame,
+    /// zstd: the bytes at `offset` start neither a zstd frame nor a
+    /// skippable frame (legacy zstd formats included), or end inside a
+    /// frame header.
+    #[error("no zstd or skippable frame header at offset {offset}")]
+    NotAFrame {
+        /// Where the frame should start.
+        offset: u32,
+    },
+    /// zstd: the frame header's reserved bit is set.
+    #[error("reserved bit set in the zstd frame header at offset {offset}")]
+    ReservedBit {
+        /// Where the frame starts.
+        offset: u32,
+    },
+    /// zstd: the frame names a dictionary (none is defined).
+    #[error("zstd frame at offset {offset} needs dictionary {id}")]
+    Dictionary {
+        /// Where the frame starts.
+        offset: u32,
+        /// The `Dictionary_ID`.
+        id: u32,
+    },
+    /// zstd: the frame's `Window_Size` is above 2^27 bytes.
+    #[error("zstd frame at offset {offset} has a window of {window} bytes, above 2^27")]
+    Window {
+        /// Where the frame starts.
+        offset: u32,
+        /// Its `Window_Size` in bytes.
+        window: u64,
+    },
+    /// LZ4: the block breaks an end-of-block rule (the last sequence holds
+    /// only literals, at least 5 of them after a match, and the last match
+    /// starts at least 12 bytes before the end).
+    #[error("LZ4 block breaks the end-of-block rules")]
+    EndOfBlock,
+    /// The data is corrupt in its format (truncated, a bad offset, a block
+    /// zstd or LZ4 cannot decode, a content size or checksum that differs).
+    #[error("corrupt compressed data")]
+    Corrupt,
+    /// The data decompresses to another length than `uncompressed_len`.
+    #[error("decompresses to another length than uncompressed_len")]
+    Length,
+}
+
 /// Why a frame was rejected. The mirror is unchanged after any of these.
 #[derive(Clone, Debug, PartialEq, Eq, Error)]
 #[non_exhaustive]
@@ -215,9 +268,15 @@ pub enum DecodeError {
         /// Computed.
         actual: u32,
     },
-    /// The compressed payload is corrupt or decompresses to another length.
-    #[error("{0:?} payload does not decompress to uncompressed_len")]
-    Decompress(Compression),
+    /// The compressed payload is not valid in its format (spec 3.2), or
+    /// decompresses to another length than `uncompressed_len`.
+    #[error("{compression:?} payload rejected: {fault}")]
+    Decompress {
+        /// The header's compression.
+        compression: Compression,
+        /// What was wrong with the data.
+        fault: DecompressFault,
+    },
     /// A message is malformed or cannot be applied.
     #[error("message {index} (type 0x{kind:02x}) at payload offset {offset}: {error}")]
     Message {
@@ -247,7 +306,7 @@ impl DecodeError {
             DecodeError::PayloadTooLarge { .. } => "payload_too_large",
             DecodeError::TooManyMessages { .. } => "too_many_messages",
             DecodeError::Checksum { .. } => "checksum",
-            DecodeError::Decompress(_) => "decompress",
+            DecodeError::Decompress { .. } => "decompress",
             DecodeError::Message { error, .. } => error.code(),
         }
     }

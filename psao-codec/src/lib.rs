@@ -60,7 +60,7 @@ pub use client::mirror::{Change, Changes, Event, InstanceMirror, Mirror, Transfo
 pub use client::reconstruct::{
     WeightParams, base_cell, for_each_candidate, reconstruct_ao, weight, world_to_local,
 };
-pub use error::{DecodeError, DefError, EncodeError, MessageError};
+pub use error::{DecodeError, DecompressFault, DefError, EncodeError, MessageError};
 pub use grid::{
     BucketEntry, EMPTY_KEY, InstanceDef, MAX_BUCKET_CAPACITY, MAX_CELL_CAPACITY,
     MAX_OVERFLOW_LINKS, MAX_TABLE_LOG2, OVERFLOW_FLAG, POINT_FORMAT_BIND32, POINT_FORMAT_PACKED32,

@@ -202,6 +202,10 @@ pub struct Frame {
     pub messages: Vec<Vec<u8>>,
     /// Overrides `message_count` (default: number of messages).
     pub count: Option<u32>,
+    /// Overrides the payload bytes on the wire (default: the messages,
+    /// compressed with `compression`); `uncompressed_len` stays the
+    /// messages' length.
+    pub wire: Option<Vec<u8>>,
 }
 
 /// An uncompressed keyframe without checksum at `seq`.
@@ -214,6 +218,7 @@ pub fn key(seq: u32, messages: Vec<Vec<u8>>) -> Frame {
         base: seq,
         messages,
         count: None,
+        wire: None,
     }
 }
 
@@ -230,10 +235,11 @@ impl Frame {
     /// The frame on the wire: header, (compressed) payload, checksum.
     pub fn bytes(&self) -> Vec<u8> {
         let payload: Vec<u8> = self.messages.concat();
-        let wire = match self.compression {
-            0 => payload.clone(),
-            1 => lz4_flex::block::compress(&payload),
-            _ => zstd::bulk::compress(&payload, 3).expect("zstd"),
+        let wire = match (&self.wire, self.compression) {
+            (Some(w), _) => w.clone(),
+            (None, 0) => payload.clone(),
+            (None, 1) => lz4_flex::block::compress(&payload),
+            (None, _) => zstd::bulk::compress(&payload, 3).expect("zstd"),
         };
         let mut h = Vec::with_capacity(32 + wire.len());
         h.extend_from_slice(b"PSAO");
@@ -258,6 +264,74 @@ impl Frame {
         h.extend_from_slice(&wire);
         h
     }
+}
+
+/// A zstd frame written by hand from RFC 8878 3.1.1: no content size, no
+/// checksum, no dictionary, the window descriptor `window` (exponent in bits
+/// 7-3, mantissa in bits 2-0), and `data` as one raw last block.
+pub fn zstd_raw_frame(window: u8, data: &[u8]) -> Vec<u8> {
+    let mut f = 0xFD2F_B528u32.to_le_bytes().to_vec();
+    f.extend([0x00, window]);
+    let block = 1 | (data.len() as u32) << 3; // Last_Block, Block_Type 0 (raw)
+    f.extend(&block.to_le_bytes()[..3]);
+    f.extend(data);
+    f
+}
+
+/// A zstd skippable frame (RFC 8878 3.1.2, magic `0x184D2A53`) of `n`
+/// user bytes.
+pub fn zstd_skippable(n: usize) -> Vec<u8> {
+    let mut f = 0x184D_2A53u32.to_le_bytes().to_vec();
+    u32le(&mut f, n as u32);
+    f.extend(std::iter::repeat_n(0x5A, n));
+    f
+}
+
+/// Appends one LZ4 sequence (the LZ4 block format): `literals`, then a
+/// match of `len >= 4` bytes `offset` back, if any.
+pub fn lz4_sequence(out: &mut Vec<u8>, literals: &[u8], matched: Option<(u16, usize)>) {
+    fn ext(out: &mut Vec<u8>, mut n: usize) {
+        while n >= 255 {
+            out.push(255);
+            n -= 255;
+        }
+        out.push(n as u8);
+    }
+    let m = matched.map_or(0, |(_, len)| len - 4);
+    out.push((literals.len().min(15) as u8) << 4 | m.min(15) as u8);
+    if literals.len() >= 15 {
+        ext(out, literals.len() - 15);
+    }
+    out.extend_from_slice(literals);
+    if let Some((offset, _)) = matched {
+        out.extend(offset.to_le_bytes());
+        if m >= 15 {
+            ext(out, m - 15);
+        }
+    }
+}
+
+/// An LZ4 block that decodes to `payload` but breaks the end-of-block rule
+/// "the last match starts at least 12 bytes before the end": literals, one
+/// 4-byte match as late as `payload` allows, the rest as literals. A
+/// lenient decoder (lz4_flex) decodes it; liblz4 and the spec refuse it.
+///
+/// # Panics
+/// If no 4 bytes among the last 12 repeat earlier ones.
+pub fn lz4_late_match(payload: &[u8]) -> Vec<u8> {
+    let n = payload.len();
+    let (j, d) = (n.saturating_sub(11).max(1)..n.saturating_sub(3))
+        .rev()
+        .find_map(|j| {
+            (1..=j.min(65_535))
+                .find(|&d| payload[j..j + 4] == payload[j - d..j - d + 4])
+                .map(|d| (j, d))
+        })
+        .expect("a repeated 4-byte run in the last 12 bytes");
+    let mut block = Vec::new();
+    lz4_sequence(&mut block, &payload[..j], Some((d as u16, 4)));
+    lz4_sequence(&mut block, &payload[j + 4..], None);
+    block
 }
 
 /// An undefined message type: makes any frame fail where it stands.

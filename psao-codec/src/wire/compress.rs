@@ -1,7 +1,7 @@
 //! Payload compression: the calls into zstd / lz4_flex, and reading a
 //! compression id off the wire.
 
-use crate::error::{DecodeError, EncodeError};
+use crate::error::{DecodeError, DecompressFault, EncodeError};
 use crate::wire::compression::Compression;
 
 impl Compression {
@@ -40,6 +40,7 @@ impl Decompressor {
         len: usize,
         dst: &mut Vec<u8>,
     ) -> Result<(), DecodeError> {
+        let fail = |fault| DecodeError::Decompress { compression, fault };
         match compression {
             Compression::None => {
                 dst.clear();
@@ -47,31 +48,33 @@ impl Decompressor {
             }
             #[cfg(feature = "lz4")]
             Compression::Lz4 => {
+                crate::wire::lz4_block::check_lz4_block(src, len).map_err(fail)?;
                 // Only growth is zero-filled; the scratch keeps its length.
                 dst.resize(len, 0);
                 let n = lz4_flex::block::decompress_into(src, dst)
-                    .map_err(|_| DecodeError::Decompress(compression))?;
+                    .map_err(|_| fail(DecompressFault::Corrupt))?;
                 dst.truncate(n);
             }
             #[cfg(feature = "zstd")]
             Compression::Zstd => {
+                crate::wire::zstd_frames::check_zstd_frames(src).map_err(fail)?;
                 dst.clear();
                 dst.reserve_exact(len);
                 let z = match &mut self.zstd {
                     Some(z) => z,
                     slot => slot.insert(
                         zstd::bulk::Decompressor::new()
-                            .map_err(|_| DecodeError::Decompress(compression))?,
+                            .map_err(|_| fail(DecompressFault::Corrupt))?,
                     ),
                 };
                 z.decompress_to_buffer(src, dst)
-                    .map_err(|_| DecodeError::Decompress(compression))?;
+                    .map_err(|_| fail(DecompressFault::Corrupt))?;
             }
             #[allow(unreachable_patterns)]
             other => return Err(DecodeError::CompressionUnavailable(other)),
         }
         if dst.len() != len {
-            return Err(DecodeError::Decompress(compression));
+            return Err(fail(DecompressFault::Length));
         }
         Ok(())
     }
@@ -177,14 +180,15 @@ mod tests {
                 .unwrap();
             let mut out = Vec::new();
             let mut d = Decompressor::default();
-            assert_eq!(
-                d.decompress_into(c, &wire, 99, &mut out),
-                Err(DecodeError::Decompress(c))
-            );
-            assert_eq!(
-                d.decompress_into(c, &wire, 101, &mut out),
-                Err(DecodeError::Decompress(c))
-            );
+            for len in [99, 101] {
+                assert!(
+                    matches!(
+                        d.decompress_into(c, &wire, len, &mut out),
+                        Err(DecodeError::Decompress { compression, .. }) if compression == c
+                    ),
+                    "{c:?} to {len} bytes"
+                );
+            }
         }
     }
 }

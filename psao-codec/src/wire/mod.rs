@@ -9,9 +9,13 @@ pub(crate) mod compress;
 pub(crate) mod compression;
 pub(crate) mod frame;
 pub(crate) mod header;
+#[cfg(feature = "lz4")]
+pub(crate) mod lz4_block;
 pub(crate) mod message;
 pub mod point;
 pub mod sequence;
+#[cfg(feature = "zstd")]
+pub(crate) mod zstd_frames;
 
 pub use frame::{FrameView, Located, Messages, Scratch, decode_frame};
 pub use header::{FLAG_CHECKSUM, FLAG_KEYFRAME, FrameHeader, HEADER_LEN, MAGIC, VERSION};
