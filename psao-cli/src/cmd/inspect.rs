@@ -1,6 +1,7 @@
 //! `psao inspect`: decodes a capture file (spec/capture.md) frame by frame
 //! and prints what each frame is and does to a mirror.
 
+use std::io::Write as _;
 use std::path::PathBuf;
 
 use anyhow::Context as _;
@@ -18,8 +19,12 @@ pub struct Args {
     quiet: bool,
 }
 
-/// Decodes the file and prints a line per frame and a summary.
+/// Decodes the file and prints a line per frame and a summary. Output
+/// errors are returned, not panicked on: a reader that closes the pipe
+/// early (`psao inspect FILE | head`) ends the command quietly (see
+/// `main`'s broken-pipe rule).
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     let path = &args.file;
     let file = std::fs::File::open(path).with_context(|| path.display().to_string())?;
     let limits = Limits::default();
@@ -51,7 +56,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         };
         if !args.quiet {
             match header {
-                Ok(h) => println!(
+                Ok(h) => writeln!(
+                    out,
                     "#{n:<6} {:9.3} ms {:7} bytes  {} seq {:<6} base {:<6} {:?} {} messages  -> {outcome}",
                     r.time_us as f64 / 1e3,
                     r.frame.len(),
@@ -61,20 +67,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     h.compression,
                     h.message_count,
                 ),
-                Err(e) => println!(
+                Err(e) => writeln!(
+                    out,
                     "#{n:<6} {:9.3} ms {:7} bytes  bad header: {e}",
                     r.time_us as f64 / 1e3,
                     r.frame.len()
                 ),
-            }
+            }?;
         }
     }
     let instances = decoder.mirror().instances().count();
-    println!(
+    writeln!(
+        out,
         "{}: {n} frames ({keyframes} keyframes, {failed} failed), {bytes} bytes over {:.3} s; mirror at sequence {:?} with {instances} instances",
         path.display(),
         last_time as f64 / 1e6,
         decoder.mirror().sequence()
-    );
+    )?;
+    out.flush()?;
     Ok(())
 }
