@@ -2,8 +2,9 @@
 //! is encoded once and its bytes (shared, not copied) go into every
 //! client's [`Outbox`]; one keyframe per state is shared by all who ask,
 //! however many ask or how often; a client that fell behind is told so
-//! with a `NOTICE` when its keyframe is queued; notices wait in a bounded
-//! queue per client.
+//! with a `NOTICE` code 2 handed out with the keyframe that resynchronizes
+//! it (one per resync, however often a queued keyframe was dropped before
+//! it went out); other notices wait in a bounded queue per client.
 //!
 //! The I/O layer (the reference server, or a test's simulated link) adds
 //! and removes clients, hands in the source's frames and the clients'
@@ -77,6 +78,7 @@ pub struct Fanout {
     /// it is the current state, for every client that asks.
     shared_keyframe: Option<Bytes>,
     falls: u64,
+    resyncs: u64,
 }
 
 impl Fanout {
@@ -89,6 +91,7 @@ impl Fanout {
             max_queue_bytes,
             shared_keyframe: None,
             falls: 0,
+            resyncs: 0,
         }
     }
 
@@ -132,6 +135,14 @@ impl Fanout {
     /// Times a client fell behind, over all clients ever.
     pub fn falls(&self) -> u64 {
         self.falls
+    }
+
+    /// Keyframes handed out to resynchronize a client that fell behind,
+    /// each with its `NOTICE` code 2, over all clients ever. At most
+    /// [`falls`](Fanout::falls): a fall while a resync keyframe still
+    /// waited drops it, and the next one resynchronizes.
+    pub fn resyncs(&self) -> u64 {
+        self.resyncs
     }
 
     /// The most bytes queued for one client now.
@@ -196,11 +207,8 @@ impl Fanout {
 
     fn queue_keyframe(&mut self, kf: Bytes) {
         for c in self.clients.values_mut() {
-            if c.outbox.wants_keyframe() && c.outbox.push_keyframe(kf.clone()) {
-                c.notice(notice(
-                    NoticeCode::FellBehind,
-                    "fell behind; resynchronizing with a keyframe",
-                ));
+            if c.outbox.wants_keyframe() {
+                c.outbox.push_keyframe(kf.clone());
             }
         }
     }
@@ -242,12 +250,22 @@ impl Fanout {
             .collect()
     }
 
-    /// What to write to `id` now; `None` for an unknown client.
+    /// What to write to `id` now; `None` for an unknown client. A
+    /// keyframe that resynchronizes the client comes with its `NOTICE`
+    /// code 2, last among the notices (write the notices first).
     pub fn poll_transmit(&mut self, id: ClientId) -> Option<Transmit> {
         let c = self.clients.get_mut(&id)?;
-        Some(Transmit {
-            notices: std::mem::take(&mut c.notices),
-            frame: c.outbox.pop(),
-        })
+        let mut notices = std::mem::take(&mut c.notices);
+        let frame = c.outbox.pop_resync().map(|(frame, resync)| {
+            if resync {
+                self.resyncs += 1;
+                notices.push(notice(
+                    NoticeCode::FellBehind,
+                    "fell behind; resynchronizing with a keyframe",
+                ));
+            }
+            frame
+        });
+        Some(Transmit { notices, frame })
     }
 }

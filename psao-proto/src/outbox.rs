@@ -19,11 +19,21 @@ pub enum Pushed {
     FellBehind,
 }
 
+/// What a queued frame is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kind {
+    Delta,
+    Keyframe,
+    /// A keyframe that resynchronizes a client that fell behind: it goes
+    /// out with a `NOTICE` code 2 (spec/session.md 5.2).
+    Resync,
+}
+
 /// Frames waiting to be written to one client.
 #[derive(Debug)]
 pub struct Outbox {
-    /// Frames, each marked whether it is a keyframe.
-    queue: VecDeque<(Bytes, bool)>,
+    /// Frames and what each is.
+    queue: VecDeque<(Bytes, Kind)>,
     queued_bytes: usize,
     max_bytes: usize,
     /// Waiting for a keyframe: deltas are skipped until one is queued.
@@ -74,7 +84,7 @@ impl Outbox {
             return Pushed::FellBehind;
         }
         self.queued_bytes += frame.len();
-        self.queue.push_back((frame, false));
+        self.queue.push_back((frame, Kind::Delta));
         Pushed::Queued
     }
 
@@ -98,23 +108,37 @@ impl Outbox {
     }
 
     /// Queues a keyframe (whatever the queue holds: it may exceed the bound
-    /// by this one frame). Returns whether the client had fallen behind.
+    /// by this one frame). Returns whether it resynchronizes a client that
+    /// fell behind (it is then popped as such, see [`pop_resync`]). If
+    /// deltas behind it overflow the queue before it is written, it is
+    /// dropped with them and the client is behind again.
+    ///
+    /// [`pop_resync`]: Outbox::pop_resync
     pub fn push_keyframe(&mut self, frame: Bytes) -> bool {
         self.queued_bytes += frame.len();
         self.keyframe_bytes += frame.len();
-        self.queue.push_back((frame, true));
+        let resync = std::mem::take(&mut self.behind);
+        let kind = if resync { Kind::Resync } else { Kind::Keyframe };
+        self.queue.push_back((frame, kind));
         self.awaiting_keyframe = false;
-        std::mem::take(&mut self.behind)
+        resync
     }
 
     /// The next frame to write.
     pub fn pop(&mut self) -> Option<Bytes> {
-        let (f, keyframe) = self.queue.pop_front()?;
+        self.pop_resync().map(|(f, _)| f)
+    }
+
+    /// The next frame to write, and whether it is the keyframe that
+    /// resynchronizes the client after it fell behind (the one a `NOTICE`
+    /// code 2 goes with).
+    pub fn pop_resync(&mut self) -> Option<(Bytes, bool)> {
+        let (f, kind) = self.queue.pop_front()?;
         self.queued_bytes -= f.len();
-        if keyframe {
+        if kind != Kind::Delta {
             self.keyframe_bytes -= f.len();
         }
-        Some(f)
+        Some((f, kind == Kind::Resync))
     }
 
     /// Bytes queued.

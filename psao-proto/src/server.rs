@@ -101,6 +101,10 @@ pub struct ServerStats {
     pub keyframes: u64,
     /// Times a client fell behind.
     pub falls: u64,
+    /// Keyframes written to resynchronize a client that fell behind, each
+    /// after a `NOTICE` code 2 (at most `falls`: a fall while a resync
+    /// keyframe still waits drops it, and the next one resynchronizes).
+    pub resyncs: u64,
     /// Clients connected now.
     pub clients: usize,
     /// Clients that completed a handshake since the start.
@@ -223,6 +227,7 @@ impl<S: FrameSource> ServerHandle<S> {
         st.frame_age = ages.iter().sum::<f64>() / ages.len().max(1) as f64;
         st.max_queued = s.fanout.max_queued_bytes();
         st.falls = s.fanout.falls();
+        st.resyncs = s.fanout.resyncs();
         st
     }
 

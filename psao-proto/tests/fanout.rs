@@ -30,6 +30,38 @@ fn notices(t: &Transmit) -> Vec<NoticeCode> {
         .collect()
 }
 
+/// A client that stays stalled drops its resync keyframe too when deltas
+/// overflow behind it: it is told once, with the keyframe it finally
+/// gets, not once per fall (issue 16: 32 notices for 2 resyncs before).
+#[test]
+fn a_stalled_client_is_told_once_per_keyframe_it_gets() {
+    let mut f = Fanout::new(1024);
+    let slow = f.add_client(false);
+    f.serve_keyframes();
+    f.push_keyframe(&frame(1, true, 50));
+    f.poll_transmit(slow).unwrap();
+    let mut seq = 2;
+    for _ in 0..3 {
+        // Falls, is given a keyframe, and falls again before writing it.
+        while f.falls() == 0 || f.serve_keyframes() != Keyframes::Encode {
+            f.push_frame(&frame(seq, false, 300));
+            seq += 1;
+        }
+        f.push_keyframe(&frame(seq, true, 60));
+    }
+    assert!(f.falls() >= 3, "{}", f.falls());
+    let mut got = Vec::new();
+    while let Some(t) = f.poll_transmit(slow).filter(|t| t.frame.is_some()) {
+        got.push((notices(&t), t.frame.unwrap()[0]));
+    }
+    assert_eq!(
+        got,
+        [(vec![NoticeCode::FellBehind], seq as u8)],
+        "the last keyframe, with its notice"
+    );
+    assert_eq!(f.resyncs(), 1);
+}
+
 #[test]
 fn one_keyframe_per_state_is_shared_by_all_who_ask() {
     let mut f = Fanout::new(1 << 20);

@@ -67,18 +67,26 @@ async fn raw(
     quinn::Connection,
     (quinn::SendStream, quinn::RecvStream),
 ) {
+    raw_to(server.local_addr(), server.fingerprint()).await
+}
+
+/// [`raw`] to any server.
+async fn raw_to(
+    addr: std::net::SocketAddr,
+    fingerprint: [u8; 32],
+) -> (
+    quinn::Endpoint,
+    quinn::Connection,
+    (quinn::SendStream, quinn::RecvStream),
+) {
     let mut ep = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
-    let mut cc = client_config(&Trust::Fingerprint(server.fingerprint())).unwrap();
+    let mut cc = client_config(&Trust::Fingerprint(fingerprint)).unwrap();
     let mut transport = quinn::TransportConfig::default();
     transport.stream_receive_window(4096u32.into());
     transport.receive_window(8192u32.into());
     cc.transport_config(std::sync::Arc::new(transport));
     ep.set_default_client_config(cc);
-    let conn = ep
-        .connect(server.local_addr(), "localhost")
-        .unwrap()
-        .await
-        .unwrap();
+    let conn = ep.connect(addr, "localhost").unwrap().await.unwrap();
     let (mut send, mut recv) = conn.open_bi().await.unwrap();
     let hello = Control::Hello(Hello {
         version: 1,
@@ -454,4 +462,143 @@ async fn a_server_below_its_announced_rate_tells_its_clients() {
     assert_eq!(rate_notice(&c, Duration::from_secs(3)).await, None);
     assert_eq!(server.stats().rate_notices, 0);
     server.shutdown(Duration::from_secs(1)).await.unwrap();
+}
+
+/// A source of large frames (16 KiB deltas of repeated transforms), so
+/// that a stalled client fills the QUIC send window within a second.
+struct Bulky {
+    sequence: u32,
+}
+
+impl Bulky {
+    fn frame(&self, keyframe: bool) -> psao_codec::EncodedFrame {
+        use psao_tests::raw;
+        let s = self.sequence;
+        let messages: Vec<Vec<u8>> = if keyframe {
+            vec![raw::define(1, &raw::DEF), raw::transform(1, s, 1.0)]
+        } else {
+            vec![raw::transform(1, s, 1.0); 16 * 1024 / 53]
+        };
+        psao_codec::EncodedFrame {
+            bytes: raw::frame(keyframe, s, s.wrapping_sub(1), &messages).into(),
+            sequence: s,
+            keyframe,
+            stats: Default::default(),
+        }
+    }
+}
+
+impl FrameSource for Bulky {
+    fn info(&self) -> SourceInfo {
+        SourceInfo {
+            compression: 0,
+            max_frame_bytes: 1 << 20,
+            max_payload_bytes: 1 << 20,
+            mirror_bytes: 1 << 20,
+            point_format: 0,
+            overflow: false,
+            culls: false,
+        }
+    }
+    fn step(
+        &mut self,
+        _dt: f32,
+    ) -> Result<(Option<psao_codec::EncodedFrame>, StepReport), SourceError> {
+        self.sequence += 1;
+        Ok((Some(self.frame(false)), StepReport::default()))
+    }
+    fn keyframe(&mut self) -> Result<psao_codec::EncodedFrame, SourceError> {
+        Ok(self.frame(true))
+    }
+    fn place(&mut self, _: u32, _: Affine3A) -> Result<(), SourceError> {
+        Err("no events".into())
+    }
+}
+
+/// Reads whole frame records off `frames` for `time` (checked between
+/// records, so none is cut), returning each frame's (sequence, keyframe).
+async fn read_frames(frames: &mut quinn::RecvStream, time: Duration) -> Vec<(u32, bool)> {
+    let end = std::time::Instant::now() + time;
+    let mut got = Vec::new();
+    while std::time::Instant::now() < end {
+        let mut len = [0u8; 4];
+        if frames.read_exact(&mut len).await.is_err() {
+            break;
+        }
+        let mut frame = vec![0u8; u32::from_le_bytes(len) as usize];
+        if frames.read_exact(&mut frame).await.is_err() {
+            break;
+        }
+        let h = psao_codec::wire::FrameHeader::parse(&frame).unwrap();
+        got.push((h.sequence, h.keyframe));
+    }
+    got
+}
+
+/// spec/session.md 5.2.3: a client that fell behind gets its keyframe
+/// and a `NOTICE` with code 2, however long it stalled, on a connection
+/// whose flow-control window the frames fill (the notice waits for the
+/// same window).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_falls_behind_gets_notice_2_with_its_keyframe() {
+    let id = Identity::self_signed().unwrap();
+    let server = serve(Bulky { sequence: 1 }, config(16 * 1024), &id)
+        .await
+        .unwrap();
+    let (_ep, conn, (_send, mut control)) = raw_to(server.local_addr(), server.fingerprint()).await;
+    let mut frames = conn.accept_uni().await.unwrap();
+    let notices = tokio::spawn(async move {
+        let mut reader = control::ControlReader::new();
+        let mut codes = Vec::new();
+        let mut buf = [0u8; 1024];
+        while let Ok(Some(n)) = control.read(&mut buf).await {
+            let mut input = &buf[..n];
+            while let Ok(Some(m)) = reader.read(&mut input) {
+                if let Control::Notice { code, .. } = m {
+                    codes.push(code);
+                }
+            }
+        }
+        codes
+    });
+    let mut seen = read_frames(&mut frames, Duration::from_millis(300)).await;
+    // Stall twice, long enough to fall behind each time.
+    for _ in 0..2 {
+        tokio::time::sleep(Duration::from_millis(800)).await;
+        seen.extend(read_frames(&mut frames, Duration::from_millis(500)).await);
+    }
+    // Shut down while reading the rest: every frame written arrives.
+    let (rest, end) = tokio::join!(
+        read_frames(&mut frames, Duration::from_secs(20)),
+        server.shutdown(Duration::from_secs(3))
+    );
+    seen.extend(rest);
+    let (_, stats) = end.unwrap();
+    let jumps = seen
+        .windows(2)
+        .filter(|w| w[1].1 && w[1].0 != w[0].0.wrapping_add(1))
+        .count();
+    let codes = tokio::time::timeout(Duration::from_secs(5), notices)
+        .await
+        .expect("the control stream ends")
+        .unwrap();
+    let told = codes
+        .iter()
+        .filter(|c| **c == control::NoticeCode::FellBehind)
+        .count();
+    assert!(stats.falls >= 2, "the client fell behind twice: {stats:?}");
+    assert_eq!(stats.resyncs as usize, jumps, "{stats:?}");
+    assert!(jumps >= 2, "keyframes after jumps: {seen:?}");
+    let kfs: Vec<_> = seen
+        .windows(2)
+        .filter(|w| w[1].1)
+        .map(|w| (w[0].0, w[1].0))
+        .collect();
+    assert_eq!(
+        told,
+        jumps,
+        "keyframes {kfs:?} of {} frames, notices {}, {stats:?}",
+        seen.len(),
+        codes.len()
+    );
 }
