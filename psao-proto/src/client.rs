@@ -203,7 +203,7 @@ impl ClientSession {
             decoder: Decoder::new(config.limits),
             config,
             welcome: None,
-            control: ControlReader::new(),
+            control: ControlReader::from(crate::control::Sender::Server),
             transmit,
             events: VecDeque::new(),
             requested: false,

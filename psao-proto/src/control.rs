@@ -488,18 +488,59 @@ fn finite_f32s<const N: usize>(
     }
 }
 
+/// Which side's messages a [`ControlReader`] takes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Sender {
+    /// Any message (tools, tests).
+    #[default]
+    Either,
+    /// The client's (`HELLO`, `CAMERA`, `ACK`, `KEYFRAME_REQUEST`,
+    /// `MOVE_INSTANCE`): a server's reader.
+    Client,
+    /// The server's (`WELCOME`, `NOTICE`): a client's reader.
+    Server,
+}
+
+impl Sender {
+    /// Whether `kind` is a message type of the other role.
+    fn refuses(self, kind: u8) -> bool {
+        let from_server = matches!(kind, kind::WELCOME | kind::NOTICE);
+        let from_client = matches!(
+            kind,
+            kind::HELLO | kind::CAMERA | kind::ACK | kind::KEYFRAME_REQUEST | kind::MOVE_INSTANCE
+        );
+        match self {
+            Sender::Either => false,
+            Sender::Client => from_server,
+            Sender::Server => from_client,
+        }
+    }
+}
+
 /// Reads control messages out of a byte stream as it arrives, holding at
 /// most one message (1,026 bytes) at a time.
 #[derive(Debug, Default)]
 pub struct ControlReader {
     buf: BytesMut,
     failed: bool,
+    from: Sender,
 }
 
 impl ControlReader {
-    /// A reader with nothing buffered.
+    /// A reader with nothing buffered, taking any message.
     pub fn new() -> ControlReader {
         ControlReader::default()
+    }
+
+    /// A reader of one side's messages: a message type of the other role
+    /// is `protocol_violation` before its body is parsed (so a `WELCOME`
+    /// sent to a server is a violation of role, not a version mismatch,
+    /// spec/session.md 5.1).
+    pub fn from(from: Sender) -> ControlReader {
+        ControlReader {
+            from,
+            ..ControlReader::default()
+        }
     }
 
     /// Takes bytes off `input` (as many as fit the message being read) and
@@ -540,6 +581,12 @@ impl ControlReader {
             return Ok(None);
         }
         let msg = self.buf.split_to(2 + length);
+        if self.from.refuses(msg[2]) {
+            return Err(SessionError::Unexpected {
+                kind: msg[2],
+                rule: "is a message of the other role",
+            });
+        }
         Control::decode(msg[2], &msg[3..]).map(Some)
     }
 

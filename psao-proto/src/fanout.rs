@@ -40,13 +40,25 @@ pub enum Keyframes {
 pub type ClientId = u64;
 
 /// What to write to one client now: its notices (control stream) first,
-/// then at most one frame (frame stream).
+/// then at most one frame (frame stream); or, once the client cannot be
+/// served, why.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Transmit {
     /// `NOTICE` messages, encoded.
     pub notices: Vec<Bytes>,
     /// The next frame, if one waits.
     pub frame: Option<Bytes>,
+    /// Set once the keyframe this client needs is above the limits of its
+    /// `WELCOME`: close the connection with `capability_mismatch` and this
+    /// reason (after writing what came before).
+    pub refused: Option<String>,
+}
+
+/// The `uncompressed_len` of a frame (header bytes 20..24; 0 if short).
+fn payload_len(frame: &[u8]) -> u32 {
+    frame
+        .get(20..24)
+        .map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
 }
 
 #[derive(Debug)]
@@ -57,9 +69,18 @@ struct Slot {
     viewer: bool,
     /// Its last `CAMERA`.
     view: Option<CameraPose>,
+    /// The `max_frame_bytes` and `max_payload_bytes` of its `WELCOME`.
+    limits: (u32, u32),
+    /// Why it can no longer be served (a keyframe above its limits).
+    refused: Option<String>,
 }
 
 impl Slot {
+    /// Whether `frame` is above this client's limits.
+    fn too_large(&self, frame: &[u8]) -> bool {
+        frame.len() as u64 > u64::from(self.limits.0) || payload_len(frame) > self.limits.1
+    }
+
     fn notice(&mut self, n: Bytes) {
         if self.notices.len() >= MAX_NOTICES {
             self.notices.remove(0);
@@ -79,6 +100,8 @@ pub struct Fanout {
     shared_keyframe: Option<Bytes>,
     falls: u64,
     resyncs: u64,
+    /// The largest frame and payload pushed so far.
+    largest: (u32, u32),
 }
 
 impl Fanout {
@@ -92,6 +115,7 @@ impl Fanout {
             shared_keyframe: None,
             falls: 0,
             resyncs: 0,
+            largest: (0, 0),
         }
     }
 
@@ -107,9 +131,34 @@ impl Fanout {
                 notices: Vec::new(),
                 viewer,
                 view: None,
+                limits: (u32::MAX, u32::MAX),
+                refused: None,
             },
         );
         id
+    }
+
+    /// The limits `id`'s `WELCOME` gave (`max_frame_bytes`,
+    /// `max_payload_bytes`; none until set). A delta above them is not
+    /// sent to it: it is resynchronized with a keyframe as if it had
+    /// fallen behind. A keyframe above them cannot be sent at all: its
+    /// [`Transmit::refused`] says so.
+    pub fn set_limits(&mut self, id: ClientId, max_frame_bytes: u32, max_payload_bytes: u32) {
+        if let Some(c) = self.clients.get_mut(&id) {
+            c.limits = (max_frame_bytes, max_payload_bytes);
+        }
+    }
+
+    /// The largest frame (bytes, without the record prefix) and the
+    /// largest uncompressed payload pushed so far, keyframes included: a
+    /// new client must accept at least these (spec/session.md 3.2).
+    pub fn largest(&self) -> (u32, u32) {
+        self.largest
+    }
+
+    fn saw(&mut self, frame: &[u8]) {
+        self.largest.0 = self.largest.0.max(frame.len() as u32);
+        self.largest.1 = self.largest.1.max(payload_len(frame));
     }
 
     /// Removes a client; whether it was there.
@@ -165,9 +214,15 @@ impl Fanout {
     /// no longer the current state.
     pub fn push_frame(&mut self, frame: &EncodedFrame) -> u64 {
         self.shared_keyframe = None;
+        self.saw(&frame.bytes);
         let mut falls = 0;
         for c in self.clients.values_mut() {
-            if c.outbox.push_delta(frame.bytes.clone()) == Pushed::FellBehind {
+            let pushed = if c.too_large(&frame.bytes) {
+                c.outbox.skip_oversized()
+            } else {
+                c.outbox.push_delta(frame.bytes.clone())
+            };
+            if pushed == Pushed::FellBehind {
                 falls += 1;
             }
         }
@@ -178,7 +233,9 @@ impl Fanout {
     /// Whether some client waits for a keyframe (it just joined, asked for
     /// one, or fell behind and has drained).
     pub fn wants_keyframe(&self) -> bool {
-        self.clients.values().any(|c| c.outbox.wants_keyframe())
+        self.clients
+            .values()
+            .any(|c| c.refused.is_none() && c.outbox.wants_keyframe())
     }
 
     /// Hands the shared keyframe of the current state, if there is one, to
@@ -201,13 +258,25 @@ impl Fanout {
     /// every client that wants one now, and with those that ask before the
     /// next frame.
     pub fn push_keyframe(&mut self, keyframe: &EncodedFrame) {
+        self.saw(&keyframe.bytes);
         self.shared_keyframe = Some(keyframe.bytes.clone());
         self.queue_keyframe(keyframe.bytes.clone());
     }
 
     fn queue_keyframe(&mut self, kf: Bytes) {
         for c in self.clients.values_mut() {
-            if c.outbox.wants_keyframe() {
+            if c.refused.is_some() || !c.outbox.wants_keyframe() {
+                continue;
+            }
+            if c.too_large(&kf) {
+                c.refused = Some(format!(
+                    "a keyframe of {} bytes ({} uncompressed) is above the client's max_frame_bytes {} (max_payload_bytes {})",
+                    kf.len(),
+                    payload_len(&kf),
+                    c.limits.0,
+                    c.limits.1
+                ));
+            } else {
                 c.outbox.push_keyframe(kf.clone());
             }
         }
@@ -266,6 +335,10 @@ impl Fanout {
             }
             frame
         });
-        Some(Transmit { notices, frame })
+        Some(Transmit {
+            notices,
+            frame,
+            refused: c.refused.clone(),
+        })
     }
 }

@@ -88,6 +88,22 @@ impl Outbox {
         Pushed::Queued
     }
 
+    /// Skips a delta too large for the client (above its `WELCOME`
+    /// limits): what is queued still goes out, then the client is
+    /// resynchronized with a keyframe, as after a fall (spec/session.md
+    /// 3.2). `FellBehind` when it was in sync, `Skipped` when it already
+    /// waited for a keyframe.
+    pub fn skip_oversized(&mut self) -> Pushed {
+        self.dropped += 1;
+        if self.awaiting_keyframe {
+            return Pushed::Skipped;
+        }
+        self.awaiting_keyframe = true;
+        self.behind = true;
+        self.falls += 1;
+        Pushed::FellBehind
+    }
+
     /// Whether the client needs a keyframe now: it waits for one and
     /// nothing is left to write before it.
     pub fn wants_keyframe(&self) -> bool {

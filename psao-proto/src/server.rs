@@ -105,6 +105,9 @@ pub struct ServerStats {
     /// after a `NOTICE` code 2 (at most `falls`: a fall while a resync
     /// keyframe still waits drops it, and the next one resynchronizes).
     pub resyncs: u64,
+    /// The largest frame sent so far (bytes, without the record prefix),
+    /// keyframes included: a client must accept at least this to join.
+    pub largest_frame: u32,
     /// Clients connected now.
     pub clients: usize,
     /// Clients that completed a handshake since the start.
@@ -228,6 +231,7 @@ impl<S: FrameSource> ServerHandle<S> {
         st.max_queued = s.fanout.max_queued_bytes();
         st.falls = s.fanout.falls();
         st.resyncs = s.fanout.resyncs();
+        st.largest_frame = s.fanout.largest().0;
         st
     }
 
@@ -279,6 +283,10 @@ impl<S> Drop for ServerHandle<S> {
     }
 }
 
+/// How long the server waits for the client's transport parameters to
+/// let it open the frame stream after `WELCOME` (spec/session.md 2).
+pub const FRAME_STREAM_WAIT: Duration = Duration::from_secs(1);
+
 /// Starts a server streaming `source`'s frames.
 pub async fn serve<S: FrameSource>(
     source: S,
@@ -296,6 +304,8 @@ pub async fn serve<S: FrameSource>(
         compression: info.compression,
         max_frame_bytes: info.max_frame_bytes,
         max_payload_bytes: info.max_payload_bytes,
+        largest_frame: 0,
+        largest_payload: 0,
         mirror_bytes: info.mirror_bytes,
         point_format: info.point_format,
         overflow: info.overflow,
@@ -480,18 +490,23 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
             return Err(SessionError::HandshakeTimeout { awaited: "control stream" });
         }
     };
+    // Violations found off the control stream (another stream opened, a
+    // stream stopped, a keyframe above the client's limits) come to the
+    // reader, which closes: control bytes received before them are read
+    // first, so a violation in them wins and the close code of a given
+    // misbehaviour does not depend on which task saw it first.
+    let (ended, mut ends) = tokio::sync::mpsc::channel::<SessionError>(4);
     // Any other stream the client opens is a violation.
     let extra = {
-        let conn = conn.clone();
+        let (conn, ended) = (conn.clone(), ended.clone());
         tokio::spawn(async move {
             tokio::select! {
                 _ = conn.accept_uni() => {}
                 _ = conn.accept_bi() => {}
             }
-            conn.close(
-                quinn::VarInt::from_u32(CloseCode::ProtocolViolation.code()),
-                b"a client opens one stream",
-            );
+            let _ = ended
+                .send(SessionError::StreamMisused("a client opens one stream"))
+                .await;
         })
     };
     let mut send = Some(send);
@@ -499,14 +514,17 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
     let mut buf = vec![0u8; 2048];
     let mut events = Vec::new();
     let result = 'read: loop {
-        let read = match session.deadline() {
-            Some(d) => tokio::select! {
-                r = recv.read(&mut buf) => r,
-                _ = tokio::time::sleep_until(tokio::time::Instant::from_std(d)) => {
-                    break Err(SessionError::HandshakeTimeout { awaited: "HELLO" });
-                }
-            },
-            None => recv.read(&mut buf).await,
+        let deadline = session.deadline();
+        let handshake = tokio::time::Instant::from_std(deadline.unwrap_or_else(Instant::now));
+        // Biased: bytes already received are read before a violation
+        // another task reported, or the handshake deadline, is acted on.
+        let read = tokio::select! {
+            biased;
+            r = recv.read(&mut buf) => r,
+            Some(e) = ends.recv() => break Err(e),
+            _ = tokio::time::sleep_until(handshake), if deadline.is_some() => {
+                break Err(SessionError::HandshakeTimeout { awaited: "HELLO" });
+            }
         };
         let n = match read {
             Ok(Some(n)) => n,
@@ -522,6 +540,10 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
             }
             Err(_) => break Ok(()),
         };
+        if session.hello().is_none() {
+            let (frame, payload) = hub.lock().fanout.largest();
+            session.frames_so_far(frame, payload);
+        }
         if let Err(close) = session.on_control(&buf[..n], Instant::now(), &mut events) {
             break Err(close);
         }
@@ -537,9 +559,18 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                     if control.write_all(&bytes).await.is_err() {
                         break 'read Ok(());
                     }
-                    let frames = match conn.open_uni().await {
-                        Ok(s) => s,
-                        Err(_) => break 'read Ok(()),
+                    // A client whose transport parameters allow no
+                    // server-initiated stream would leave this waiting.
+                    let frames = match tokio::time::timeout(FRAME_STREAM_WAIT, conn.open_uni())
+                        .await
+                    {
+                        Ok(Ok(s)) => s,
+                        Ok(Err(_)) => break 'read Ok(()),
+                        Err(_) => {
+                            break 'read Err(SessionError::StreamMisused(
+                                "the client allows no frame stream (initial_max_streams_uni must be 1)",
+                            ));
+                        }
                     };
                     let wake = Arc::new(Notify::new());
                     let client = {
@@ -548,6 +579,13 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                             break 'read Err(SessionError::ServerFull);
                         }
                         let client = s.fanout.add_client(viewer);
+                        if let Some(h) = session.hello() {
+                            s.fanout.set_limits(
+                                client,
+                                h.max_frame_bytes.min(hub.offer.max_frame_bytes),
+                                h.max_payload_bytes.min(hub.offer.max_payload_bytes),
+                            );
+                        }
                         s.stats.accepted += 1;
                         s.clients.insert(
                             client,
@@ -561,27 +599,33 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                     id = Some(client);
                     info!(remote = %conn.remote_address(), client, "client joined");
                     hub.writers.fetch_add(1, Ordering::SeqCst);
-                    let (h, conn) = (hub.clone(), conn.clone());
+                    let (h, conn, ended) = (hub.clone(), conn.clone(), ended.clone());
                     tokio::spawn(async move {
                         let end = write_loop(&h, client, wake, control, frames).await;
                         h.writers.fetch_sub(1, Ordering::SeqCst);
-                        match end {
+                        let error = match end {
                             // Shutting down: hold the streams until the
                             // connection closes, so that dropping them
                             // does not finish the control stream first.
                             WriterEnd::Shutdown(streams) => {
                                 conn.closed().await;
                                 drop(streams);
+                                return;
                             }
-                            // A stream was stopped or reset by the client.
-                            WriterEnd::Stopped => conn.close(
-                                quinn::VarInt::from_u32(CloseCode::ProtocolViolation.code()),
-                                b"a stream was stopped",
-                            ),
                             // The reader removed the client: it closes the
                             // connection with its own reason.
-                            WriterEnd::Left => {}
-                        }
+                            WriterEnd::Left => return,
+                            // A stream was stopped by the client.
+                            WriterEnd::Stopped => {
+                                SessionError::StreamMisused("a stream was stopped")
+                            }
+                            // Its keyframe is above its limits.
+                            WriterEnd::Refused(reason) => SessionError::CapabilityMismatch(reason),
+                        };
+                        // The reader closes (it may have a violation of its
+                        // own to report first); if it has gone, the
+                        // connection is closed already.
+                        let _ = ended.send(error).await;
                     });
                 }
                 ServerEvent::Ack(seq) => {
@@ -644,6 +688,9 @@ enum WriterEnd {
     /// The server shuts down: the streams, the frame stream finished, to
     /// be held until the connection closes.
     Shutdown((quinn::SendStream, quinn::SendStream)),
+    /// The keyframe the client needs is above its limits: close with
+    /// `capability_mismatch` and this reason.
+    Refused(String),
 }
 
 /// Writes a client's notices and frames until it leaves, a write fails or
@@ -656,13 +703,21 @@ async fn write_loop(
     mut frames: quinn::SendStream,
 ) -> WriterEnd {
     loop {
-        let Some(Transmit { notices, frame }) = hub.lock().fanout.poll_transmit(client) else {
+        let Some(Transmit {
+            notices,
+            frame,
+            refused,
+        }) = hub.lock().fanout.poll_transmit(client)
+        else {
             return WriterEnd::Left;
         };
         for n in notices {
             if control.write_all(&n).await.is_err() {
                 return WriterEnd::Stopped;
             }
+        }
+        if let (None, Some(reason)) = (&frame, refused) {
+            return WriterEnd::Refused(reason);
         }
         match frame {
             Some(f) => {

@@ -24,10 +24,18 @@ pub const UPLINK_RATE: f64 = 256.0;
 pub struct Offer {
     /// The compression id of the stream (frames are encoded once).
     pub compression: u8,
-    /// Largest frame it sends.
+    /// Largest frame it will ever send (its encoder's limit): `WELCOME`
+    /// says the smaller of this and the client's `HELLO`.
     pub max_frame_bytes: u32,
-    /// Largest uncompressed payload it sends.
+    /// Largest uncompressed payload it will ever send.
     pub max_payload_bytes: u32,
+    /// Largest frame it has sent so far, keyframes included: a client
+    /// whose `HELLO` accepts less is refused, naming this size. Frames
+    /// larger than a client's limit that come later are not sent to it
+    /// (spec/session.md 3.2).
+    pub largest_frame: u32,
+    /// Largest uncompressed payload it has sent so far.
+    pub largest_payload: u32,
     /// Bytes of the mirror a client needs for the scene.
     pub mirror_bytes: u64,
     /// The largest point format the frames use (`WELCOME.point_format`).
@@ -69,13 +77,13 @@ pub fn negotiate(hello: &Hello, offer: &Offer) -> Result<Welcome, SessionError> 
                 .to_string(),
         );
     }
-    if hello.max_frame_bytes < offer.max_frame_bytes
-        || hello.max_payload_bytes < offer.max_payload_bytes
+    if hello.max_frame_bytes < offer.largest_frame
+        || hello.max_payload_bytes < offer.largest_payload
     {
         return mismatch(format!(
-            "frames up to {} bytes ({} uncompressed), the client accepts {} ({})",
-            offer.max_frame_bytes,
-            offer.max_payload_bytes,
+            "this session's frames reach {} bytes ({} uncompressed); the client accepts {} ({})",
+            offer.largest_frame,
+            offer.largest_payload,
             hello.max_frame_bytes,
             hello.max_payload_bytes
         ));
@@ -90,8 +98,8 @@ pub fn negotiate(hello: &Hello, offer: &Offer) -> Result<Welcome, SessionError> 
         version: VERSION,
         compression: offer.compression,
         point_format: offer.point_format,
-        max_frame_bytes: offer.max_frame_bytes,
-        max_payload_bytes: offer.max_payload_bytes,
+        max_frame_bytes: offer.max_frame_bytes.min(hello.max_frame_bytes),
+        max_payload_bytes: offer.max_payload_bytes.min(hello.max_payload_bytes),
         frame_rate: offer.frame_rate,
         // Culling is to a viewer's camera: a client that sends none is not
         // culled for (its presence turns culling off, spec/session.md 3.2).
@@ -175,11 +183,18 @@ impl ServerConn {
     pub fn new(offer: Offer, now: Instant) -> ServerConn {
         ServerConn {
             offer,
-            reader: ControlReader::new(),
+            reader: ControlReader::from(crate::control::Sender::Client),
             bucket: TokenBucket::new(UPLINK_RATE, now),
             opened: now,
             hello: None,
         }
+    }
+
+    /// The largest frame and payload the server has sent so far, for the
+    /// `HELLO` still to come (see [`Offer::largest_frame`]).
+    pub fn frames_so_far(&mut self, largest_frame: u32, largest_payload: u32) {
+        self.offer.largest_frame = largest_frame;
+        self.offer.largest_payload = largest_payload;
     }
 
     /// The client's `HELLO`, once it came.

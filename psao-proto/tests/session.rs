@@ -14,6 +14,8 @@ fn offer() -> Offer {
         compression: 2,
         max_frame_bytes: 1 << 20,
         max_payload_bytes: 1 << 20,
+        largest_frame: 0,
+        largest_payload: 0,
         mirror_bytes: 1 << 16,
         point_format: 0,
         overflow: false,
@@ -59,13 +61,34 @@ fn negotiation_refuses_what_the_client_cannot_take() {
         }),
         CloseCode::CapabilityMismatch
     );
-    assert_eq!(
-        code(Hello {
-            max_frame_bytes: 1 << 19,
+    // Limits below the server's cap are accepted while its frames fit
+    // them (the spec's example HELLO offers 1 MiB); WELCOME says the
+    // smaller of both.
+    let small = Hello {
+        max_frame_bytes: 65_536,
+        max_payload_bytes: 1 << 19,
+        ..hello()
+    };
+    let w = negotiate(&small, &offer()).unwrap();
+    assert_eq!((w.max_frame_bytes, w.max_payload_bytes), (65_536, 1 << 19));
+    // Below the largest frame sent so far: refused, naming its size.
+    let sent = Offer {
+        largest_frame: 70_000,
+        largest_payload: 90_000,
+        ..offer()
+    };
+    let e = negotiate(&small, &sent).unwrap_err();
+    assert_eq!(e.close_code(), CloseCode::CapabilityMismatch);
+    assert!(e.to_string().contains("70000"), "{e}");
+    let e = negotiate(
+        &Hello {
+            max_payload_bytes: 80_000,
             ..hello()
-        }),
-        CloseCode::CapabilityMismatch
-    );
+        },
+        &sent,
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("90000 uncompressed"), "{e}");
     assert_eq!(
         code(Hello {
             max_mirror_bytes: 100,

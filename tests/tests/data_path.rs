@@ -78,6 +78,8 @@ fn run(seed: u64) -> (Run, Vec<f32>, Pipeline, Scene) {
         compression: info.compression,
         max_frame_bytes: info.max_frame_bytes,
         max_payload_bytes: info.max_payload_bytes,
+        largest_frame: 0,
+        largest_payload: 0,
         mirror_bytes: info.mirror_bytes,
         point_format: info.point_format,
         overflow: info.overflow,
@@ -160,7 +162,7 @@ fn run(seed: u64) -> (Run, Vec<f32>, Pipeline, Scene) {
         // while the link takes them.
         if let Some(c) = id {
             while frames_down.is_free(now) {
-                let Some(Transmit { notices, frame }) = fanout.poll_transmit(c) else {
+                let Some(Transmit { notices, frame, .. }) = fanout.poll_transmit(c) else {
                     break;
                 };
                 for n in notices {

@@ -4,6 +4,8 @@
 //! malformed or oversized messages, which are closed with the specified
 //! code while the others keep being served.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering::SeqCst};
 use std::time::Duration;
 
 use glam::{Affine3A, Vec3};
@@ -79,15 +81,6 @@ async fn raw_to(
     quinn::Connection,
     (quinn::SendStream, quinn::RecvStream),
 ) {
-    let mut ep = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
-    let mut cc = client_config(&Trust::Fingerprint(fingerprint)).unwrap();
-    let mut transport = quinn::TransportConfig::default();
-    transport.stream_receive_window(4096u32.into());
-    transport.receive_window(8192u32.into());
-    cc.transport_config(std::sync::Arc::new(transport));
-    ep.set_default_client_config(cc);
-    let conn = ep.connect(addr, "localhost").unwrap().await.unwrap();
-    let (mut send, mut recv) = conn.open_bi().await.unwrap();
     let hello = Control::Hello(Hello {
         version: 1,
         compressions: 0b111,
@@ -98,24 +91,205 @@ async fn raw_to(
         viewer: false,
         overflow: true,
     });
-    send.write_all(&hello.to_bytes()).await.unwrap();
-    let mut len = [0u8; 2];
-    recv.read_exact(&mut len).await.unwrap();
-    let mut body = vec![0u8; u16::from_le_bytes(len) as usize];
-    recv.read_exact(&mut body).await.unwrap();
+    let (ep, conn, (send, mut recv)) = raw_hello(addr, fingerprint, &hello.to_bytes()).await;
+    let body = read_control(&mut recv).await.expect("WELCOME");
     assert_eq!(body[0], 0x02, "WELCOME");
     // The control stream stays open both ways (dropping the receiving
     // half would stop the server's sending half: a violation of its own).
     (ep, conn, (send, recv))
 }
 
-async fn close_code(conn: &quinn::Connection) -> CloseCode {
+/// A bare QUIC connection that has opened its control stream and written
+/// `hello` (any bytes) on it.
+async fn raw_hello(
+    addr: std::net::SocketAddr,
+    fingerprint: [u8; 32],
+    hello: &[u8],
+) -> (
+    quinn::Endpoint,
+    quinn::Connection,
+    (quinn::SendStream, quinn::RecvStream),
+) {
+    let mut ep = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
+    let mut cc = client_config(&Trust::Fingerprint(fingerprint)).unwrap();
+    let mut transport = quinn::TransportConfig::default();
+    transport.stream_receive_window(4096u32.into());
+    transport.receive_window(8192u32.into());
+    cc.transport_config(std::sync::Arc::new(transport));
+    ep.set_default_client_config(cc);
+    let conn = ep.connect(addr, "localhost").unwrap().await.unwrap();
+    let (mut send, recv) = conn.open_bi().await.unwrap();
+    send.write_all(hello).await.unwrap();
+    (ep, conn, (send, recv))
+}
+
+/// The next control message's type and body; `None` once the stream or
+/// connection ends.
+async fn read_control(recv: &mut quinn::RecvStream) -> Option<Vec<u8>> {
+    let mut len = [0u8; 2];
+    recv.read_exact(&mut len).await.ok()?;
+    let mut body = vec![0u8; u16::from_le_bytes(len) as usize];
+    recv.read_exact(&mut body).await.ok()?;
+    Some(body)
+}
+
+/// The application close code and reason of a connection.
+async fn close_of(conn: &quinn::Connection) -> (CloseCode, String) {
     match tokio::time::timeout(Duration::from_secs(10), conn.closed()).await {
-        Ok(quinn::ConnectionError::ApplicationClosed(c)) => {
-            CloseCode::from_code(c.error_code.into_inner())
-        }
+        Ok(quinn::ConnectionError::ApplicationClosed(c)) => (
+            CloseCode::from_code(c.error_code.into_inner()),
+            String::from_utf8_lossy(&c.reason).into_owned(),
+        ),
         other => panic!("not closed by the application: {other:?}"),
     }
+}
+
+/// The HELLO example of spec/session.md section 8, as bytes.
+fn spec_example(name: &str) -> Vec<u8> {
+    let spec = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../spec/session.md"))
+        .unwrap();
+    let mut lines = spec.lines().skip_while(|l| *l != format!("```hex {name}"));
+    lines.next().expect("the example");
+    lines
+        .take_while(|l| !l.starts_with("```"))
+        .flat_map(|l| l.split_whitespace())
+        .map(|b| u8::from_str_radix(b, 16).unwrap())
+        .collect()
+}
+
+/// spec/session.md 3.2 (issue 16, finding 1): the spec's own example
+/// HELLO (1 MiB limits) is accepted, and WELCOME answers with its limits;
+/// a HELLO whose limits are below the largest frame the server has sent
+/// is refused with `capability_mismatch` and a reason naming that size.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hello_limits_are_accepted_when_the_frames_fit_and_refused_naming_the_size() {
+    let id = Identity::self_signed().unwrap();
+    let server = serve(Bulky::new(80 * 1024, 0), config(1 << 20), &id)
+        .await
+        .unwrap();
+    let hello = spec_example("HELLO");
+    assert_eq!(hello[11..15], (1u32 << 20).to_le_bytes(), "a 1 MiB offer");
+    let (_ep, conn, (_send, mut recv)) =
+        raw_hello(server.local_addr(), server.fingerprint(), &hello).await;
+    let welcome = read_control(&mut recv).await.expect("WELCOME, not a close");
+    assert_eq!(welcome[0], 0x02);
+    assert_eq!(welcome[5..9], (1u32 << 20).to_le_bytes(), "max_frame_bytes");
+    assert_eq!(
+        welcome[9..13],
+        (1u32 << 20).to_le_bytes(),
+        "max_payload_bytes"
+    );
+    let mut frames = conn.accept_uni().await.unwrap();
+    let got = read_frames(&mut frames, Duration::from_millis(200)).await;
+    assert!(
+        got.first().is_some_and(|f| f.1),
+        "a keyframe first: {got:?}"
+    );
+    // The server has sent 80 KiB frames: a client accepting 64 KiB (the
+    // spec's minimum) cannot follow it.
+    let mut small = hello.clone();
+    small[11..15].copy_from_slice(&65_536u32.to_le_bytes());
+    small[15..19].copy_from_slice(&65_536u32.to_le_bytes());
+    let (_ep2, conn2, _streams) =
+        raw_hello(server.local_addr(), server.fingerprint(), &small).await;
+    let (code, reason) = close_of(&conn2).await;
+    assert_eq!(code, CloseCode::CapabilityMismatch, "{reason}");
+    let largest = server.stats().largest_frame;
+    assert!(largest > 80 * 1024, "{largest}");
+    assert!(
+        reason.contains(&largest.to_string()),
+        "the reason names the size: {reason}"
+    );
+}
+
+/// Frames that outgrow a client's limits after it joined are not sent to
+/// it: a delta above them is skipped and the client resynchronized with
+/// a keyframe and NOTICE 2; a keyframe above them closes it with
+/// `capability_mismatch`, naming the size.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frames_above_a_clients_limits_are_never_sent_to_it() {
+    let id = Identity::self_signed().unwrap();
+    let source = Bulky::new(1024, 0);
+    let (deltas, keyframes) = (source.delta_bytes.clone(), source.keyframe_bytes.clone());
+    let server = serve(source, config(1 << 20), &id).await.unwrap();
+    let mut hello = spec_example("HELLO");
+    hello[11..15].copy_from_slice(&65_536u32.to_le_bytes());
+    hello[15..19].copy_from_slice(&65_536u32.to_le_bytes());
+    let (_ep, conn, (_send, mut recv)) =
+        raw_hello(server.local_addr(), server.fingerprint(), &hello).await;
+    let welcome = read_control(&mut recv).await.expect("WELCOME");
+    assert_eq!(welcome[5..9], 65_536u32.to_le_bytes());
+    let mut frames = conn.accept_uni().await.unwrap();
+    let mut sizes = Vec::new();
+    let mut read = async |frames: &mut quinn::RecvStream, time| {
+        let end = std::time::Instant::now() + time;
+        while std::time::Instant::now() < end {
+            let mut len = [0u8; 4];
+            if frames.read_exact(&mut len).await.is_err() {
+                break;
+            }
+            let mut frame = vec![0u8; u32::from_le_bytes(len) as usize];
+            frames.read_exact(&mut frame).await.unwrap();
+            sizes.push((frame.len(), frame[5] & 1 == 1));
+        }
+    };
+    read(&mut frames, Duration::from_millis(200)).await;
+    // Deltas grow past 64 KiB for a while, then shrink again.
+    deltas.store(70 * 1024, SeqCst);
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    deltas.store(1024, SeqCst);
+    read(&mut frames, Duration::from_millis(300)).await;
+    assert!(sizes.iter().all(|s| s.0 <= 65_536), "{sizes:?}");
+    let resyncs = sizes.iter().skip(1).filter(|s| s.1).count();
+    assert!(
+        resyncs >= 1,
+        "resynchronized after the skipped deltas: {sizes:?}"
+    );
+    let notice = read_control(&mut recv).await.expect("NOTICE");
+    assert_eq!((notice[0], notice[1]), (0x20, 2), "NOTICE code 2");
+    // Now keyframes outgrow it too: the next one it needs closes it.
+    keyframes.store(70 * 1024, SeqCst);
+    deltas.store(70 * 1024, SeqCst);
+    let (code, reason) = close_of(&conn).await;
+    assert_eq!(code, CloseCode::CapabilityMismatch, "{reason}");
+    assert!(reason.contains("keyframe of 7"), "{reason}");
+    assert!(reason.contains("65536"), "{reason}");
+    drop(server);
+}
+
+/// spec/session.md 6 (issue 16, finding 3): 300 messages in one write are
+/// `rate_exceeded`, every time, even when the client also stops the
+/// frame stream at once (a second violation the writer sees, which used
+/// to close first with `protocol_violation` "a stream was stopped").
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_close_code_of_a_violation_is_deterministic() {
+    let id = Identity::self_signed().unwrap();
+    let server = serve(Bulky::new(8 * 1024, 0), config(1 << 20), &id)
+        .await
+        .unwrap();
+    let acks: Vec<u8> = (0..300u32)
+        .flat_map(|s| Control::Ack(s).to_bytes().to_vec())
+        .collect();
+    for run in 0..12 {
+        let (_ep, conn, (mut send, _recv)) =
+            raw_to(server.local_addr(), server.fingerprint()).await;
+        let mut frames = conn.accept_uni().await.unwrap();
+        send.write_all(&acks).await.unwrap();
+        // Also a violation: a stream stopped, or a second stream opened.
+        if run % 2 == 0 {
+            let _ = frames.stop(0u32.into());
+        } else {
+            if let Ok(mut extra) = conn.open_uni().await {
+                let _ = extra.write_all(&[0]).await;
+            }
+        }
+        let (code, reason) = close_of(&conn).await;
+        assert_eq!(code, CloseCode::RateExceeded, "run {run}: {reason}");
+    }
+}
+
+async fn close_code(conn: &quinn::Connection) -> CloseCode {
+    close_of(conn).await.0
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -464,20 +638,34 @@ async fn a_server_below_its_announced_rate_tells_its_clients() {
     server.shutdown(Duration::from_secs(1)).await.unwrap();
 }
 
-/// A source of large frames (16 KiB deltas of repeated transforms), so
-/// that a stalled client fills the QUIC send window within a second.
+/// A source of large frames (deltas and keyframes padded with repeated
+/// transforms to the sizes its handles say), so that a stalled client
+/// fills the QUIC send window within a second, and frames can outgrow a
+/// client's limits mid-session.
+#[derive(Clone, Default)]
 struct Bulky {
     sequence: u32,
+    delta_bytes: Arc<AtomicUsize>,
+    keyframe_bytes: Arc<AtomicUsize>,
 }
 
 impl Bulky {
+    fn new(delta_bytes: usize, keyframe_bytes: usize) -> Bulky {
+        Bulky {
+            sequence: 1,
+            delta_bytes: Arc::new(delta_bytes.into()),
+            keyframe_bytes: Arc::new(keyframe_bytes.into()),
+        }
+    }
+
     fn frame(&self, keyframe: bool) -> psao_codec::EncodedFrame {
         use psao_tests::raw;
         let s = self.sequence;
+        let pad = |bytes: &AtomicUsize| vec![raw::transform(1, s, 1.0); bytes.load(SeqCst) / 53];
         let messages: Vec<Vec<u8>> = if keyframe {
-            vec![raw::define(1, &raw::DEF), raw::transform(1, s, 1.0)]
+            [vec![raw::define(1, &raw::DEF)], pad(&self.keyframe_bytes)].concat()
         } else {
-            vec![raw::transform(1, s, 1.0); 16 * 1024 / 53]
+            pad(&self.delta_bytes)
         };
         psao_codec::EncodedFrame {
             bytes: raw::frame(keyframe, s, s.wrapping_sub(1), &messages).into(),
@@ -492,8 +680,8 @@ impl FrameSource for Bulky {
     fn info(&self) -> SourceInfo {
         SourceInfo {
             compression: 0,
-            max_frame_bytes: 1 << 20,
-            max_payload_bytes: 1 << 20,
+            max_frame_bytes: 1 << 24,
+            max_payload_bytes: 1 << 24,
             mirror_bytes: 1 << 20,
             point_format: 0,
             overflow: false,
@@ -542,7 +730,7 @@ async fn read_frames(frames: &mut quinn::RecvStream, time: Duration) -> Vec<(u32
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_client_that_falls_behind_gets_notice_2_with_its_keyframe() {
     let id = Identity::self_signed().unwrap();
-    let server = serve(Bulky { sequence: 1 }, config(16 * 1024), &id)
+    let server = serve(Bulky::new(16 * 1024, 0), config(16 * 1024), &id)
         .await
         .unwrap();
     let (_ep, conn, (_send, mut control)) = raw_to(server.local_addr(), server.fingerprint()).await;
@@ -601,4 +789,42 @@ async fn a_client_that_falls_behind_gets_notice_2_with_its_keyframe() {
         seen.len(),
         codes.len()
     );
+}
+
+/// spec/session.md 5.1 and 2 (issue 16, finding 6): a `WELCOME` sent by a
+/// client is a violation of role (`protocol_violation`), not a version
+/// mismatch; a client that allows no server-initiated stream is closed
+/// (it used to get WELCOME, then silence).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_breaking_the_handshake_is_closed_with_the_right_code() {
+    let id = Identity::self_signed().unwrap();
+    let server = serve(Bulky::new(1024, 0), config(1 << 20), &id)
+        .await
+        .unwrap();
+    let (addr, fp) = (server.local_addr(), server.fingerprint());
+    // A WELCOME from the client, first and after HELLO, with a bad version.
+    let mut welcome = spec_example("WELCOME");
+    welcome[3] = 9;
+    let (_ep, conn, _s) = raw_hello(addr, fp, &welcome).await;
+    let (code, reason) = close_of(&conn).await;
+    assert_eq!(code, CloseCode::ProtocolViolation, "{reason}");
+    let (_ep, conn, (mut send, _recv)) = raw_to(addr, fp).await;
+    send.write_all(&welcome).await.unwrap();
+    let (code, reason) = close_of(&conn).await;
+    assert_eq!(code, CloseCode::ProtocolViolation, "{reason}");
+    assert!(reason.contains("other role"), "{reason}");
+    // No room for the frame stream: closed within the handshake timeout.
+    let mut ep = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
+    let mut cc = client_config(&Trust::Fingerprint(fp)).unwrap();
+    let mut transport = quinn::TransportConfig::default();
+    transport.max_concurrent_uni_streams(0u32.into());
+    cc.transport_config(Arc::new(transport));
+    ep.set_default_client_config(cc);
+    let conn = ep.connect(addr, "localhost").unwrap().await.unwrap();
+    let (mut send, mut recv) = conn.open_bi().await.unwrap();
+    send.write_all(&spec_example("HELLO")).await.unwrap();
+    assert_eq!(read_control(&mut recv).await.expect("WELCOME")[0], 0x02);
+    let (code, reason) = close_of(&conn).await;
+    assert_eq!(code, CloseCode::ProtocolViolation, "{reason}");
+    assert!(reason.contains("initial_max_streams_uni"), "{reason}");
 }
