@@ -36,6 +36,9 @@ fuzz_target!(|data: &[u8]| {
                 compression: 2,
                 max_frame_bytes: 1 << 20,
                 max_payload_bytes: 1 << 20,
+                // Frames sent so far: HELLOs below are refused.
+                largest_frame: 100_000,
+                largest_payload: 100_000,
                 mirror_bytes: 1 << 16,
                 // Bind space half the time: negotiation refuses clients
                 // without point format 1.
@@ -46,6 +49,8 @@ fuzz_target!(|data: &[u8]| {
                 frame_rate: 60,
                 scene: "fuzz".into(),
                 culling: true,
+                // Digests half the time.
+                digest: which / 16 % 2 == 1,
             };
             let t0 = Instant::now();
             let mut s = ServerConn::new(offer, t0);

@@ -717,6 +717,10 @@ fn main() {
             let expect = outcome(&decoder.receive(frame));
             writeln!(text, "expect {expect}").ok();
         }
+        match decoder.mirror().digest() {
+            Some(d) => writeln!(text, "digest {d:08x}").ok(),
+            None => writeln!(text, "digest none").ok(),
+        };
         writeln!(text, "state").ok();
         text.push_str(&decoder.mirror().describe());
         std::fs::write(dir.join(format!("{}.txt", vector.name)), text).expect("write vector");

@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 use bytes::{Bytes, BytesMut};
 use glam::Affine3A;
 use psao_codec::wire::FrameHeader;
+use psao_codec::wire::sequence::is_newer;
 use psao_codec::{Compression, DecodeError, Decoder, Event, Limits, Mirror};
 
 use crate::codes::SessionError;
@@ -39,6 +40,10 @@ pub struct ClientConfig {
     /// `capability_mismatch`. Default: offered (the decoder and
     /// [`psao_codec::reconstruct_ao`] follow chains).
     pub no_overflow: bool,
+    /// Do not offer mirror digests (spec/session.md 3.8): for a server
+    /// from before they were specified, which refuses the flag. Default:
+    /// offered, and every `DIGEST` is checked.
+    pub no_digest: bool,
 }
 
 /// What happened on a session.
@@ -76,6 +81,14 @@ pub enum ClientEvent {
         /// The compression id its header named.
         compression: u8,
     },
+    /// A `DIGEST` was checked against the mirror (spec/session.md 3.8);
+    /// on a mismatch a keyframe was requested (reason 4).
+    DigestChecked {
+        /// The sequence it was for.
+        sequence: u32,
+        /// Whether the mirror's digest was the server's.
+        matched: bool,
+    },
     /// The server said something.
     Notice {
         /// About what.
@@ -100,6 +113,13 @@ pub struct ClientStats {
     pub requests: u64,
     /// Frame bytes received.
     pub bytes: u64,
+    /// `DIGEST`s checked and found equal to the mirror's.
+    pub digests_matched: u64,
+    /// `DIGEST`s checked and found different (each asked for a keyframe).
+    pub digest_mismatches: u64,
+    /// `DIGEST`s dropped unchecked: the mirror had moved past their
+    /// sequence, or jumped over it (spec/session.md 3.8).
+    pub digests_dropped: u64,
 }
 
 /// One client session.
@@ -137,6 +157,8 @@ pub struct ClientSession {
     now: Option<Instant>,
     /// When the server finished the frame stream (it is shutting down).
     frames_finished: Option<Instant>,
+    /// A `DIGEST` for a sequence the mirror has not reached yet.
+    pending_digest: Option<(u32, u32)>,
 }
 
 /// Most events a session queues; older ones are dropped when the caller
@@ -196,6 +218,7 @@ impl ClientSession {
             max_mirror_bytes: config.limits.max_mirror_bytes,
             viewer: config.viewer,
             overflow: !config.no_overflow,
+            digest: !config.no_digest,
         })
         .encode(&mut transmit);
         ClientSession {
@@ -218,6 +241,7 @@ impl ClientSession {
             deferred: None,
             now: None,
             frames_finished: None,
+            pending_digest: None,
         }
     }
 
@@ -258,6 +282,7 @@ impl ClientSession {
                     if ours & (1 << w.compression) == 0
                         || self.point_formats() & (1 << w.point_format.min(7)) == 0
                         || (w.overflow && self.config.no_overflow)
+                        || (w.digest && self.config.no_digest)
                         || w.max_frame_bytes > self.config.limits.max_frame_bytes
                         || w.max_payload_bytes > self.config.limits.max_payload_bytes
                     {
@@ -278,6 +303,12 @@ impl ClientSession {
                 }
                 Control::Notice { code, text } if self.welcome.is_some() => {
                     self.push_event(ClientEvent::Notice { code, text });
+                }
+                Control::Digest { sequence, digest }
+                    if self.welcome.as_ref().is_some_and(|w| w.digest) =>
+                {
+                    self.pending_digest = Some((sequence, digest));
+                    self.check_digest();
                 }
                 other => {
                     return Err(SessionError::Unexpected {
@@ -347,6 +378,7 @@ impl ClientSession {
                     Control::Ack(sequence).encode(&mut self.transmit);
                 }
                 self.push_event(ClientEvent::Applied { sequence, keyframe });
+                self.check_digest();
             }
             Ok(Event::Stale { sequence, .. }) => {
                 self.stats.stale += 1;
@@ -366,6 +398,45 @@ impl ClientSession {
             }
         }
         Ok(())
+    }
+
+    /// Asks for a digest now and one every `every` frames (0: none
+    /// periodic; spec/session.md 3.9). Nothing is sent in a session
+    /// without `digest`; returns whether the request was queued.
+    pub fn request_digests(&mut self, every: u16) -> bool {
+        if !self.welcome.as_ref().is_some_and(|w| w.digest) {
+            return false;
+        }
+        Control::DigestRequest { every }.encode(&mut self.transmit);
+        true
+    }
+
+    /// Compares the pending `DIGEST` with the mirror when it is at its
+    /// sequence; drops it once the mirror is past it (spec/session.md 3.8).
+    fn check_digest(&mut self) {
+        let Some((sequence, digest)) = self.pending_digest else {
+            return;
+        };
+        let Some(at) = self.decoder.mirror().sequence() else {
+            self.pending_digest = None;
+            self.stats.digests_dropped += 1;
+            return;
+        };
+        if at == sequence {
+            self.pending_digest = None;
+            let matched = self.decoder.mirror().digest() == Some(digest);
+            if matched {
+                self.stats.digests_matched += 1;
+            } else {
+                self.stats.digest_mismatches += 1;
+                self.request(KeyframeReason::DigestMismatch);
+            }
+            self.push_event(ClientEvent::DigestChecked { sequence, matched });
+        } else if !is_newer(sequence, at) {
+            // The mirror moved past it (or jumped over it).
+            self.pending_digest = None;
+            self.stats.digests_dropped += 1;
+        }
     }
 
     /// Counts a failed frame against the keyframes-in-a-row limit.

@@ -32,8 +32,12 @@ pub mod kind {
     pub const KEYFRAME_REQUEST: u8 = 0x12;
     /// `MOVE_INSTANCE`.
     pub const MOVE_INSTANCE: u8 = 0x13;
+    /// `DIGEST_REQUEST`.
+    pub const DIGEST_REQUEST: u8 = 0x14;
     /// `NOTICE`.
     pub const NOTICE: u8 = 0x20;
+    /// `DIGEST`.
+    pub const DIGEST: u8 = 0x21;
 }
 
 /// `HELLO`: what the client decodes and accepts.
@@ -57,6 +61,9 @@ pub struct Hello {
     /// Whether it decodes and reconstructs instances with overflow chains
     /// (`flags` bit 1; spec/wire-format.md 7.4).
     pub overflow: bool,
+    /// Whether it checks mirror digests (`flags` bit 2; spec/session.md
+    /// 3.8).
+    pub digest: bool,
 }
 
 /// `WELCOME`: what the server will send.
@@ -80,6 +87,9 @@ pub struct Welcome {
     /// Whether the frames may define instances with overflow chains
     /// (`flags` bit 1; spec/wire-format.md 7.4).
     pub overflow: bool,
+    /// Whether the server sends this client `DIGEST` and takes
+    /// `DIGEST_REQUEST` (`flags` bit 2; spec/session.md 3.8, 3.9).
+    pub digest: bool,
     /// The scene's name (at most [`MAX_TEXT`] bytes).
     pub scene: String,
 }
@@ -110,6 +120,9 @@ pub enum KeyframeReason {
     Other,
     /// The client holds no state yet (3); `sequence` is 0.
     NoState,
+    /// The mirror's digest differs from the server's `DIGEST` (4; only in
+    /// a session with `digest`).
+    DigestMismatch,
 }
 
 /// Notice codes.
@@ -158,6 +171,20 @@ pub enum Control {
         /// Text (at most [`MAX_TEXT`] bytes).
         text: String,
     },
+    /// Server to client, in a session with `digest`: the mirror digest
+    /// (spec/wire-format.md 7.5) after frame `sequence`.
+    Digest {
+        /// The frame's sequence.
+        sequence: u32,
+        /// The digest of the mirror after it.
+        digest: u32,
+    },
+    /// Client to server, in a session with `digest`: a digest now, and one
+    /// every `every` frames from now on (0: none periodic).
+    DigestRequest {
+        /// Frames between digests; 0 for none.
+        every: u16,
+    },
 }
 
 /// Truncates `s` to at most [`MAX_TEXT`] bytes on a character boundary.
@@ -180,6 +207,8 @@ impl Control {
             Control::KeyframeRequest { .. } => kind::KEYFRAME_REQUEST,
             Control::MoveInstance { .. } => kind::MOVE_INSTANCE,
             Control::Notice { .. } => kind::NOTICE,
+            Control::Digest { .. } => kind::DIGEST,
+            Control::DigestRequest { .. } => kind::DIGEST_REQUEST,
         }
     }
 
@@ -196,7 +225,7 @@ impl Control {
                 body.put_u32_le(h.max_frame_bytes);
                 body.put_u32_le(h.max_payload_bytes);
                 body.put_u64_le(h.max_mirror_bytes);
-                body.put_u8(h.viewer as u8 | (h.overflow as u8) << 1);
+                body.put_u8(h.viewer as u8 | (h.overflow as u8) << 1 | (h.digest as u8) << 2);
             }
             Control::Welcome(w) => {
                 body.put_u16_le(w.version);
@@ -205,7 +234,7 @@ impl Control {
                 body.put_u32_le(w.max_frame_bytes);
                 body.put_u32_le(w.max_payload_bytes);
                 body.put_u16_le(w.frame_rate);
-                body.put_u8(w.culling as u8 | (w.overflow as u8) << 1);
+                body.put_u8(w.culling as u8 | (w.overflow as u8) << 1 | (w.digest as u8) << 2);
                 let name = clip_text(&w.scene);
                 body.put_u8(name.len() as u8);
                 body.put_slice(name.as_bytes());
@@ -228,6 +257,7 @@ impl Control {
                     KeyframeReason::DecodeError => 1,
                     KeyframeReason::Other => 2,
                     KeyframeReason::NoState => 3,
+                    KeyframeReason::DigestMismatch => 4,
                 });
             }
             Control::MoveInstance {
@@ -250,6 +280,11 @@ impl Control {
                 body.put_u8(text.len() as u8);
                 body.put_slice(text.as_bytes());
             }
+            Control::Digest { sequence, digest } => {
+                body.put_u32_le(*sequence);
+                body.put_u32_le(*digest);
+            }
+            Control::DigestRequest { every } => body.put_u16_le(*every),
         }
         out.put_u16_le(body.len() as u16 + 1);
         out.put_u8(self.kind());
@@ -301,6 +336,7 @@ impl Control {
                     max_mirror_bytes: b.get_u64_le(),
                     viewer: false,
                     overflow: false,
+                    digest: false,
                 };
                 let flags = b.get_u8();
                 if h.version != VERSION {
@@ -310,7 +346,7 @@ impl Control {
                         supported: VERSION,
                     });
                 }
-                if h.compressions & 0xF8 != 0 || h.point_formats & 0xFC != 0 || flags & 0xFC != 0 {
+                if h.compressions & 0xF8 != 0 || h.point_formats & 0xFC != 0 || flags & 0xF8 != 0 {
                     return Err(SessionError::malformed("HELLO", "a reserved bit is set"));
                 }
                 if h.compressions & 1 == 0 || h.point_formats & 1 == 0 {
@@ -328,6 +364,7 @@ impl Control {
                 Ok(Control::Hello(Hello {
                     viewer: flags & 1 == 1,
                     overflow: flags & 2 == 2,
+                    digest: flags & 4 == 4,
                     ..h
                 }))
             }
@@ -371,7 +408,7 @@ impl Control {
                         supported: VERSION,
                     });
                 }
-                if flags & 0xFC != 0 {
+                if flags & 0xF8 != 0 {
                     return Err(SessionError::malformed("WELCOME", "a reserved bit is set"));
                 }
                 if !(1..=1000).contains(&frame_rate) || compression > 2 || point_format > 1 {
@@ -389,6 +426,7 @@ impl Control {
                     frame_rate,
                     culling: flags & 1 == 1,
                     overflow: flags & 2 == 2,
+                    digest: flags & 4 == 4,
                     scene,
                 }))
             }
@@ -423,6 +461,7 @@ impl Control {
                     1 => KeyframeReason::DecodeError,
                     2 => KeyframeReason::Other,
                     3 => KeyframeReason::NoState,
+                    4 => KeyframeReason::DigestMismatch,
                     r => {
                         return Err(SessionError::malformed(
                             "KEYFRAME_REQUEST",
@@ -466,6 +505,19 @@ impl Control {
                     .to_string();
                 Ok(Control::Notice { code, text })
             }
+            kind::DIGEST => {
+                want(8, b, "DIGEST")?;
+                Ok(Control::Digest {
+                    sequence: b.get_u32_le(),
+                    digest: b.get_u32_le(),
+                })
+            }
+            kind::DIGEST_REQUEST => {
+                want(2, b, "DIGEST_REQUEST")?;
+                Ok(Control::DigestRequest {
+                    every: b.get_u16_le(),
+                })
+            }
             k => Err(SessionError::UnknownMessage { kind: k }),
         }
     }
@@ -497,17 +549,22 @@ pub enum Sender {
     /// The client's (`HELLO`, `CAMERA`, `ACK`, `KEYFRAME_REQUEST`,
     /// `MOVE_INSTANCE`): a server's reader.
     Client,
-    /// The server's (`WELCOME`, `NOTICE`): a client's reader.
+    /// The server's (`WELCOME`, `NOTICE`, `DIGEST`): a client's reader.
     Server,
 }
 
 impl Sender {
     /// Whether `kind` is a message type of the other role.
     fn refuses(self, kind: u8) -> bool {
-        let from_server = matches!(kind, kind::WELCOME | kind::NOTICE);
+        let from_server = matches!(kind, kind::WELCOME | kind::NOTICE | kind::DIGEST);
         let from_client = matches!(
             kind,
-            kind::HELLO | kind::CAMERA | kind::ACK | kind::KEYFRAME_REQUEST | kind::MOVE_INSTANCE
+            kind::HELLO
+                | kind::CAMERA
+                | kind::ACK
+                | kind::KEYFRAME_REQUEST
+                | kind::MOVE_INSTANCE
+                | kind::DIGEST_REQUEST
         );
         match self {
             Sender::Either => false,

@@ -73,9 +73,57 @@ struct Slot {
     limits: (u32, u32),
     /// Why it can no longer be served (a keyframe above its limits).
     refused: Option<String>,
+    /// Digests (spec/session.md 3.8): every how many frames (0: none).
+    digest_every: u16,
+    /// Frames handed to it until the next periodic digest.
+    digest_countdown: u32,
+    /// It asked for a digest (`DIGEST_REQUEST`) not yet answered.
+    digest_asked: bool,
+    /// Whether its session has digests at all.
+    digests: bool,
+    /// The sequence of the last frame handed out to it.
+    last_sent: Option<u32>,
+}
+
+/// The `sequence` of a frame (header bytes 8..12).
+fn sequence_of(frame: &[u8]) -> Option<u32> {
+    frame
+        .get(8..12)
+        .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+}
+
+/// A `DIGEST` as bytes.
+fn digest_message(sequence: u32, digest: u32) -> Bytes {
+    crate::control::Control::Digest { sequence, digest }
+        .to_bytes()
+        .freeze()
 }
 
 impl Slot {
+    /// Whether the next frame queued for it carries a digest.
+    fn digest_due(&self) -> bool {
+        self.digests && (self.digest_asked || (self.digest_every > 0 && self.digest_countdown <= 1))
+    }
+
+    /// The frame just queued gets `digest` if one is due.
+    fn queued(&mut self, digest: Option<u32>) {
+        if !self.digests {
+            return;
+        }
+        let due = self.digest_due();
+        if self.digest_every > 0 {
+            self.digest_countdown = self.digest_countdown.saturating_sub(1);
+        }
+        if let (true, Some(d)) = (due, digest)
+            && self.outbox.attach_digest(d)
+        {
+            self.digest_asked = false;
+            if self.digest_countdown == 0 {
+                self.digest_countdown = u32::from(self.digest_every);
+            }
+        }
+    }
+
     /// Whether `frame` is above this client's limits.
     fn too_large(&self, frame: &[u8]) -> bool {
         frame.len() as u64 > u64::from(self.limits.0) || payload_len(frame) > self.limits.1
@@ -98,6 +146,8 @@ pub struct Fanout {
     /// The last keyframe encoded, while no frame has been pushed since:
     /// it is the current state, for every client that asks.
     shared_keyframe: Option<Bytes>,
+    /// The digest of the shared keyframe's state, if it was computed.
+    shared_digest: Option<u32>,
     falls: u64,
     resyncs: u64,
     /// The largest frame and payload pushed so far.
@@ -113,6 +163,7 @@ impl Fanout {
             next_id: 0,
             max_queue_bytes,
             shared_keyframe: None,
+            shared_digest: None,
             falls: 0,
             resyncs: 0,
             largest: (0, 0),
@@ -133,6 +184,11 @@ impl Fanout {
                 view: None,
                 limits: (u32::MAX, u32::MAX),
                 refused: None,
+                digest_every: 0,
+                digest_countdown: 0,
+                digest_asked: false,
+                digests: false,
+                last_sent: None,
             },
         );
         id
@@ -147,6 +203,54 @@ impl Fanout {
         if let Some(c) = self.clients.get_mut(&id) {
             c.limits = (max_frame_bytes, max_payload_bytes);
         }
+    }
+
+    /// Turns digests on for `id` (its session negotiated them), sent every
+    /// `every` frames handed to it (0: only when asked), or changes the
+    /// interval (`DIGEST_REQUEST`, spec/session.md 3.9).
+    pub fn set_digests(&mut self, id: ClientId, every: u16) {
+        if let Some(c) = self.clients.get_mut(&id) {
+            c.digests = true;
+            c.digest_every = every;
+            c.digest_countdown = u32::from(every);
+        }
+    }
+
+    /// `id` asked for a digest (`DIGEST_REQUEST`): it goes with the next
+    /// frame handed to it, or, if none waits, out at once with
+    /// [`answer_digests`](Fanout::answer_digests).
+    pub fn request_digest(&mut self, id: ClientId) {
+        if let Some(c) = self.clients.get_mut(&id).filter(|c| c.digests) {
+            c.digest_asked = true;
+        }
+    }
+
+    /// Whether a digest of the current state is wanted: the next frame
+    /// pushed carries one for some client, or a client that asked waits
+    /// with nothing queued. Compute it only then (it reads the whole
+    /// mirror).
+    pub fn wants_digest(&self) -> bool {
+        self.clients.values().any(|c| c.digest_due())
+    }
+
+    /// Answers the clients that asked for a digest and have nothing queued
+    /// and are at `sequence` (the state `digest` is of): the `DIGEST` goes
+    /// out with their notices. Returns how many were answered.
+    pub fn answer_digests(&mut self, sequence: u32, digest: u32) -> usize {
+        let mut n = 0;
+        for c in self.clients.values_mut() {
+            if c.digests
+                && c.digest_asked
+                && c.outbox.is_empty()
+                && !c.outbox.wants_keyframe()
+                && c.last_sent == Some(sequence)
+            {
+                c.digest_asked = false;
+                c.notice(digest_message(sequence, digest));
+                n += 1;
+            }
+        }
+        n
     }
 
     /// The largest frame (bytes, without the record prefix) and the
@@ -213,6 +317,13 @@ impl Fanout {
     /// behind. Returns how many fell behind now. The shared keyframe is
     /// no longer the current state.
     pub fn push_frame(&mut self, frame: &EncodedFrame) -> u64 {
+        self.push_frame_with_digest(frame, None)
+    }
+
+    /// [`push_frame`](Fanout::push_frame), with the digest of the mirror
+    /// after it (spec/wire-format.md 7.5) for the clients due one (see
+    /// [`wants_digest`](Fanout::wants_digest)).
+    pub fn push_frame_with_digest(&mut self, frame: &EncodedFrame, digest: Option<u32>) -> u64 {
         self.shared_keyframe = None;
         self.saw(&frame.bytes);
         let mut falls = 0;
@@ -222,8 +333,10 @@ impl Fanout {
             } else {
                 c.outbox.push_delta(frame.bytes.clone())
             };
-            if pushed == Pushed::FellBehind {
-                falls += 1;
+            match pushed {
+                Pushed::FellBehind => falls += 1,
+                Pushed::Queued => c.queued(digest),
+                Pushed::Skipped => {}
             }
         }
         self.falls += falls;
@@ -258,12 +371,21 @@ impl Fanout {
     /// every client that wants one now, and with those that ask before the
     /// next frame.
     pub fn push_keyframe(&mut self, keyframe: &EncodedFrame) {
+        self.push_keyframe_with_digest(keyframe, None);
+    }
+
+    /// [`push_keyframe`](Fanout::push_keyframe), with the digest of the
+    /// state it holds for the clients due one. The digest is kept with
+    /// the shared keyframe for later askers.
+    pub fn push_keyframe_with_digest(&mut self, keyframe: &EncodedFrame, digest: Option<u32>) {
         self.saw(&keyframe.bytes);
         self.shared_keyframe = Some(keyframe.bytes.clone());
+        self.shared_digest = digest;
         self.queue_keyframe(keyframe.bytes.clone());
     }
 
     fn queue_keyframe(&mut self, kf: Bytes) {
+        let digest = self.shared_digest;
         for c in self.clients.values_mut() {
             if c.refused.is_some() || !c.outbox.wants_keyframe() {
                 continue;
@@ -278,6 +400,7 @@ impl Fanout {
                 ));
             } else {
                 c.outbox.push_keyframe(kf.clone());
+                c.queued(digest);
             }
         }
     }
@@ -325,13 +448,17 @@ impl Fanout {
     pub fn poll_transmit(&mut self, id: ClientId) -> Option<Transmit> {
         let c = self.clients.get_mut(&id)?;
         let mut notices = std::mem::take(&mut c.notices);
-        let frame = c.outbox.pop_resync().map(|(frame, resync)| {
+        let frame = c.outbox.pop_entry().map(|(frame, resync, digest)| {
             if resync {
                 self.resyncs += 1;
                 notices.push(notice(
                     NoticeCode::FellBehind,
                     "fell behind; resynchronizing with a keyframe",
                 ));
+            }
+            c.last_sent = sequence_of(&frame);
+            if let (Some(d), Some(s)) = (digest, c.last_sent) {
+                notices.push(digest_message(s, d));
             }
             frame
         });

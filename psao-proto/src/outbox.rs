@@ -32,8 +32,8 @@ enum Kind {
 /// Frames waiting to be written to one client.
 #[derive(Debug)]
 pub struct Outbox {
-    /// Frames and what each is.
-    queue: VecDeque<(Bytes, Kind)>,
+    /// Frames, what each is, and the `DIGEST` to send before it.
+    queue: VecDeque<(Bytes, Kind, Option<u32>)>,
     queued_bytes: usize,
     max_bytes: usize,
     /// Waiting for a keyframe: deltas are skipped until one is queued.
@@ -84,7 +84,7 @@ impl Outbox {
             return Pushed::FellBehind;
         }
         self.queued_bytes += frame.len();
-        self.queue.push_back((frame, Kind::Delta));
+        self.queue.push_back((frame, Kind::Delta, None));
         Pushed::Queued
     }
 
@@ -135,7 +135,7 @@ impl Outbox {
         self.keyframe_bytes += frame.len();
         let resync = std::mem::take(&mut self.behind);
         let kind = if resync { Kind::Resync } else { Kind::Keyframe };
-        self.queue.push_back((frame, kind));
+        self.queue.push_back((frame, kind, None));
         self.awaiting_keyframe = false;
         resync
     }
@@ -149,12 +149,33 @@ impl Outbox {
     /// resynchronizes the client after it fell behind (the one a `NOTICE`
     /// code 2 goes with).
     pub fn pop_resync(&mut self) -> Option<(Bytes, bool)> {
-        let (f, kind) = self.queue.pop_front()?;
+        self.pop_entry().map(|(f, resync, _)| (f, resync))
+    }
+
+    /// The next frame to write, whether it resynchronizes the client, and
+    /// the digest to send before it ([`attach_digest`]).
+    ///
+    /// [`attach_digest`]: Outbox::attach_digest
+    pub fn pop_entry(&mut self) -> Option<(Bytes, bool, Option<u32>)> {
+        let (f, kind, digest) = self.queue.pop_front()?;
         self.queued_bytes -= f.len();
         if kind != Kind::Delta {
             self.keyframe_bytes -= f.len();
         }
-        Some((f, kind == Kind::Resync))
+        Some((f, kind == Kind::Resync, digest))
+    }
+
+    /// Attaches a mirror digest to the frame queued last (it goes out as
+    /// `DIGEST` right before it, spec/session.md 3.8); false when the
+    /// queue is empty.
+    pub fn attach_digest(&mut self, digest: u32) -> bool {
+        match self.queue.back_mut() {
+            Some(entry) => {
+                entry.2 = Some(digest);
+                true
+            }
+            None => false,
+        }
     }
 
     /// Bytes queued.

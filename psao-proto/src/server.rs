@@ -47,6 +47,11 @@ pub struct ServerConfig {
     pub scene_name: String,
     /// A client silent this long (QUIC idle timeout) is dropped.
     pub idle_timeout: Duration,
+    /// Mirror digests (spec/session.md 3.8) for clients that check them:
+    /// one every this many frames written to a client, until it asks for
+    /// another interval. 0: digests are not offered (the server then
+    /// keeps no mirror of its own stream). Default 60.
+    pub digest_interval: u16,
 }
 
 impl Default for ServerConfig {
@@ -59,9 +64,13 @@ impl Default for ServerConfig {
             allow_events: true,
             scene_name: "default".into(),
             idle_timeout: Duration::from_secs(10),
+            digest_interval: DIGEST_INTERVAL,
         }
     }
 }
+
+/// The reference server's default digest interval, in frames.
+pub const DIGEST_INTERVAL: u16 = 60;
 
 /// Errors starting a server.
 #[derive(Debug, thiserror::Error)]
@@ -312,6 +321,7 @@ pub async fn serve<S: FrameSource>(
         frame_rate: config.frame_rate,
         scene: config.scene_name.clone(),
         culling: info.culls,
+        digest: config.digest_interval > 0,
     };
     let endpoint =
         quinn::Endpoint::server(server_config(identity, config.idle_timeout)?, config.bind)
@@ -379,6 +389,17 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
     let period = Duration::from_secs_f64(1.0 / hub.config.frame_rate as f64);
     let mut next = Instant::now() + period;
     let mut watch = crate::rate::RateWatch::new(hub.config.frame_rate);
+    // A mirror of the server's own stream, for digests: every frame and
+    // keyframe handed to the fan-out is applied to it.
+    let mut own = (hub.config.digest_interval > 0).then(|| {
+        let info = source.info();
+        psao_codec::Decoder::new(psao_codec::Limits {
+            max_frame_bytes: info.max_frame_bytes,
+            max_payload_bytes: info.max_payload_bytes,
+            max_mirror_bytes: info.mirror_bytes.max(1 << 30),
+            ..psao_codec::Limits::default()
+        })
+    });
     while !hub.stop.load(Ordering::SeqCst) {
         // Scene events first, so the frame carries them.
         let moves = std::mem::take(&mut hub.lock().moves);
@@ -410,6 +431,7 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
             s.stats.frames += 1;
             s.stats.step_time += step_time;
             s.stats.report.accumulate(&report);
+            let digest = digest_after(&mut own, frame.as_ref(), s.fanout.wants_digest());
             if let Some(f) = &frame {
                 s.stats.sent_frames += 1;
                 s.stats.encoded_bytes += f.bytes.len() as u64;
@@ -418,7 +440,12 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
                 if s.sent_at.len() > 512 {
                     s.sent_at.pop_front();
                 }
-                s.fanout.push_frame(f);
+                s.fanout.push_frame_with_digest(f, digest);
+            }
+            if let Some((seq, d)) = own.as_ref().and_then(|m| m.mirror().sequence()).zip(digest)
+                && s.fanout.answer_digests(seq, d) > 0
+            {
+                s.wake_all();
             }
             let keyframes = s.fanout.serve_keyframes();
             // Writers have something new only after a frame or a shared
@@ -435,7 +462,8 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
                 Ok(kf) => {
                     let mut s = hub.lock();
                     s.stats.keyframes += 1;
-                    s.fanout.push_keyframe(&kf);
+                    let digest = digest_after(&mut own, Some(&kf), s.fanout.wants_digest());
+                    s.fanout.push_keyframe_with_digest(&kf, digest);
                     s.wake_all();
                 }
                 Err(e) => warn!("keyframe failed: {e}"),
@@ -460,6 +488,41 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
         }
     }
     source
+}
+
+/// Applies `frame` (if any) to the server's mirror of its own stream, and
+/// returns that mirror's digest when `wanted`. A frame the mirror refuses
+/// (a source bug) is logged and leaves digests off until a keyframe
+/// applies.
+fn digest_after(
+    own: &mut Option<psao_codec::Decoder>,
+    frame: Option<&psao_codec::EncodedFrame>,
+    wanted: bool,
+) -> Option<u32> {
+    let d = own.as_mut()?;
+    let mut ok = true;
+    if let Some(f) = frame {
+        match d.receive(&f.bytes) {
+            Ok(psao_codec::Event::Applied { .. }) | Ok(psao_codec::Event::Stale { .. }) => {}
+            // No keyframe was encoded yet (no client has joined): the
+            // mirror starts at the first one.
+            Ok(psao_codec::Event::NeedKeyframe { .. }) if d.mirror().sequence().is_none() => {
+                return None;
+            }
+            other => {
+                warn!(
+                    "the server's own frame {} did not apply to its mirror: {other:?}",
+                    f.sequence
+                );
+                ok = false;
+            }
+        }
+    }
+    if !ok {
+        *d = psao_codec::Decoder::new(*d.limits());
+        return None;
+    }
+    if wanted { d.mirror().digest() } else { None }
 }
 
 async fn serve_connection(hub: Arc<Hub>, conn: quinn::Connection) {
@@ -585,6 +648,9 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                                 h.max_frame_bytes.min(hub.offer.max_frame_bytes),
                                 h.max_payload_bytes.min(hub.offer.max_payload_bytes),
                             );
+                            if h.digest && hub.offer.digest {
+                                s.fanout.set_digests(client, hub.config.digest_interval);
+                            }
                         }
                         s.stats.accepted += 1;
                         s.clients.insert(
@@ -635,6 +701,13 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                         if let (Some(at), Some(slot)) = (at, s.clients.get_mut(&c)) {
                             slot.frame_age = at.elapsed().as_secs_f64();
                         }
+                    }
+                }
+                ServerEvent::DigestRequested { every } => {
+                    if let Some(c) = id {
+                        let mut s = hub.lock();
+                        s.fanout.set_digests(c, every);
+                        s.fanout.request_digest(c);
                     }
                 }
                 ServerEvent::KeyframeRequested(_) => {

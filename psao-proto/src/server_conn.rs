@@ -50,6 +50,9 @@ pub struct Offer {
     /// Whether the server culls to its viewers' views (`WELCOME`'s
     /// `flags.culling` for a viewer; a non-viewer is told 0).
     pub culling: bool,
+    /// Whether it sends mirror digests to clients that check them
+    /// (`WELCOME.flags.digest` for a client whose `HELLO` set it).
+    pub digest: bool,
 }
 
 /// Checks a client's `HELLO` against the offer; the `WELCOME` to send, or
@@ -105,6 +108,7 @@ pub fn negotiate(hello: &Hello, offer: &Offer) -> Result<Welcome, SessionError> 
         // culled for (its presence turns culling off, spec/session.md 3.2).
         culling: offer.culling && hello.viewer,
         overflow: offer.overflow,
+        digest: offer.digest && hello.digest,
         scene: offer.scene.clone(),
     })
 }
@@ -159,6 +163,12 @@ pub enum ServerEvent {
     Ack(u32),
     /// The client needs a keyframe.
     KeyframeRequested(KeyframeReason),
+    /// The client asks for a digest now and every `every` frames (0: no
+    /// periodic ones); only in a session with `digest`.
+    DigestRequested {
+        /// Frames between digests.
+        every: u16,
+    },
     /// The client asks to place an instance.
     Move {
         /// The instance.
@@ -195,6 +205,11 @@ impl ServerConn {
     pub fn frames_so_far(&mut self, largest_frame: u32, largest_payload: u32) {
         self.offer.largest_frame = largest_frame;
         self.offer.largest_payload = largest_payload;
+    }
+
+    /// Whether this session has digests (both sides offered them).
+    fn digests(&self, hello: &Hello) -> bool {
+        self.offer.digest && hello.digest
     }
 
     /// The client's `HELLO`, once it came.
@@ -252,8 +267,13 @@ impl ServerConn {
                 }
                 (Control::Camera(c), Some(h)) if h.viewer => ServerEvent::Camera(c),
                 (Control::Ack(s), Some(_)) => ServerEvent::Ack(s),
-                (Control::KeyframeRequest { reason, .. }, Some(_)) => {
+                (Control::KeyframeRequest { reason, .. }, Some(h))
+                    if reason != KeyframeReason::DigestMismatch || self.digests(h) =>
+                {
                     ServerEvent::KeyframeRequested(reason)
+                }
+                (Control::DigestRequest { every }, Some(h)) if self.digests(h) => {
+                    ServerEvent::DigestRequested { every }
                 }
                 (
                     Control::MoveInstance {

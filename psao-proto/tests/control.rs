@@ -42,6 +42,7 @@ fn described(name: &str) -> Control {
             max_mirror_bytes: 1 << 30,
             viewer: true,
             overflow: false,
+            digest: false,
         }),
         "WELCOME" => Control::Welcome(Welcome {
             version: 1,
@@ -52,6 +53,7 @@ fn described(name: &str) -> Control {
             frame_rate: 60,
             culling: false,
             overflow: false,
+            digest: false,
             scene: "default".into(),
         }),
         "HELLO-BIND" => match described("HELLO") {
@@ -106,6 +108,23 @@ fn described(name: &str) -> Control {
             code: NoticeCode::BelowRate,
             text: "41.5 of 60 Hz".into(),
         },
+        "HELLO-DIGEST" => match described("HELLO-OVERFLOW") {
+            Control::Hello(h) => Control::Hello(Hello { digest: true, ..h }),
+            _ => unreachable!(),
+        },
+        "WELCOME-DIGEST" => match described("WELCOME-OVERFLOW") {
+            Control::Welcome(w) => Control::Welcome(Welcome { digest: true, ..w }),
+            _ => unreachable!(),
+        },
+        "DIGEST" => Control::Digest {
+            sequence: 5,
+            digest: 0x6BF7_0829,
+        },
+        "DIGEST_REQUEST" => Control::DigestRequest { every: 30 },
+        "KEYFRAME_REQUEST-DIGEST" => Control::KeyframeRequest {
+            sequence: 5,
+            reason: KeyframeReason::DigestMismatch,
+        },
         other => panic!("no description for example {other}"),
     }
 }
@@ -128,7 +147,12 @@ fn the_spec_examples_match_the_code() {
             "KEYFRAME_REQUEST",
             "MOVE_INSTANCE",
             "NOTICE",
-            "NOTICE-BELOW-RATE"
+            "NOTICE-BELOW-RATE",
+            "HELLO-DIGEST",
+            "WELCOME-DIGEST",
+            "DIGEST",
+            "DIGEST_REQUEST",
+            "KEYFRAME_REQUEST-DIGEST"
         ],
         "every message type has an example"
     );
@@ -214,9 +238,9 @@ fn malformed_messages_close_with_the_specified_code() {
         "long ACK"
     );
     assert_eq!(
-        code_of(&[6, 0, 0x12, 0, 0, 0, 0, 4]),
+        code_of(&[6, 0, 0x12, 0, 0, 0, 0, 5]),
         ProtocolViolation,
-        "reason 4"
+        "reason 5 (4, a digest mismatch, is checked against the session)"
     );
     let mut hello = described("HELLO").to_bytes().to_vec();
     hello[3] = b'X';
@@ -340,6 +364,9 @@ proptest! {
         let msgs = [
             Control::Ack(seq),
             Control::KeyframeRequest { sequence: seq, reason: KeyframeReason::DecodeError },
+            Control::KeyframeRequest { sequence: seq, reason: KeyframeReason::DigestMismatch },
+            Control::Digest { sequence: seq, digest: inst },
+            Control::DigestRequest { every: seq as u16 },
             Control::MoveInstance { instance: inst, transform: Affine3A::from_cols_array(&f) },
             Control::Notice {
                 code: match code { 1 => NoticeCode::EventRefused, 2 => NoticeCode::FellBehind, 4 => NoticeCode::BelowRate, c => NoticeCode::Other(c) },
@@ -347,7 +374,7 @@ proptest! {
             },
             Control::Welcome(Welcome {
                 version: 1, compression: 1, point_format: 0, max_frame_bytes: seq,
-                max_payload_bytes: inst, frame_rate: 30, culling: flags, overflow: !flags, scene: text.clone(),
+                max_payload_bytes: inst, frame_rate: 30, culling: flags, overflow: !flags, digest: flags, scene: text.clone(),
             }),
         ];
         for m in msgs {

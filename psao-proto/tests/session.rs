@@ -5,7 +5,9 @@ use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 use glam::{Affine3A, Vec3};
-use psao_codec::{Compression, Encoder, EncoderConfig, GridTable, InstanceDef, Limits};
+use psao_codec::{
+    Compression, Decoder, EncodedFrame, Encoder, EncoderConfig, GridTable, InstanceDef, Limits,
+};
 use psao_proto::control::{CameraPose, Control, Hello, KeyframeReason};
 use psao_proto::*;
 
@@ -22,6 +24,7 @@ fn offer() -> Offer {
         frame_rate: 60,
         scene: "test".into(),
         culling: false,
+        digest: false,
     }
 }
 
@@ -43,6 +46,7 @@ fn hello() -> Hello {
         max_mirror_bytes: 1 << 30,
         viewer: false,
         overflow: false,
+        digest: false,
     }
 }
 
@@ -219,7 +223,8 @@ fn overflow_chains_are_negotiated() {
     let e = negotiate(&hello(), &chained).unwrap_err();
     assert_eq!(e.close_code(), CloseCode::CapabilityMismatch);
     assert!(e.to_string().contains("overflow chains"), "{e}");
-    // The bytes: flags bit 1 reads back; bit 2 is reserved.
+    // The bytes: flags bit 1 reads back; bit 3 is reserved (bit 2 is
+    // `digest`).
     let mut b = bytes(Control::Hello(offers)).to_vec();
     let mut input = &b[..];
     assert_eq!(
@@ -229,7 +234,7 @@ fn overflow_chains_are_negotiated() {
         Some(Control::Hello(offers))
     );
     let last = b.len() - 1;
-    b[last] |= 0b100;
+    b[last] |= 0b1000;
     let mut input = &b[..];
     assert!(
         psao_proto::control::ControlReader::new()
@@ -765,4 +770,118 @@ fn the_client_decodes_with_the_limits_its_hello_offers() {
     c.on_frames(&record(&kf.bytes)).unwrap();
     assert_eq!(c.stats().failed, 0);
     assert!(c.mirror().instance(0).is_some(), "the keyframe applied");
+}
+
+/// Mirror digests on the client (spec/session.md 3.8): a `DIGEST` for
+/// the mirror's sequence is checked at once, one for a later sequence
+/// when the mirror reaches it, one the mirror has passed is dropped; a
+/// wrong one asks for a keyframe with reason 4, and the keyframe repairs
+/// the mirror (a negative control: a digest off by one bit).
+#[test]
+fn the_client_checks_digests_and_asks_for_a_keyframe_on_a_mismatch() {
+    let (mut table, mut enc) = server();
+    let mut c = ClientSession::new(ClientConfig::default());
+    let hello = hello_of(&mut c);
+    assert!(hello.digest, "the reference client offers digests");
+    let offer = Offer {
+        digest: true,
+        ..lz4_offer()
+    };
+    let welcome = negotiate(&hello, &offer).unwrap();
+    assert!(welcome.digest);
+    c.on_control(&bytes(Control::Welcome(welcome))).unwrap();
+    let record = |b: &[u8]| [&(b.len() as u32).to_le_bytes()[..], b].concat();
+    // The server's mirror of its own stream gives the digests.
+    let mut own = Decoder::new(Limits::default());
+    let mut serve = |f: &EncodedFrame| {
+        own.receive(&f.bytes).unwrap();
+        (f.sequence, own.mirror().digest().unwrap())
+    };
+    let mut kf = enc.keyframe();
+    kf.snapshot(&table).unwrap();
+    let kf = kf.finish().unwrap().unwrap();
+    let (s0, d0) = serve(&kf);
+    c.on_frames(&record(&kf.bytes)).unwrap();
+    let digest = |sequence, digest| bytes(Control::Digest { sequence, digest });
+    // At the mirror's sequence: checked at once.
+    c.on_control(&digest(s0, d0)).unwrap();
+    assert_eq!(c.stats().digests_matched, 1);
+    let mut delta = |table: &mut GridTable, k: u32| {
+        table
+            .set_point(k, Vec3::splat(1.0 + k as f32 * 0.5), Vec3::Y, 0.5)
+            .unwrap();
+        let mut d = enc.delta();
+        d.changes(table);
+        d.finish().unwrap().unwrap()
+    };
+    // For the next frame, before it arrives: checked when it applies.
+    let f1 = delta(&mut table, 0);
+    let (s1, d1) = serve(&f1);
+    assert_ne!(d1, d0, "the state changed, so did the digest");
+    c.on_control(&digest(s1, d1)).unwrap();
+    assert_eq!(c.stats().digests_matched, 1, "not yet at {s1}");
+    c.on_frames(&record(&f1.bytes)).unwrap();
+    assert_eq!(c.stats().digests_matched, 2);
+    // One for a state the mirror has passed is dropped.
+    c.on_control(&digest(s0, d0)).unwrap();
+    assert_eq!(c.stats().digests_dropped, 1);
+    assert_eq!(c.stats().digest_mismatches, 0);
+    let _ = c.take_transmit();
+    // One bit off: a mismatch, and a keyframe request with reason 4.
+    c.on_control(&digest(s1, d1 ^ 1)).unwrap();
+    assert_eq!(c.stats().digest_mismatches, 1);
+    let sent = c.take_transmit().expect("a keyframe request");
+    assert_eq!(
+        &sent[..],
+        &bytes(Control::KeyframeRequest {
+            sequence: s1,
+            reason: KeyframeReason::DigestMismatch,
+        })[..]
+    );
+    let events: Vec<_> = std::iter::from_fn(|| c.poll_event()).collect();
+    assert!(events.contains(&ClientEvent::DigestChecked {
+        sequence: s1,
+        matched: false
+    }));
+}
+
+/// The server side of digests: `DIGEST_REQUEST` and reason 4 are taken
+/// only in a session that negotiated digests, else `protocol_violation`.
+#[test]
+fn digest_messages_need_a_digest_session() {
+    let now = Instant::now();
+    let run = |offer: Offer, hello: Hello, msg: Control| {
+        let mut s = ServerConn::new(offer, now);
+        let mut events = Vec::new();
+        s.on_control(&bytes(Control::Hello(hello)), now, &mut events)
+            .unwrap();
+        let r = s.on_control(&bytes(msg), now, &mut events);
+        (r, events)
+    };
+    let digests = Offer {
+        digest: true,
+        ..offer()
+    };
+    let asks = Hello {
+        digest: true,
+        ..hello()
+    };
+    let request = Control::DigestRequest { every: 10 };
+    let mismatch = Control::KeyframeRequest {
+        sequence: 3,
+        reason: KeyframeReason::DigestMismatch,
+    };
+    let (r, events) = run(digests.clone(), asks, request.clone());
+    r.unwrap();
+    assert_eq!(
+        events.last(),
+        Some(&ServerEvent::DigestRequested { every: 10 })
+    );
+    run(digests.clone(), asks, mismatch.clone()).0.unwrap();
+    for (o, h) in [(offer(), asks), (digests, hello())] {
+        for m in [request.clone(), mismatch.clone()] {
+            let e = run(o.clone(), h, m).0.unwrap_err();
+            assert_eq!(e.close_code(), CloseCode::ProtocolViolation);
+        }
+    }
 }

@@ -57,6 +57,9 @@ struct Run {
     gaps: u64,
     /// `NOTICE fell_behind` the client got.
     fell_behind: u64,
+    /// Digests the client checked and found equal, and found different.
+    digests_matched: u64,
+    digest_mismatches: u64,
     /// Times the server's fan-out saw the client fall behind.
     falls: u64,
     /// Keyframes the fan-out handed out to resynchronize it (each with
@@ -86,7 +89,11 @@ fn run(seed: u64) -> (Run, Vec<f32>, Pipeline, Scene) {
         frame_rate: RATE,
         scene: "sliding-box".into(),
         culling: info.culls,
+        digest: true,
     };
+    // The server's mirror of its own stream, for digests (as the
+    // reference server keeps one).
+    let mut own = psao_codec::Decoder::new(Limits::default());
     // The virtual clock: one instant read once, then only added to.
     let t0 = Instant::now();
     let tick = Duration::from_secs_f64(1.0 / RATE as f64);
@@ -136,7 +143,11 @@ fn run(seed: u64) -> (Run, Vec<f32>, Pipeline, Scene) {
             match ev {
                 ServerEvent::Welcomed { bytes, viewer } => {
                     control_down.send(now, bytes);
-                    id = Some(fanout.add_client(viewer));
+                    let c = fanout.add_client(viewer);
+                    if server.hello().is_some_and(|h| h.digest) {
+                        fanout.set_digests(c, 8);
+                    }
+                    id = Some(c);
                 }
                 ServerEvent::KeyframeRequested(_) => {
                     fanout.request_keyframe(id.expect("welcomed first"));
@@ -149,14 +160,24 @@ fn run(seed: u64) -> (Run, Vec<f32>, Pipeline, Scene) {
         if k < TICKS {
             let (frame, _) = pipeline.step(1.0 / RATE as f32).unwrap();
             if let Some(f) = frame {
-                fanout.push_frame(&f);
+                let _ = own.receive(&f.bytes);
+                let digest = fanout
+                    .wants_digest()
+                    .then(|| own.mirror().digest())
+                    .flatten();
+                fanout.push_frame_with_digest(&f, digest);
                 last_sequence = Some(f.sequence);
             }
         }
         if fanout.serve_keyframes() == Keyframes::Encode {
             let kf = pipeline.keyframe().unwrap();
             last_sequence = Some(kf.sequence);
-            fanout.push_keyframe(&kf);
+            own.receive(&kf.bytes).unwrap();
+            let digest = fanout
+                .wants_digest()
+                .then(|| own.mirror().digest())
+                .flatten();
+            fanout.push_keyframe_with_digest(&kf, digest);
         }
         // The writer: notices on the control stream, frames as records
         // while the link takes them.
@@ -232,6 +253,8 @@ fn run(seed: u64) -> (Run, Vec<f32>, Pipeline, Scene) {
         requests: s.requests,
         gaps,
         fell_behind,
+        digests_matched: s.digests_matched,
+        digest_mismatches: s.digest_mismatches,
         falls: fanout.falls(),
         resyncs: fanout.resyncs(),
         lost: frames_down.lost,
@@ -261,6 +284,9 @@ fn scene_to_pixels_over_a_lossy_reordering_congested_link() {
         "gaps are healed by keyframes"
     );
     assert!(a.falls > 0, "congestion makes the client fall behind");
+    // Digests (spec/session.md 3.8) confirm the mirror along the way.
+    assert!(a.digests_matched >= 3, "{a:?}");
+    assert_eq!(a.digest_mismatches, 0, "{a:?}");
     assert!(a.resyncs > 0 && a.resyncs <= a.falls, "{a:?}");
     assert_eq!(
         a.fell_behind, a.resyncs,

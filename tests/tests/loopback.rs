@@ -90,6 +90,7 @@ async fn raw_to(
         max_mirror_bytes: 1 << 30,
         viewer: false,
         overflow: true,
+        digest: false,
     });
     let (ep, conn, (send, mut recv)) = raw_hello(addr, fingerprint, &hello.to_bytes()).await;
     let body = read_control(&mut recv).await.expect("WELCOME");
@@ -354,6 +355,9 @@ async fn many_clients_late_slow_vanishing_and_misbehaving() {
         assert!(in_sync(c, &pipeline), "client {k} mirrors the server");
         let s = c.with_session(|s| s.stats());
         assert_eq!(s.failed, 0, "client {k}: {s:?}");
+        // Digests (spec/session.md 3.8, every 60th frame) confirmed it.
+        assert!(s.digests_matched > 0, "client {k}: {s:?}");
+        assert_eq!(s.digest_mismatches, 0, "client {k}: {s:?}");
     }
     // Encoded once: the bytes written to clients are a multiple of the
     // bytes encoded, not re-encoded per client.

@@ -11,6 +11,7 @@
 //! `changes` lists what a renderer must upload.
 
 mod changes;
+mod digest;
 mod journal;
 mod messages;
 
