@@ -9,6 +9,8 @@
 //! - `psao record`: a client that writes what it receives to a capture
 //!   file (spec/capture.md);
 //! - `psao inspect`: decodes a capture file frame by frame;
+//! - `psao conformance client`: the conformance kit, driving a server
+//!   under test through the spec's cases;
 //! - `psao bench`: accuracy against run time (PSAO, per-pixel RTAO, SAO
 //!   against a ray-traced reference), with a CSV, a markdown table, charts
 //!   and a side-by-side image.
@@ -52,6 +54,10 @@ enum Command {
     /// Decode a capture file frame by frame and print what each frame is
     /// and does to a mirror.
     Inspect(cmd::inspect::Args),
+    /// The conformance kit (spec/session.md): `psao conformance client
+    /// --connect ADDR --fingerprint HEX` drives a server under test
+    /// through the spec's cases and reports each.
+    Conformance(cmd::conformance::Args),
 }
 
 fn main() -> ExitCode {
@@ -70,6 +76,7 @@ fn main() -> ExitCode {
         Command::Record(args) => on_runtime(cmd::record::run(args)),
         Command::Bench(args) => bench::run(args),
         Command::Inspect(args) => cmd::inspect::run(args),
+        Command::Conformance(args) => on_runtime(cmd::conformance::run(args)),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

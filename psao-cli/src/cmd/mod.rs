@@ -2,6 +2,7 @@
 //! what they share ([`common`]).
 
 pub mod common;
+pub mod conformance;
 pub mod demo;
 pub mod inspect;
 pub mod record;
