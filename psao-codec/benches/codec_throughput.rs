@@ -148,6 +148,7 @@ fn main() {
         .unwrap_or(21);
     let (start, steps, points) = record_stream();
     let changed: usize = steps.iter().map(|s| s.changed_points).sum();
+    let mut final_mirror: Option<psao_codec::Mirror> = None;
     println!(
         "synthetic stream: {points} points, {FRAMES} frames, {changed} updated points ({:.0}/frame), {reps} reps, median",
         changed as f64 / FRAMES as f64
@@ -222,6 +223,7 @@ fn main() {
             decoder
         };
         let last = apply_all(true);
+        final_mirror.get_or_insert_with(|| last.mirror().clone());
         assert!(
             last.mirror().instance(1).map(|m| m.words()) == Some(steps[FRAMES - 1].table.words())
         );
@@ -263,6 +265,28 @@ fn main() {
             wire as f64 / s(t_decode) / 1e6,
             s(t_memcpy) / s(t_decode),
             s(t_raw) / s(t_decode),
+        );
+    }
+
+    // The mirror digest (spec/wire-format.md 7.5) of the final state,
+    // against copying as many bytes.
+    if let Some(m) = &final_mirror {
+        let bytes = m.bytes() as usize;
+        let t_digest = time(reps, || {
+            black_box(m.digest());
+        });
+        let src = vec![1u8; bytes];
+        let mut dst = vec![0u8; bytes];
+        let t_copy = time(reps, || {
+            dst.copy_from_slice(black_box(&src));
+            black_box(&dst);
+        });
+        println!();
+        println!(
+            "mirror digest: {bytes} bytes in {:.1} us ({:.2} GB/s); memcpy of as many bytes / digest: {:.3}",
+            t_digest.as_secs_f64() * 1e6,
+            bytes as f64 / t_digest.as_secs_f64() / 1e9,
+            t_copy.as_secs_f64() / t_digest.as_secs_f64()
         );
     }
 

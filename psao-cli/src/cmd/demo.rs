@@ -59,6 +59,10 @@ pub struct Args {
     camera: CameraArgs,
     #[command(flatten)]
     budget: super::common::BudgetArgs,
+    /// A mirror digest (spec/session.md 3.8) every this many frames to
+    /// each client, which checks it (0: no digests).
+    #[arg(long, default_value_t = psao_proto::server::DIGEST_INTERVAL)]
+    digest_interval: u16,
 }
 
 /// Runs the demo: streams, prints, writes images, checks the mirrors.
@@ -75,6 +79,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         cull,
         camera,
         budget,
+        digest_interval,
     } = args;
     if !(seconds > 0.0 && seconds <= 3600.0) {
         bail!("--seconds must be in (0, 3600]");
@@ -88,6 +93,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     let identity = Identity::self_signed()?;
     let config = ServerConfig {
         frame_rate: rate,
+        digest_interval,
         ..ServerConfig::default()
     };
     let mut pipeline = PipelineConfig {
@@ -337,13 +343,15 @@ async fn summarize(
     );
     for (k, s) in stats.iter().enumerate() {
         println!(
-            "  client {k}            {} frames applied ({} keyframes), {} failed, {} stale, {} keyframe requests, {:.1} kB received",
+            "  client {k}            {} frames applied ({} keyframes), {} failed, {} stale, {} keyframe requests, {:.1} kB received, digests {} matched / {} differed",
             s.applied,
             s.keyframes,
             s.failed,
             s.stale,
             s.requests,
-            s.bytes as f64 / 1e3
+            s.bytes as f64 / 1e3,
+            s.digests_matched,
+            s.digest_mismatches
         );
     }
     println!(

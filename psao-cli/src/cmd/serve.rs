@@ -37,6 +37,10 @@ pub struct Args {
     /// Most bytes queued for one client before it is resynchronized.
     #[arg(long, default_value_t = 1 << 20)]
     queue_bytes: usize,
+    /// A mirror digest (spec/session.md 3.8) every this many frames to
+    /// each client that checks digests (0: digests not offered).
+    #[arg(long, default_value_t = psao_proto::server::DIGEST_INTERVAL)]
+    digest_interval: u16,
     /// Points kept per square metre (the paper's N, as in `psao bench
     /// --densities`).
     #[arg(long, default_value_t = 32.0)]
@@ -115,6 +119,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         frame_rate: args.rate,
         max_clients: args.max_clients,
         max_queue_bytes: args.queue_bytes,
+        digest_interval: args.digest_interval,
         scene_name: name,
         ..ServerConfig::default()
     };
