@@ -11,9 +11,15 @@
 //! prints a line per case and the summary `N passed, N failed, N
 //! skipped`, and writes JSON or JUnit XML for CI.
 //!
-//! `psao conformance server-under-test --connect ADDR --fingerprint HEX`
-//! runs it from the command line.
+//! [`client_cases::run`] is the other direction: a scripted server that
+//! takes one client under test through a late join, a gap, a corrupt
+//! frame, a resynchronization with `NOTICE` 2, every `NOTICE` code, a
+//! wrong `DIGEST` and shutdown, checking what the client sends back.
+//!
+//! `psao conformance client --connect ADDR --fingerprint HEX` and `psao
+//! conformance server --bind ADDR` run them from the command line.
 
+pub mod client_cases;
 pub mod probe;
 pub mod report;
 pub mod server_cases;

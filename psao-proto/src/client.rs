@@ -159,6 +159,9 @@ pub struct ClientSession {
     frames_finished: Option<Instant>,
     /// A `DIGEST` for a sequence the mirror has not reached yet.
     pending_digest: Option<(u32, u32)>,
+    /// A keyframe applied before `WELCOME` (the streams race): its `ACK`
+    /// goes out when `WELCOME` comes.
+    deferred_ack: Option<u32>,
 }
 
 /// Most events a session queues; older ones are dropped when the caller
@@ -242,6 +245,7 @@ impl ClientSession {
             now: None,
             frames_finished: None,
             pending_digest: None,
+            deferred_ack: None,
         }
     }
 
@@ -299,6 +303,13 @@ impl ClientSession {
                         self.deferred.take()
                     {
                         Control::KeyframeRequest { sequence, reason }.encode(&mut self.transmit);
+                    }
+                    // And a keyframe applied before it is acknowledged now,
+                    // if the mirror is still there.
+                    if let Some(seq) = self.deferred_ack.take()
+                        && self.decoder.mirror().sequence() == Some(seq)
+                    {
+                        Control::Ack(seq).encode(&mut self.transmit);
                     }
                 }
                 Control::Notice { code, text } if self.welcome.is_some() => {
@@ -376,6 +387,8 @@ impl ClientSession {
                 if (keyframe || self.since_ack >= every) && self.welcome.is_some() {
                     self.since_ack = 0;
                     Control::Ack(sequence).encode(&mut self.transmit);
+                } else if keyframe {
+                    self.deferred_ack = Some(sequence);
                 }
                 self.push_event(ClientEvent::Applied { sequence, keyframe });
                 self.check_digest();

@@ -8,7 +8,7 @@
 use std::time::Duration;
 
 use psao_conformance::probe::Target;
-use psao_conformance::{Outcome, server_cases};
+use psao_conformance::{Outcome, client_cases, server_cases};
 use psao_proto::control::{Control, ControlReader, Sender, Welcome};
 use psao_proto::tls::server_config;
 use psao_proto::{CloseCode, Identity, ServerConfig, Trust, serve};
@@ -169,4 +169,117 @@ async fn a_broken_server_fails_the_cases_it_breaks() {
             .contains(&format!("failures=\"{failed}\""))
     );
     assert!(report.to_json().contains("\"outcome\": \"failed\""));
+}
+
+/// The kit's server mode: an endpoint whose first client is the one under
+/// test.
+fn harness(id: &Identity) -> quinn::Endpoint {
+    let config = server_config(id, Duration::from_secs(10)).unwrap();
+    quinn::Endpoint::server(config, "127.0.0.1:0".parse().unwrap()).unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn psao_client_passes_every_server_mode_case() {
+    let id = Identity::self_signed().unwrap();
+    let ep = harness(&id);
+    let addr = ep.local_addr().unwrap();
+    let fingerprint = psao_proto::tls::fingerprint(&id.chain[0]);
+    let run = tokio::spawn(async move { client_cases::run(&ep, Duration::from_secs(20)).await });
+    let client = psao_proto::connect(
+        addr,
+        &Trust::Fingerprint(fingerprint),
+        psao_proto::ClientConfig::default(),
+        Duration::from_secs(10),
+    )
+    .await
+    .unwrap();
+    let report = run.await.unwrap();
+    let all: Vec<String> = report.cases.iter().map(|c| c.line()).collect();
+    assert!(report.ok(), "{}\n{}", all.join("\n"), report.summary());
+    assert_eq!(report.counts(), (8, 0, 0), "{}", all.join("\n"));
+    drop(client);
+}
+
+/// A broken client double: it sends HELLO, acknowledges every keyframe,
+/// and never asks for one.
+async fn never_asks(addr: std::net::SocketAddr, fingerprint: [u8; 32]) {
+    let mut ep = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
+    let mut cc = psao_proto::tls::client_config(&Trust::Fingerprint(fingerprint)).unwrap();
+    let mut transport = quinn::TransportConfig::default();
+    transport.max_concurrent_uni_streams(1u32.into());
+    cc.transport_config(std::sync::Arc::new(transport));
+    ep.set_default_client_config(cc);
+    let conn = ep.connect(addr, "localhost").unwrap().await.unwrap();
+    let (mut send, _recv) = conn.open_bi().await.unwrap();
+    let hello = psao_proto::control::Hello {
+        version: 1,
+        compressions: 0b111,
+        point_formats: 1,
+        max_frame_bytes: 1 << 20,
+        max_payload_bytes: 1 << 20,
+        max_mirror_bytes: 1 << 30,
+        viewer: false,
+        overflow: false,
+        digest: true,
+    };
+    send.write_all(&Control::Hello(hello).to_bytes())
+        .await
+        .unwrap();
+    let Ok(mut frames) = conn.accept_uni().await else {
+        return;
+    };
+    loop {
+        let mut len = [0u8; 4];
+        if frames.read_exact(&mut len).await.is_err() {
+            break;
+        }
+        let mut f = vec![0u8; u32::from_le_bytes(len) as usize];
+        if frames.read_exact(&mut f).await.is_err() {
+            break;
+        }
+        if let Ok(h) = psao_codec::wire::FrameHeader::parse(&f)
+            && h.keyframe
+        {
+            let _ = send.write_all(&Control::Ack(h.sequence).to_bytes()).await;
+        }
+    }
+    conn.closed().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_never_asks_for_a_keyframe_fails_those_cases() {
+    let id = Identity::self_signed().unwrap();
+    let ep = harness(&id);
+    let addr = ep.local_addr().unwrap();
+    let fingerprint = psao_proto::tls::fingerprint(&id.chain[0]);
+    let run = tokio::spawn(async move { client_cases::run(&ep, Duration::from_secs(20)).await });
+    let double = tokio::spawn(never_asks(addr, fingerprint));
+    let report = run.await.unwrap();
+    let all = report
+        .cases
+        .iter()
+        .map(|c| c.line())
+        .collect::<Vec<_>>()
+        .join("\n");
+    for id in ["client.gap", "client.corrupt", "client.digest-mismatch"] {
+        assert!(
+            matches!(report.case(id).unwrap().outcome, Outcome::Failed(_)),
+            "{id}:\n{all}"
+        );
+    }
+    for id in [
+        "client.hello",
+        "client.join",
+        "client.resync",
+        "client.notices",
+        "client.shutdown",
+    ] {
+        assert_eq!(
+            report.case(id).unwrap().outcome,
+            Outcome::Passed,
+            "{id}:\n{all}"
+        );
+    }
+    assert_eq!(report.summary(), "5 passed, 3 failed, 0 skipped");
+    let _ = double.await;
 }

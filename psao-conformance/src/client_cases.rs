@@ -1,0 +1,516 @@
+//! The cases that drive a client under test (spec/session.md): a scripted
+//! server session on one connection. The harness accepts the client,
+//! checks its `HELLO`, answers with `WELCOME` at the client's exact
+//! limits, and streams a small grid through a late join, a gap, a
+//! corrupt frame, a resynchronization with `NOTICE` code 2, every
+//! `NOTICE` code, and (when the client checks digests) a wrong `DIGEST`,
+//! checking what the client sends back each time.
+
+use std::time::{Duration, Instant};
+
+use glam::Vec3;
+use psao_codec::{EncodedFrame, Encoder, EncoderConfig, GridTable, InstanceDef};
+use psao_proto::control::{
+    Control, ControlReader, Hello, KeyframeReason, NoticeCode, Sender, Welcome,
+};
+
+use crate::report::{CaseResult, Outcome, Report};
+
+/// What the client sent, as the harness reads it.
+struct Uplink {
+    recv: quinn::RecvStream,
+    reader: ControlReader,
+    buf: Vec<u8>,
+}
+
+impl Uplink {
+    /// The next message within `wait` (`Ok(None)`: none came).
+    async fn next(&mut self, wait: Duration) -> Result<Option<Control>, String> {
+        let deadline = tokio::time::Instant::now() + wait;
+        loop {
+            let mut input = &self.buf[..];
+            let got = self.reader.read(&mut input);
+            let used = self.buf.len() - input.len();
+            self.buf.drain(..used);
+            match got {
+                Ok(Some(m)) => return Ok(Some(m)),
+                Ok(None) => {}
+                Err(e) => return Err(format!("the client sent a malformed message: {e}")),
+            }
+            let mut chunk = [0u8; 2048];
+            match tokio::time::timeout_at(deadline, self.recv.read(&mut chunk)).await {
+                Err(_) => return Ok(None),
+                Ok(Ok(Some(n))) => self.buf.extend_from_slice(&chunk[..n]),
+                Ok(Ok(None)) => return Err("the client finished its control stream".into()),
+                Ok(Err(e)) => return Err(format!("the client's control stream ended: {e}")),
+            }
+        }
+    }
+
+    /// Waits up to `wait` for a message `want` accepts, ignoring others
+    /// (`ACK`s, `CAMERA`s); the message, or what happened instead.
+    async fn expect(
+        &mut self,
+        wait: Duration,
+        what: &str,
+        want: impl Fn(&Control) -> bool,
+    ) -> Result<Control, String> {
+        let deadline = Instant::now() + wait;
+        let mut others = Vec::new();
+        while let Some(left) = deadline.checked_duration_since(Instant::now()) {
+            match self.next(left).await? {
+                Some(m) if want(&m) => return Ok(m),
+                Some(m) => others.push(m.kind()),
+                None => break,
+            }
+        }
+        Err(format!(
+            "no {what} within {} ms (got message types {others:02x?})",
+            wait.as_millis()
+        ))
+    }
+}
+
+/// The scripted server side: a small grid and its encoder.
+struct Script {
+    table: GridTable,
+    enc: Encoder,
+    frames: quinn::SendStream,
+    control: quinn::SendStream,
+    k: u32,
+}
+
+impl Script {
+    fn new(frames: quinn::SendStream, control: quinn::SendStream) -> Script {
+        let def = InstanceDef {
+            origin: Vec3::ZERO,
+            cell_size: Vec3::splat(0.5),
+            dims: glam::UVec3::splat(8),
+            table_log2: 6,
+            bucket_capacity: 8,
+            cell_capacity: 7,
+            cell_pool: 128,
+            point_format: 0,
+            overflow: false,
+            radius: 0.1,
+            t_n: 0.1,
+            t_d: 0.7,
+        };
+        // A late join: the stream is already at sequence 1000.
+        let enc = Encoder::starting_at(
+            EncoderConfig {
+                compression: psao_codec::Compression::None,
+                checksum: true,
+                ..EncoderConfig::default()
+            },
+            1000,
+        );
+        Script {
+            table: GridTable::new(0, def, 1024).expect("a valid grid"),
+            enc,
+            frames,
+            control,
+            k: 0,
+        }
+    }
+
+    fn keyframe(&mut self) -> Result<EncodedFrame, String> {
+        let mut kf = self.enc.keyframe();
+        kf.snapshot(&self.table).map_err(|e| e.to_string())?;
+        kf.finish()
+            .map_err(|e| e.to_string())?
+            .ok_or("an empty keyframe".into())
+    }
+
+    fn delta(&mut self) -> Result<EncodedFrame, String> {
+        let k = self.k;
+        self.k += 1;
+        let x = 0.25 + (k % 14) as f32 * 0.25;
+        self.table
+            .set_point(
+                k % 512,
+                Vec3::new(x, 0.3, 1.0 + (k / 14 % 8) as f32 * 0.25),
+                Vec3::Y,
+                (k % 10) as f32 / 10.0,
+            )
+            .map_err(|e| e.to_string())?;
+        let mut d = self.enc.delta();
+        d.changes(&mut self.table);
+        d.finish()
+            .map_err(|e| e.to_string())?
+            .ok_or("an empty delta".into())
+    }
+
+    async fn send(&mut self, frame: &[u8]) -> Result<(), String> {
+        self.frames
+            .write_all(&(frame.len() as u32).to_le_bytes())
+            .await
+            .map_err(|e| format!("cannot write a frame: {e}"))?;
+        self.frames
+            .write_all(frame)
+            .await
+            .map_err(|e| format!("cannot write a frame: {e}"))
+    }
+
+    async fn control(&mut self, m: Control) -> Result<(), String> {
+        self.control
+            .write_all(&m.to_bytes())
+            .await
+            .map_err(|e| format!("cannot write on the control stream: {e}"))
+    }
+}
+
+/// Runs the scripted session with the first client that connects to
+/// `endpoint` within `wait`.
+pub async fn run(endpoint: &quinn::Endpoint, wait: Duration) -> Report {
+    let mut report = Report {
+        target: "the client under test".into(),
+        cases: Vec::new(),
+    };
+    let mut last = Instant::now();
+    let mut push = |report: &mut Report, id, section, title, outcome: Result<(), String>| {
+        let o = match outcome {
+            Ok(()) => Outcome::Passed,
+            Err(e) => match e.strip_prefix("SKIP:") {
+                Some(why) => Outcome::Skipped(why.to_string()),
+                None => Outcome::Failed(e),
+            },
+        };
+        report
+            .cases
+            .push(CaseResult::new(id, section, title, o, last.elapsed()));
+        last = Instant::now();
+    };
+    let accepted = async {
+        let incoming = tokio::time::timeout(wait, endpoint.accept())
+            .await
+            .map_err(|_| format!("no client connected within {} s", wait.as_secs()))?
+            .ok_or("the endpoint closed")?;
+        let conn = incoming
+            .await
+            .map_err(|e| format!("the QUIC handshake failed: {e}"))?;
+        let (send, recv) = tokio::time::timeout(Duration::from_secs(5), conn.accept_bi())
+            .await
+            .map_err(|_| "no control stream within 5 s".to_string())?
+            .map_err(|e| e.to_string())?;
+        Ok::<_, String>((conn, send, recv))
+    };
+    let (conn, send, recv) = match accepted.await {
+        Ok(x) => x,
+        Err(e) => {
+            push(
+                &mut report,
+                "client.hello",
+                "session.md 3.1, 5.1",
+                "the client's first message is a valid HELLO",
+                Err(e),
+            );
+            return report;
+        }
+    };
+    let mut up = Uplink {
+        recv,
+        reader: ControlReader::from(Sender::Client),
+        buf: Vec::new(),
+    };
+    // client.hello
+    let hello: Result<Hello, String> = match up.next(Duration::from_secs(5)).await {
+        Ok(Some(Control::Hello(h))) => Ok(h),
+        Ok(Some(other)) => Err(format!(
+            "the first message is type 0x{:02x}, not HELLO",
+            other.kind()
+        )),
+        Ok(None) => Err("no HELLO within 5 s".into()),
+        Err(e) => Err(e),
+    };
+    let hello = match hello {
+        Ok(h) => {
+            push(
+                &mut report,
+                "client.hello",
+                "session.md 3.1, 5.1",
+                "the client's first message is a valid HELLO",
+                Ok(()),
+            );
+            h
+        }
+        Err(e) => {
+            push(
+                &mut report,
+                "client.hello",
+                "session.md 3.1, 5.1",
+                "the client's first message is a valid HELLO",
+                Err(e),
+            );
+            conn.close(1u32.into(), b"conformance: no HELLO");
+            return report;
+        }
+    };
+    let welcome = Welcome {
+        version: 1,
+        compression: 0,
+        point_format: 0,
+        // Limits at the client's exact offer.
+        max_frame_bytes: hello.max_frame_bytes,
+        max_payload_bytes: hello.max_payload_bytes,
+        frame_rate: 60,
+        culling: false,
+        overflow: false,
+        digest: hello.digest,
+        scene: "conformance".into(),
+    };
+    let mut control = send;
+    if let Err(e) = control
+        .write_all(&Control::Welcome(welcome).to_bytes())
+        .await
+    {
+        push(
+            &mut report,
+            "client.join",
+            "session.md 5.1",
+            "a late join: the client applies a keyframe at sequence 1000 and acknowledges it",
+            Err(e.to_string()),
+        );
+        return report;
+    }
+    let frames = match conn.open_uni().await {
+        Ok(f) => f,
+        Err(e) => {
+            push(
+                &mut report,
+                "client.join",
+                "session.md 2, 5.1",
+                "a late join: the client applies a keyframe at sequence 1000 and acknowledges it",
+                Err(format!(
+                    "cannot open the frame stream (does the client allow one?): {e}"
+                )),
+            );
+            return report;
+        }
+    };
+    let mut s = Script::new(frames, control);
+    let ack_of = |seq: u32| move |m: &Control| matches!(m, Control::Ack(a) if *a == seq);
+    let request = |reason: KeyframeReason| move |m: &Control| matches!(m, Control::KeyframeRequest { reason: r, .. } if *r == reason);
+
+    // client.join: keyframe at 1000 (a late joiner's first frame), ACKed.
+    let r = async {
+        for _ in 0..3 {
+            let d = s.delta()?;
+            let _ = d; // the state moves on before the client joins
+        }
+        let kf = s.keyframe()?;
+        s.send(&kf.bytes).await?;
+        up.expect(
+            Duration::from_secs(3),
+            "ACK of the keyframe (a SHOULD)",
+            ack_of(kf.sequence),
+        )
+        .await
+        .map(|_| ())
+    }
+    .await;
+    push(
+        &mut report,
+        "client.join",
+        "session.md 3.4, 5.1",
+        "a late join: the client applies a keyframe at a later sequence and acknowledges it",
+        r,
+    );
+
+    // client.gap: a delta is skipped; the client asks with reason 0.
+    let r = async {
+        for _ in 0..3 {
+            let d = s.delta()?;
+            s.send(&d.bytes).await?;
+        }
+        let _skipped = s.delta()?;
+        let d = s.delta()?;
+        s.send(&d.bytes).await?;
+        up.expect(
+            Duration::from_secs(3),
+            "KEYFRAME_REQUEST with reason 0 (gap)",
+            request(KeyframeReason::Gap),
+        )
+        .await?;
+        let kf = s.keyframe()?;
+        s.send(&kf.bytes).await?;
+        up.expect(
+            Duration::from_secs(3),
+            "ACK of the answering keyframe",
+            ack_of(kf.sequence),
+        )
+        .await
+        .map(|_| ())
+    }
+    .await;
+    push(
+        &mut report,
+        "client.gap",
+        "session.md 3.5",
+        "a gap in the deltas makes the client ask for a keyframe with reason 0, and the keyframe resyncs it",
+        r,
+    );
+
+    // client.corrupt: a frame whose checksum fails; reason 1.
+    let r = async {
+        let d = s.delta()?;
+        let mut bad = d.bytes.to_vec();
+        let last = bad.len() - 1;
+        bad[last] ^= 0x40;
+        s.send(&bad).await?;
+        up.expect(
+            Duration::from_secs(3),
+            "KEYFRAME_REQUEST with reason 1 (decode failure)",
+            request(KeyframeReason::DecodeError),
+        )
+        .await?;
+        let kf = s.keyframe()?;
+        s.send(&kf.bytes).await?;
+        up.expect(
+            Duration::from_secs(3),
+            "ACK of the answering keyframe",
+            ack_of(kf.sequence),
+        )
+        .await
+        .map(|_| ())
+    }
+    .await;
+    push(
+        &mut report,
+        "client.corrupt",
+        "session.md 3.5, wire-format.md 3.1",
+        "a corrupt frame makes the client ask for a keyframe with reason 1",
+        r,
+    );
+
+    // client.resync: NOTICE 2, then a keyframe well ahead, without a request.
+    let r = async {
+        for _ in 0..20 {
+            s.delta()?;
+        }
+        s.control(Control::Notice {
+            code: NoticeCode::FellBehind,
+            text: "fell behind; resynchronizing with a keyframe".into(),
+        })
+        .await?;
+        let kf = s.keyframe()?;
+        s.send(&kf.bytes).await?;
+        up.expect(
+            Duration::from_secs(3),
+            "ACK of the keyframe after the jump",
+            ack_of(kf.sequence),
+        )
+        .await
+        .map(|_| ())
+    }
+    .await;
+    push(
+        &mut report,
+        "client.resync",
+        "session.md 5.2",
+        "after NOTICE 2 the client takes a keyframe 20 sequences ahead and goes on",
+        r,
+    );
+
+    // client.notices: every code, an unknown one included, closes nothing.
+    let r = async {
+        for (code, text) in [
+            (NoticeCode::EventRefused, "refused"),
+            (NoticeCode::Other(3), "other"),
+            (NoticeCode::BelowRate, "41.5 of 60 Hz"),
+            (NoticeCode::Other(200), "a code from the future"),
+        ] {
+            s.control(Control::Notice {
+                code,
+                text: text.into(),
+            })
+            .await?;
+        }
+        let kf = s.keyframe()?;
+        s.send(&kf.bytes).await?;
+        // The client is still here: it acknowledges the keyframe.
+        up.expect(
+            Duration::from_secs(3),
+            "ACK after the notices",
+            ack_of(kf.sequence),
+        )
+        .await
+        .map(|_| ())
+    }
+    .await;
+    push(
+        &mut report,
+        "client.notices",
+        "session.md 3.7",
+        "NOTICE codes 1, 3, 4 and an unknown 200 are not errors",
+        r,
+    );
+
+    // client.digest: a wrong DIGEST for the mirror's sequence; reason 4.
+    let r = async {
+        if !hello.digest {
+            return Err("SKIP:the client does not check digests (HELLO.flags.digest is 0)".into());
+        }
+        let d = s.delta()?;
+        s.control(Control::Digest {
+            sequence: d.sequence,
+            digest: 0x0BAD_D1CE,
+        })
+        .await?;
+        s.send(&d.bytes).await?;
+        up.expect(
+            Duration::from_secs(3),
+            "KEYFRAME_REQUEST with reason 4 (digest mismatch)",
+            request(KeyframeReason::DigestMismatch),
+        )
+        .await?;
+        let kf = s.keyframe()?;
+        s.send(&kf.bytes).await?;
+        up.expect(
+            Duration::from_secs(3),
+            "ACK of the answering keyframe",
+            ack_of(kf.sequence),
+        )
+        .await
+        .map(|_| ())
+    }
+    .await;
+    push(
+        &mut report,
+        "client.digest-mismatch",
+        "session.md 3.8",
+        "a DIGEST that differs from the client's mirror makes it ask for a keyframe with reason 4",
+        r,
+    );
+
+    // client.shutdown: the frame stream finishes and the server closes;
+    // the client must not have violated anything before.
+    let r = async {
+        s.frames.finish().map_err(|e| e.to_string())?;
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        match conn.close_reason() {
+            Some(quinn::ConnectionError::ApplicationClosed(c))
+                if c.error_code.into_inner() != 0 =>
+            {
+                Err(format!(
+                    "the client closed with code {} before the shutdown",
+                    c.error_code
+                ))
+            }
+            _ => Ok(()),
+        }
+    }
+    .await;
+    conn.close(
+        psao_proto::CloseCode::ServerShutdown.code().into(),
+        b"conformance run over",
+    );
+    push(
+        &mut report,
+        "client.shutdown",
+        "session.md 5.3",
+        "the client is still connected when the server finishes the frame stream and shuts down",
+        r,
+    );
+    report
+}
