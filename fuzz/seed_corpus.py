@@ -6,6 +6,8 @@ import pathlib, struct
 root = pathlib.Path(__file__).resolve().parent
 vectors = sorted((root.parent / "spec" / "vectors").glob("*.txt"))
 single = root / "corpus" / "decode_frame"
+differential = root / "corpus" / "decode_differential"
+differential.mkdir(parents=True, exist_ok=True)
 stream = root / "corpus" / "mirror_apply"
 single.mkdir(parents=True, exist_ok=True)
 stream.mkdir(parents=True, exist_ok=True)
@@ -13,6 +15,8 @@ for v in vectors:
     frames = [bytes.fromhex(l.split(" ", 1)[1]) for l in v.read_text().splitlines() if l.startswith("frame ")]
     for i, f in enumerate(frames):
         (single / f"{v.stem}-{i}").write_bytes(f)
+        # Odd first byte: the frame as it is (decode_differential).
+        (differential / f"{v.stem}-{i}").write_bytes(b"\x01" + f)
     (stream / v.stem).write_bytes(b"".join(struct.pack("<H", len(f)) + f for f in frames if len(f) < 65536))
 models = root / "corpus" / "gltf_import"
 models.mkdir(parents=True, exist_ok=True)

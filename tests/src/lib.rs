@@ -19,6 +19,7 @@
 //! here ships in a library crate's public API.
 
 pub mod raw;
+pub mod reference;
 #[cfg(feature = "relay")]
 pub mod relay;
 #[cfg(feature = "scenes")]
