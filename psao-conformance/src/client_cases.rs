@@ -3,7 +3,8 @@
 //! checks its `HELLO`, answers with `WELCOME` at the client's exact
 //! limits, and streams a small grid through a late join, a gap, a
 //! corrupt frame, a resynchronization with `NOTICE` code 2, every
-//! `NOTICE` code, and (when the client checks digests) a wrong `DIGEST`,
+//! `NOTICE` code, a frame of exactly its `max_frame_bytes`, and (when the
+//! client checks digests) a wrong `DIGEST`,
 //! checking what the client sends back each time.
 
 use std::time::{Duration, Instant};
@@ -160,6 +161,33 @@ impl Script {
     }
 }
 
+/// `frame` (uncompressed, with or without checksum) as a zstd frame of
+/// exactly `size` bytes: its payload compressed, then a skippable frame
+/// (RFC 8878 3.1.2) filling the rest, the header's lengths and CRC fixed.
+fn exact_frame(frame: &[u8], size: u32) -> Result<Vec<u8>, String> {
+    let payload = &frame[32..];
+    let z = zstd::bulk::compress(payload, 3).map_err(|e| e.to_string())?;
+    let pad = (size as usize)
+        .checked_sub(32 + z.len() + 8)
+        .ok_or("the limit is smaller than the frame")?;
+    let mut wire = z;
+    wire.extend(0x184D_2A50u32.to_le_bytes());
+    wire.extend((pad as u32).to_le_bytes());
+    wire.resize(wire.len() + pad, 0);
+    let mut f = frame[..32].to_vec();
+    f[5] |= 2; // CHECKSUM
+    f[6] = 2; // zstd
+    f[24..28].copy_from_slice(&(wire.len() as u32).to_le_bytes());
+    let mut h = crc32fast::Hasher::new();
+    h.update(&f[..28]);
+    h.update(&wire);
+    let crc = h.finalize();
+    f[28..32].copy_from_slice(&crc.to_le_bytes());
+    f.extend_from_slice(&wire);
+    debug_assert_eq!(f.len(), size as usize);
+    Ok(f)
+}
+
 /// Runs the scripted session with the first client that connects to
 /// `endpoint` within `wait`.
 pub async fn run(endpoint: &quinn::Endpoint, wait: Duration) -> Report {
@@ -246,9 +274,12 @@ pub async fn run(endpoint: &quinn::Endpoint, wait: Duration) -> Report {
             return report;
         }
     };
+    // zstd when the client decodes it: the exact-limit case pads with a
+    // skippable frame.
+    let zstd = hello.compressions & 0b100 != 0;
     let welcome = Welcome {
         version: 1,
-        compression: 0,
+        compression: if zstd { 2 } else { 0 },
         point_format: 0,
         // Limits at the client's exact offer.
         max_frame_bytes: hello.max_frame_bytes,
@@ -443,6 +474,47 @@ pub async fn run(endpoint: &quinn::Endpoint, wait: Duration) -> Report {
         "client.notices",
         "session.md 3.7",
         "NOTICE codes 1, 3, 4 and an unknown 200 are not errors",
+        r,
+    );
+
+    // client.limit-exact: a frame of exactly the client's max_frame_bytes
+    // (a zstd payload padded with a skippable frame), then a delta and a
+    // keyframe: no request may come, the keyframe is acknowledged.
+    let r = async {
+        if !zstd {
+            return Err("SKIP:the client does not decode zstd, which the padding needs".into());
+        }
+        let d = s.delta()?;
+        let big = exact_frame(&d.bytes, hello.max_frame_bytes)?;
+        s.send(&big).await?;
+        let next = s.delta()?;
+        s.send(&next.bytes).await?;
+        let kf = s.keyframe()?;
+        s.send(&kf.bytes).await?;
+        let m = up
+            .expect(
+                Duration::from_secs(10),
+                "ACK of the keyframe after the full-size frame",
+                |m| {
+                    matches!(m, Control::Ack(a) if *a == kf.sequence)
+                        || matches!(m, Control::KeyframeRequest { .. })
+                },
+            )
+            .await?;
+        match m {
+            Control::KeyframeRequest { reason, .. } => Err(format!(
+                "the client refused the {}-byte frame (a keyframe request, reason {reason:?})",
+                big.len()
+            )),
+            _ => Ok(()),
+        }
+    }
+    .await;
+    push(
+        &mut report,
+        "client.limit-exact",
+        "session.md 3.1, 3.2, wire-format.md 3.2",
+        "a frame of exactly the HELLO's max_frame_bytes (zstd with a skippable frame) applies",
         r,
     );
 

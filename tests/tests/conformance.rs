@@ -196,7 +196,7 @@ async fn psao_client_passes_every_server_mode_case() {
     let report = run.await.unwrap();
     let all: Vec<String> = report.cases.iter().map(|c| c.line()).collect();
     assert!(report.ok(), "{}\n{}", all.join("\n"), report.summary());
-    assert_eq!(report.counts(), (8, 0, 0), "{}", all.join("\n"));
+    assert_eq!(report.counts(), (9, 0, 0), "{}", all.join("\n"));
     drop(client);
 }
 
@@ -280,6 +280,6 @@ async fn a_client_that_never_asks_for_a_keyframe_fails_those_cases() {
             "{id}:\n{all}"
         );
     }
-    assert_eq!(report.summary(), "5 passed, 3 failed, 0 skipped");
+    assert_eq!(report.summary(), "6 passed, 3 failed, 0 skipped");
     let _ = double.await;
 }

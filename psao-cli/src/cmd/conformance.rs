@@ -27,7 +27,8 @@ enum Mode {
     Client(ClientArgs),
     /// Play the server: wait for one client under test and take it through
     /// a late join, a gap, a corrupt frame, a resynchronization with
-    /// NOTICE 2, every NOTICE code, a wrong DIGEST and shutdown, checking
+    /// NOTICE 2, every NOTICE code, a frame at its exact max_frame_bytes, a
+    /// wrong DIGEST and shutdown, checking
     /// what it sends back. Prints the certificate fingerprint to pin.
     Server(ServerModeArgs),
 }
