@@ -225,12 +225,28 @@ impl Fanout {
         }
     }
 
-    /// Whether a digest of the current state is wanted: the next frame
-    /// pushed carries one for some client, or a client that asked waits
-    /// with nothing queued. Compute it only then (it reads the whole
-    /// mirror).
-    pub fn wants_digest(&self) -> bool {
-        self.clients.values().any(|c| c.digest_due())
+    /// Whether a digest of the state after the frame about to be pushed
+    /// (`keyframe`: a keyframe) is wanted: some client the frame will be
+    /// queued for is due one, or (`idle_at`: the state's sequence, on a
+    /// tick without a frame) a client that asked waits at that state with
+    /// nothing queued. Compute it only then: it reads the whole mirror.
+    pub fn wants_digest(&self, keyframe: bool, idle_at: Option<u32>) -> bool {
+        self.clients.values().any(|c| {
+            if !c.digests || c.refused.is_some() {
+                return false;
+            }
+            let queued_to_it = if keyframe {
+                c.outbox.wants_keyframe()
+            } else {
+                !c.outbox.awaits_keyframe()
+            };
+            (idle_at.is_none() && c.digest_due() && queued_to_it)
+                || (c.digest_asked
+                    && c.outbox.is_empty()
+                    && !c.outbox.awaits_keyframe()
+                    && idle_at.is_some()
+                    && c.last_sent == idle_at)
+        })
     }
 
     /// Answers the clients that asked for a digest and have nothing queued

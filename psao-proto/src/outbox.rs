@@ -110,6 +110,12 @@ impl Outbox {
         self.awaiting_keyframe && self.queue.is_empty()
     }
 
+    /// Whether deltas are skipped until a keyframe is queued (it just
+    /// joined, asked for one, or fell behind).
+    pub fn awaits_keyframe(&self) -> bool {
+        self.awaiting_keyframe
+    }
+
     /// Whether it fell behind since its last keyframe.
     pub fn is_behind(&self) -> bool {
         self.behind

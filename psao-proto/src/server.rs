@@ -431,7 +431,12 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
             s.stats.frames += 1;
             s.stats.step_time += step_time;
             s.stats.report.accumulate(&report);
-            let digest = digest_after(&mut own, frame.as_ref(), s.fanout.wants_digest());
+            let idle_at = match &frame {
+                Some(_) => None,
+                None => own.as_ref().and_then(|m| m.mirror().sequence()),
+            };
+            let wanted = s.fanout.wants_digest(false, idle_at);
+            let digest = digest_after(&mut own, frame.as_ref(), wanted);
             if let Some(f) = &frame {
                 s.stats.sent_frames += 1;
                 s.stats.encoded_bytes += f.bytes.len() as u64;
@@ -462,7 +467,8 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
                 Ok(kf) => {
                     let mut s = hub.lock();
                     s.stats.keyframes += 1;
-                    let digest = digest_after(&mut own, Some(&kf), s.fanout.wants_digest());
+                    let wanted = s.fanout.wants_digest(true, None);
+                    let digest = digest_after(&mut own, Some(&kf), wanted);
                     s.fanout.push_keyframe_with_digest(&kf, digest);
                     s.wake_all();
                 }

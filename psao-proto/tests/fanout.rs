@@ -180,3 +180,32 @@ fn views_are_the_viewers_poses_unless_someone_does_not_say() {
     f.remove_client(blind);
     assert_eq!(f.views(), Some(vec![pose(1.0)]));
 }
+
+/// A digest is wanted only when some client will get it: not for a
+/// client waiting for a keyframe (deltas skip it), which used to make a
+/// server compute one every tick while the client was behind.
+#[test]
+fn a_digest_is_wanted_only_for_a_client_that_will_get_it() {
+    let mut f = Fanout::new(1 << 20);
+    let c = f.add_client(false);
+    f.set_digests(c, 1);
+    // It waits for its first keyframe: deltas would be skipped.
+    assert!(!f.wants_digest(false, None));
+    assert!(f.wants_digest(true, None), "the keyframe it waits for");
+    assert_eq!(f.serve_keyframes(), Keyframes::Encode);
+    f.push_keyframe_with_digest(&frame(1, true, 50), Some(0xAB));
+    let t = f.poll_transmit(c).unwrap();
+    assert_eq!(t.notices.len(), 1, "the DIGEST goes before the keyframe");
+    // In sync: every frame carries one (interval 1).
+    assert!(f.wants_digest(false, None));
+    // Asked while idle at the keyframe's state: answered at once. (The
+    // test frames are filled with their sequence byte, so the header's
+    // sequence field reads 0x01010101.)
+    let at = 0x0101_0101;
+    f.set_digests(c, 0);
+    f.request_digest(c);
+    assert!(!f.wants_digest(false, Some(2)), "not at the state it holds");
+    assert!(f.wants_digest(false, Some(at)));
+    assert_eq!(f.answer_digests(at, 0xCD), 1);
+    assert!(!f.wants_digest(false, Some(at)), "answered");
+}

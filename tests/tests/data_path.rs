@@ -162,7 +162,7 @@ fn run(seed: u64) -> (Run, Vec<f32>, Pipeline, Scene) {
             if let Some(f) = frame {
                 let _ = own.receive(&f.bytes);
                 let digest = fanout
-                    .wants_digest()
+                    .wants_digest(false, None)
                     .then(|| own.mirror().digest())
                     .flatten();
                 fanout.push_frame_with_digest(&f, digest);
@@ -174,7 +174,7 @@ fn run(seed: u64) -> (Run, Vec<f32>, Pipeline, Scene) {
             last_sequence = Some(kf.sequence);
             own.receive(&kf.bytes).unwrap();
             let digest = fanout
-                .wants_digest()
+                .wants_digest(true, None)
                 .then(|| own.mirror().digest())
                 .flatten();
             fanout.push_keyframe_with_digest(&kf, digest);
