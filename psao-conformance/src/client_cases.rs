@@ -11,41 +11,18 @@ use std::time::{Duration, Instant};
 
 use glam::Vec3;
 use psao_codec::{EncodedFrame, Encoder, EncoderConfig, GridTable, InstanceDef};
-use psao_proto::control::{
-    Control, ControlReader, Hello, KeyframeReason, NoticeCode, Sender, Welcome,
-};
+use psao_proto::control::{Control, Hello, KeyframeReason, NoticeCode, Sender, Welcome};
 
+use crate::probe::ControlIn;
 use crate::report::{CaseResult, Outcome, Report};
 
 /// What the client sent, as the harness reads it.
-struct Uplink {
-    recv: quinn::RecvStream,
-    reader: ControlReader,
-    buf: Vec<u8>,
-}
+struct Uplink(ControlIn);
 
 impl Uplink {
     /// The next message within `wait` (`Ok(None)`: none came).
     async fn next(&mut self, wait: Duration) -> Result<Option<Control>, String> {
-        let deadline = tokio::time::Instant::now() + wait;
-        loop {
-            let mut input = &self.buf[..];
-            let got = self.reader.read(&mut input);
-            let used = self.buf.len() - input.len();
-            self.buf.drain(..used);
-            match got {
-                Ok(Some(m)) => return Ok(Some(m)),
-                Ok(None) => {}
-                Err(e) => return Err(format!("the client sent a malformed message: {e}")),
-            }
-            let mut chunk = [0u8; 2048];
-            match tokio::time::timeout_at(deadline, self.recv.read(&mut chunk)).await {
-                Err(_) => return Ok(None),
-                Ok(Ok(Some(n))) => self.buf.extend_from_slice(&chunk[..n]),
-                Ok(Ok(None)) => return Err("the client finished its control stream".into()),
-                Ok(Err(e)) => return Err(format!("the client's control stream ended: {e}")),
-            }
-        }
+        self.0.next(wait).await
     }
 
     /// Waits up to `wait` for a message `want` accepts, ignoring others
@@ -188,92 +165,146 @@ fn exact_frame(frame: &[u8], size: u32) -> Result<Vec<u8>, String> {
     Ok(f)
 }
 
+/// One case of the scripted session: id, spec section, what it checks.
+struct Meta(&'static str, &'static str, &'static str);
+
+const HELLO: Meta = Meta(
+    "client.hello",
+    "session.md 3.1, 5.1",
+    "the client's first message is a valid HELLO",
+);
+const JOIN: Meta = Meta(
+    "client.join",
+    "session.md 3.4, 5.1",
+    "a late join: the client applies a keyframe at a later sequence and acknowledges it",
+);
+const GAP: Meta = Meta(
+    "client.gap",
+    "session.md 3.5",
+    "a gap in the deltas makes the client ask for a keyframe with reason 0, and the keyframe resyncs it",
+);
+const CORRUPT: Meta = Meta(
+    "client.corrupt",
+    "session.md 3.5, wire-format.md 3.1",
+    "a corrupt frame makes the client ask for a keyframe with reason 1",
+);
+const RESYNC: Meta = Meta(
+    "client.resync",
+    "session.md 5.2",
+    "after NOTICE 2 the client takes a keyframe 20 sequences ahead and goes on",
+);
+const NOTICES: Meta = Meta(
+    "client.notices",
+    "session.md 3.7",
+    "NOTICE codes 1, 3, 4 and an unknown 200 are not errors",
+);
+const LIMIT: Meta = Meta(
+    "client.limit-exact",
+    "session.md 3.1, 3.2, wire-format.md 3.2",
+    "a frame of exactly the HELLO's max_frame_bytes (zstd with a skippable frame) applies",
+);
+const DIGEST: Meta = Meta(
+    "client.digest-mismatch",
+    "session.md 3.8",
+    "a DIGEST that differs from the client's mirror makes it ask for a keyframe with reason 4",
+);
+const SHUTDOWN: Meta = Meta(
+    "client.shutdown",
+    "session.md 5.3",
+    "the client is still connected when the server finishes the frame stream and shuts down",
+);
+
+/// The report being written, timing each case from the end of the last.
+struct Run {
+    report: Report,
+    last: Instant,
+}
+
+impl Run {
+    fn record(&mut self, m: &Meta, r: Result<(), String>) {
+        let took = self.last.elapsed();
+        self.report
+            .cases
+            .push(CaseResult::new(m.0, m.1, m.2, Outcome::of(r), took));
+        self.last = Instant::now();
+    }
+}
+
+/// Sends a keyframe of the current state and waits for its `ACK`.
+async fn keyframe_acked(s: &mut Script, up: &mut Uplink, what: &str) -> Result<(), String> {
+    let kf = s.keyframe()?;
+    s.send(&kf.bytes).await?;
+    let seq = kf.sequence;
+    up.expect(
+        Duration::from_secs(3),
+        what,
+        |m| matches!(m, Control::Ack(a) if *a == seq),
+    )
+    .await
+    .map(|_| ())
+}
+
+/// Waits for a keyframe request with `reason`, then answers it and waits
+/// for the answer's `ACK`.
+async fn answered(s: &mut Script, up: &mut Uplink, reason: KeyframeReason) -> Result<(), String> {
+    up.expect(
+        Duration::from_secs(3),
+        &format!("KEYFRAME_REQUEST with reason {reason:?}"),
+        |m| matches!(m, Control::KeyframeRequest { reason: r, .. } if *r == reason),
+    )
+    .await?;
+    keyframe_acked(s, up, "ACK of the answering keyframe").await
+}
+
+/// Accepts the first client within `wait` and reads its `HELLO`.
+async fn handshake(
+    endpoint: &quinn::Endpoint,
+    wait: Duration,
+) -> Result<(quinn::Connection, quinn::SendStream, Uplink, Hello), String> {
+    let incoming = tokio::time::timeout(wait, endpoint.accept())
+        .await
+        .map_err(|_| format!("no client connected within {} s", wait.as_secs()))?
+        .ok_or("the endpoint closed")?;
+    let conn = incoming
+        .await
+        .map_err(|e| format!("the QUIC handshake failed: {e}"))?;
+    let (send, recv) = tokio::time::timeout(Duration::from_secs(5), conn.accept_bi())
+        .await
+        .map_err(|_| "no control stream within 5 s".to_string())?
+        .map_err(|e| e.to_string())?;
+    let mut up = Uplink(ControlIn::new(recv, Sender::Client, "the client"));
+    match up.next(Duration::from_secs(5)).await {
+        Ok(Some(Control::Hello(h))) => Ok((conn, send, up, h)),
+        Ok(Some(other)) => {
+            conn.close(1u32.into(), b"conformance: no HELLO");
+            Err(format!(
+                "the first message is type 0x{:02x}, not HELLO",
+                other.kind()
+            ))
+        }
+        Ok(None) => Err("no HELLO within 5 s".into()),
+        Err(e) => Err(e),
+    }
+}
+
 /// Runs the scripted session with the first client that connects to
 /// `endpoint` within `wait`.
 pub async fn run(endpoint: &quinn::Endpoint, wait: Duration) -> Report {
-    let mut report = Report {
-        target: "the client under test".into(),
-        cases: Vec::new(),
+    let mut run = Run {
+        report: Report {
+            target: "the client under test".into(),
+            cases: Vec::new(),
+        },
+        last: Instant::now(),
     };
-    let mut last = Instant::now();
-    let mut push = |report: &mut Report, id, section, title, outcome: Result<(), String>| {
-        let o = match outcome {
-            Ok(()) => Outcome::Passed,
-            Err(e) => match e.strip_prefix("SKIP:") {
-                Some(why) => Outcome::Skipped(why.to_string()),
-                None => Outcome::Failed(e),
-            },
-        };
-        report
-            .cases
-            .push(CaseResult::new(id, section, title, o, last.elapsed()));
-        last = Instant::now();
-    };
-    let accepted = async {
-        let incoming = tokio::time::timeout(wait, endpoint.accept())
-            .await
-            .map_err(|_| format!("no client connected within {} s", wait.as_secs()))?
-            .ok_or("the endpoint closed")?;
-        let conn = incoming
-            .await
-            .map_err(|e| format!("the QUIC handshake failed: {e}"))?;
-        let (send, recv) = tokio::time::timeout(Duration::from_secs(5), conn.accept_bi())
-            .await
-            .map_err(|_| "no control stream within 5 s".to_string())?
-            .map_err(|e| e.to_string())?;
-        Ok::<_, String>((conn, send, recv))
-    };
-    let (conn, send, recv) = match accepted.await {
+    let (conn, mut control, mut up, hello) = match handshake(endpoint, wait).await {
         Ok(x) => x,
         Err(e) => {
-            push(
-                &mut report,
-                "client.hello",
-                "session.md 3.1, 5.1",
-                "the client's first message is a valid HELLO",
-                Err(e),
-            );
-            return report;
+            run.record(&HELLO, Err(e));
+            return run.report;
         }
     };
-    let mut up = Uplink {
-        recv,
-        reader: ControlReader::from(Sender::Client),
-        buf: Vec::new(),
-    };
-    // client.hello
-    let hello: Result<Hello, String> = match up.next(Duration::from_secs(5)).await {
-        Ok(Some(Control::Hello(h))) => Ok(h),
-        Ok(Some(other)) => Err(format!(
-            "the first message is type 0x{:02x}, not HELLO",
-            other.kind()
-        )),
-        Ok(None) => Err("no HELLO within 5 s".into()),
-        Err(e) => Err(e),
-    };
-    let hello = match hello {
-        Ok(h) => {
-            push(
-                &mut report,
-                "client.hello",
-                "session.md 3.1, 5.1",
-                "the client's first message is a valid HELLO",
-                Ok(()),
-            );
-            h
-        }
-        Err(e) => {
-            push(
-                &mut report,
-                "client.hello",
-                "session.md 3.1, 5.1",
-                "the client's first message is a valid HELLO",
-                Err(e),
-            );
-            conn.close(1u32.into(), b"conformance: no HELLO");
-            return report;
-        }
-    };
+    run.record(&HELLO, Ok(()));
     // zstd when the client decodes it: the exact-limit case pads with a
     // skippable frame.
     let zstd = hello.compressions & 0b100 != 0;
@@ -290,65 +321,37 @@ pub async fn run(endpoint: &quinn::Endpoint, wait: Duration) -> Report {
         digest: hello.digest,
         scene: "conformance".into(),
     };
-    let mut control = send;
-    if let Err(e) = control
-        .write_all(&Control::Welcome(welcome).to_bytes())
-        .await
-    {
-        push(
-            &mut report,
-            "client.join",
-            "session.md 5.1",
-            "a late join: the client applies a keyframe at sequence 1000 and acknowledges it",
-            Err(e.to_string()),
-        );
-        return report;
+    let opened = async {
+        control
+            .write_all(&Control::Welcome(welcome).to_bytes())
+            .await
+            .map_err(|e| e.to_string())?;
+        conn.open_uni()
+            .await
+            .map_err(|e| format!("cannot open the frame stream (does the client allow one?): {e}"))
     }
-    let frames = match conn.open_uni().await {
+    .await;
+    let frames = match opened {
         Ok(f) => f,
         Err(e) => {
-            push(
-                &mut report,
-                "client.join",
-                "session.md 2, 5.1",
-                "a late join: the client applies a keyframe at sequence 1000 and acknowledges it",
-                Err(format!(
-                    "cannot open the frame stream (does the client allow one?): {e}"
-                )),
-            );
-            return report;
+            run.record(&JOIN, Err(e));
+            return run.report;
         }
     };
     let mut s = Script::new(frames, control);
-    let ack_of = |seq: u32| move |m: &Control| matches!(m, Control::Ack(a) if *a == seq);
-    let request = |reason: KeyframeReason| move |m: &Control| matches!(m, Control::KeyframeRequest { reason: r, .. } if *r == reason);
+    let (s, up) = (&mut s, &mut up);
 
-    // client.join: keyframe at 1000 (a late joiner's first frame), ACKed.
+    // A late join: the state moves on before the client's first keyframe.
     let r = async {
         for _ in 0..3 {
-            let d = s.delta()?;
-            let _ = d; // the state moves on before the client joins
+            s.delta()?;
         }
-        let kf = s.keyframe()?;
-        s.send(&kf.bytes).await?;
-        up.expect(
-            Duration::from_secs(3),
-            "ACK of the keyframe (a SHOULD)",
-            ack_of(kf.sequence),
-        )
-        .await
-        .map(|_| ())
+        keyframe_acked(s, up, "ACK of the keyframe (a SHOULD)").await
     }
     .await;
-    push(
-        &mut report,
-        "client.join",
-        "session.md 3.4, 5.1",
-        "a late join: the client applies a keyframe at a later sequence and acknowledges it",
-        r,
-    );
+    run.record(&JOIN, r);
 
-    // client.gap: a delta is skipped; the client asks with reason 0.
+    // A delta is skipped: the client asks with reason 0.
     let r = async {
         for _ in 0..3 {
             let d = s.delta()?;
@@ -357,64 +360,24 @@ pub async fn run(endpoint: &quinn::Endpoint, wait: Duration) -> Report {
         let _skipped = s.delta()?;
         let d = s.delta()?;
         s.send(&d.bytes).await?;
-        up.expect(
-            Duration::from_secs(3),
-            "KEYFRAME_REQUEST with reason 0 (gap)",
-            request(KeyframeReason::Gap),
-        )
-        .await?;
-        let kf = s.keyframe()?;
-        s.send(&kf.bytes).await?;
-        up.expect(
-            Duration::from_secs(3),
-            "ACK of the answering keyframe",
-            ack_of(kf.sequence),
-        )
-        .await
-        .map(|_| ())
+        answered(s, up, KeyframeReason::Gap).await
     }
     .await;
-    push(
-        &mut report,
-        "client.gap",
-        "session.md 3.5",
-        "a gap in the deltas makes the client ask for a keyframe with reason 0, and the keyframe resyncs it",
-        r,
-    );
+    run.record(&GAP, r);
 
-    // client.corrupt: a frame whose checksum fails; reason 1.
+    // A frame whose checksum fails: reason 1.
     let r = async {
         let d = s.delta()?;
         let mut bad = d.bytes.to_vec();
         let last = bad.len() - 1;
         bad[last] ^= 0x40;
         s.send(&bad).await?;
-        up.expect(
-            Duration::from_secs(3),
-            "KEYFRAME_REQUEST with reason 1 (decode failure)",
-            request(KeyframeReason::DecodeError),
-        )
-        .await?;
-        let kf = s.keyframe()?;
-        s.send(&kf.bytes).await?;
-        up.expect(
-            Duration::from_secs(3),
-            "ACK of the answering keyframe",
-            ack_of(kf.sequence),
-        )
-        .await
-        .map(|_| ())
+        answered(s, up, KeyframeReason::DecodeError).await
     }
     .await;
-    push(
-        &mut report,
-        "client.corrupt",
-        "session.md 3.5, wire-format.md 3.1",
-        "a corrupt frame makes the client ask for a keyframe with reason 1",
-        r,
-    );
+    run.record(&CORRUPT, r);
 
-    // client.resync: NOTICE 2, then a keyframe well ahead, without a request.
+    // NOTICE 2, then a keyframe well ahead, without a request.
     let r = async {
         for _ in 0..20 {
             s.delta()?;
@@ -424,26 +387,13 @@ pub async fn run(endpoint: &quinn::Endpoint, wait: Duration) -> Report {
             text: "fell behind; resynchronizing with a keyframe".into(),
         })
         .await?;
-        let kf = s.keyframe()?;
-        s.send(&kf.bytes).await?;
-        up.expect(
-            Duration::from_secs(3),
-            "ACK of the keyframe after the jump",
-            ack_of(kf.sequence),
-        )
-        .await
-        .map(|_| ())
+        keyframe_acked(s, up, "ACK of the keyframe after the jump").await
     }
     .await;
-    push(
-        &mut report,
-        "client.resync",
-        "session.md 5.2",
-        "after NOTICE 2 the client takes a keyframe 20 sequences ahead and goes on",
-        r,
-    );
+    run.record(&RESYNC, r);
 
-    // client.notices: every code, an unknown one included, closes nothing.
+    // Every code, an unknown one included, closes nothing: the client is
+    // still there to acknowledge the next keyframe.
     let r = async {
         for (code, text) in [
             (NoticeCode::EventRefused, "refused"),
@@ -457,29 +407,14 @@ pub async fn run(endpoint: &quinn::Endpoint, wait: Duration) -> Report {
             })
             .await?;
         }
-        let kf = s.keyframe()?;
-        s.send(&kf.bytes).await?;
-        // The client is still here: it acknowledges the keyframe.
-        up.expect(
-            Duration::from_secs(3),
-            "ACK after the notices",
-            ack_of(kf.sequence),
-        )
-        .await
-        .map(|_| ())
+        keyframe_acked(s, up, "ACK after the notices").await
     }
     .await;
-    push(
-        &mut report,
-        "client.notices",
-        "session.md 3.7",
-        "NOTICE codes 1, 3, 4 and an unknown 200 are not errors",
-        r,
-    );
+    run.record(&NOTICES, r);
 
-    // client.limit-exact: a frame of exactly the client's max_frame_bytes
-    // (a zstd payload padded with a skippable frame), then a delta and a
-    // keyframe: no request may come, the keyframe is acknowledged.
+    // A frame of exactly the client's max_frame_bytes (a zstd payload
+    // padded with a skippable frame), then a delta and a keyframe: no
+    // request may come, the keyframe is acknowledged.
     let r = async {
         if !zstd {
             return Err("SKIP:the client does not decode zstd, which the padding needs".into());
@@ -510,15 +445,9 @@ pub async fn run(endpoint: &quinn::Endpoint, wait: Duration) -> Report {
         }
     }
     .await;
-    push(
-        &mut report,
-        "client.limit-exact",
-        "session.md 3.1, 3.2, wire-format.md 3.2",
-        "a frame of exactly the HELLO's max_frame_bytes (zstd with a skippable frame) applies",
-        r,
-    );
+    run.record(&LIMIT, r);
 
-    // client.digest: a wrong DIGEST for the mirror's sequence; reason 4.
+    // A wrong DIGEST for the frame that follows it: reason 4.
     let r = async {
         if !hello.digest {
             return Err("SKIP:the client does not check digests (HELLO.flags.digest is 0)".into());
@@ -530,33 +459,13 @@ pub async fn run(endpoint: &quinn::Endpoint, wait: Duration) -> Report {
         })
         .await?;
         s.send(&d.bytes).await?;
-        up.expect(
-            Duration::from_secs(3),
-            "KEYFRAME_REQUEST with reason 4 (digest mismatch)",
-            request(KeyframeReason::DigestMismatch),
-        )
-        .await?;
-        let kf = s.keyframe()?;
-        s.send(&kf.bytes).await?;
-        up.expect(
-            Duration::from_secs(3),
-            "ACK of the answering keyframe",
-            ack_of(kf.sequence),
-        )
-        .await
-        .map(|_| ())
+        answered(s, up, KeyframeReason::DigestMismatch).await
     }
     .await;
-    push(
-        &mut report,
-        "client.digest-mismatch",
-        "session.md 3.8",
-        "a DIGEST that differs from the client's mirror makes it ask for a keyframe with reason 4",
-        r,
-    );
+    run.record(&DIGEST, r);
 
-    // client.shutdown: the frame stream finishes and the server closes;
-    // the client must not have violated anything before.
+    // The frame stream finishes and the server closes; the client must
+    // not have closed on its own before.
     let r = async {
         s.frames.finish().map_err(|e| e.to_string())?;
         tokio::time::sleep(Duration::from_millis(200)).await;
@@ -577,12 +486,6 @@ pub async fn run(endpoint: &quinn::Endpoint, wait: Duration) -> Report {
         psao_proto::CloseCode::ServerShutdown.code().into(),
         b"conformance run over",
     );
-    push(
-        &mut report,
-        "client.shutdown",
-        "session.md 5.3",
-        "the client is still connected when the server finishes the frame stream and shuts down",
-        r,
-    );
-    report
+    run.record(&SHUTDOWN, r);
+    run.report
 }

@@ -42,6 +42,58 @@ impl std::fmt::Display for Ended {
     }
 }
 
+/// Control messages read off a receiving stream one at a time, holding
+/// at most one message and one read chunk.
+pub struct ControlIn {
+    recv: quinn::RecvStream,
+    reader: ControlReader,
+    buf: Vec<u8>,
+    /// Who sends them, for messages: "the server", "the client".
+    peer: &'static str,
+}
+
+impl ControlIn {
+    /// Reads `from`'s messages off `recv` (`peer` names it in errors).
+    pub fn new(recv: quinn::RecvStream, from: Sender, peer: &'static str) -> ControlIn {
+        ControlIn {
+            recv,
+            reader: ControlReader::from(from),
+            buf: Vec::new(),
+            peer,
+        }
+    }
+
+    /// The next message within `wait`; `Ok(None)` when none came in
+    /// time. A malformed message or the stream ending is an error naming
+    /// it.
+    pub async fn next(&mut self, wait: Duration) -> Result<Option<Control>, String> {
+        let deadline = tokio::time::Instant::now() + wait;
+        loop {
+            let mut input = &self.buf[..];
+            let got = self.reader.read(&mut input);
+            let used = self.buf.len() - input.len();
+            self.buf.drain(..used);
+            match got {
+                Ok(Some(m)) => return Ok(Some(m)),
+                Ok(None) => {}
+                Err(e) => {
+                    return Err(format!(
+                        "{} sent a malformed control message: {e}",
+                        self.peer
+                    ));
+                }
+            }
+            let mut chunk = [0u8; 2048];
+            match tokio::time::timeout_at(deadline, self.recv.read(&mut chunk)).await {
+                Err(_) => return Ok(None),
+                Ok(Ok(Some(n))) => self.buf.extend_from_slice(&chunk[..n]),
+                Ok(Ok(None)) => return Err(format!("{} finished its control stream", self.peer)),
+                Ok(Err(e)) => return Err(format!("{}'s control stream ended: {e}", self.peer)),
+            }
+        }
+    }
+}
+
 /// One probing connection: its control stream and, once the server opened
 /// it, the frame stream, with a mirror fed from it.
 pub struct Probe {
@@ -50,9 +102,7 @@ pub struct Probe {
     pub conn: quinn::Connection,
     /// The control stream's sending half.
     pub send: quinn::SendStream,
-    recv: quinn::RecvStream,
-    reader: ControlReader,
-    buf: Vec<u8>,
+    control: ControlIn,
     frames: Option<quinn::RecvStream>,
     /// A mirror of what the frame stream carried.
     pub decoder: Decoder,
@@ -97,9 +147,7 @@ impl Probe {
             _endpoint: endpoint,
             conn,
             send,
-            recv,
-            reader: ControlReader::from(Sender::Server),
-            buf: Vec::new(),
+            control: ControlIn::new(recv, Sender::Server, "the server"),
             frames: None,
             decoder: Decoder::new(Limits {
                 max_frame_bytes: MAX_FRAME,
@@ -128,25 +176,7 @@ impl Probe {
     /// when none came in time. A malformed message or the stream ending is
     /// an error naming it.
     pub async fn next_control(&mut self, wait: Duration) -> Result<Option<Control>, String> {
-        let deadline = tokio::time::Instant::now() + wait;
-        loop {
-            let mut input = &self.buf[..];
-            let got = self.reader.read(&mut input);
-            let used = self.buf.len() - input.len();
-            self.buf.drain(..used);
-            match got {
-                Ok(Some(m)) => return Ok(Some(m)),
-                Ok(None) => {}
-                Err(e) => return Err(format!("the server sent a malformed control message: {e}")),
-            }
-            let mut chunk = [0u8; 2048];
-            match tokio::time::timeout_at(deadline, self.recv.read(&mut chunk)).await {
-                Err(_) => return Ok(None),
-                Ok(Ok(Some(n))) => self.buf.extend_from_slice(&chunk[..n]),
-                Ok(Ok(None)) => return Err("the server finished the control stream".into()),
-                Ok(Err(e)) => return Err(format!("the control stream ended: {e}")),
-            }
-        }
+        self.control.next(wait).await
     }
 
     /// Sends `hello` and reads the answer, which must be `WELCOME`.

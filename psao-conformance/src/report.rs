@@ -19,6 +19,21 @@ pub enum Outcome {
     Skipped(String),
 }
 
+impl Outcome {
+    /// The outcome of a case written as a `Result`: `Ok` passes, an error
+    /// starting with `SKIP:` skips with the rest as the reason, any other
+    /// error fails with it.
+    pub fn of(r: Result<(), String>) -> Outcome {
+        match r {
+            Ok(()) => Outcome::Passed,
+            Err(e) => match e.strip_prefix("SKIP:") {
+                Some(why) => Outcome::Skipped(why.to_string()),
+                None => Outcome::Failed(e),
+            },
+        }
+    }
+}
+
 /// One case's result.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]
 pub struct CaseResult {

@@ -26,17 +26,14 @@ pub struct Case {
     run: for<'a> fn(&'a Target) -> CaseFuture<'a>,
 }
 
-/// Turns a `Result` of a probe into an outcome (an error starting
-/// `SKIP:` skips the case).
+/// Turns a `Result` of a probe into an outcome; a refusal of the
+/// example's options skips (see `hello.example`).
 fn outcome(r: Result<(), String>) -> Outcome {
-    match r {
-        Ok(()) => Outcome::Passed,
-        Err(e) => match e.strip_prefix("SKIP:") {
-            Some(why) => {
-                Outcome::Skipped(format!("the server refused the example's options: {why}"))
-            }
-            None => Outcome::Failed(e),
-        },
+    match Outcome::of(r) {
+        Outcome::Skipped(why) => {
+            Outcome::Skipped(format!("the server refused the example's options: {why}"))
+        }
+        o => o,
     }
 }
 

@@ -131,11 +131,11 @@ impl Outbox {
 
     /// Queues a keyframe (whatever the queue holds: it may exceed the bound
     /// by this one frame). Returns whether it resynchronizes a client that
-    /// fell behind (it is then popped as such, see [`pop_resync`]). If
+    /// fell behind (it is then popped as such, see [`pop_entry`]). If
     /// deltas behind it overflow the queue before it is written, it is
     /// dropped with them and the client is behind again.
     ///
-    /// [`pop_resync`]: Outbox::pop_resync
+    /// [`pop_entry`]: Outbox::pop_entry
     pub fn push_keyframe(&mut self, frame: Bytes) -> bool {
         self.queued_bytes += frame.len();
         self.keyframe_bytes += frame.len();
@@ -148,14 +148,7 @@ impl Outbox {
 
     /// The next frame to write.
     pub fn pop(&mut self) -> Option<Bytes> {
-        self.pop_resync().map(|(f, _)| f)
-    }
-
-    /// The next frame to write, and whether it is the keyframe that
-    /// resynchronizes the client after it fell behind (the one a `NOTICE`
-    /// code 2 goes with).
-    pub fn pop_resync(&mut self) -> Option<(Bytes, bool)> {
-        self.pop_entry().map(|(f, resync, _)| (f, resync))
+        self.pop_entry().map(|(f, _, _)| f)
     }
 
     /// The next frame to write, whether it resynchronizes the client, and

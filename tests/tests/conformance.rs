@@ -212,15 +212,9 @@ async fn never_asks(addr: std::net::SocketAddr, fingerprint: [u8; 32]) {
     let conn = ep.connect(addr, "localhost").unwrap().await.unwrap();
     let (mut send, _recv) = conn.open_bi().await.unwrap();
     let hello = psao_proto::control::Hello {
-        version: 1,
-        compressions: 0b111,
-        point_formats: 1,
-        max_frame_bytes: 1 << 20,
-        max_payload_bytes: 1 << 20,
-        max_mirror_bytes: 1 << 30,
         viewer: false,
-        overflow: false,
         digest: true,
+        ..psao_conformance::probe::example_hello()
     };
     send.write_all(&Control::Hello(hello).to_bytes())
         .await
