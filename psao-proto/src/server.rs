@@ -426,17 +426,19 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
                 (None, StepReport::default())
             }
         };
+        // The server's own mirror and its digest, outside the hub's lock
+        // (a digest reads the whole mirror).
+        let idle_at = match &frame {
+            Some(_) => None,
+            None => own.as_ref().and_then(|m| m.mirror().sequence()),
+        };
+        let wanted = hub.lock().fanout.wants_digest(false, idle_at);
+        let digest = digest_after(&mut own, frame.as_ref(), wanted);
         let wants_keyframe = {
             let mut s = hub.lock();
             s.stats.frames += 1;
             s.stats.step_time += step_time;
             s.stats.report.accumulate(&report);
-            let idle_at = match &frame {
-                Some(_) => None,
-                None => own.as_ref().and_then(|m| m.mirror().sequence()),
-            };
-            let wanted = s.fanout.wants_digest(false, idle_at);
-            let digest = digest_after(&mut own, frame.as_ref(), wanted);
             if let Some(f) = &frame {
                 s.stats.sent_frames += 1;
                 s.stats.encoded_bytes += f.bytes.len() as u64;
@@ -465,10 +467,10 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
             // and those that ask before the next frame.
             match source.keyframe() {
                 Ok(kf) => {
+                    let wanted = hub.lock().fanout.wants_digest(true, None);
+                    let digest = digest_after(&mut own, Some(&kf), wanted);
                     let mut s = hub.lock();
                     s.stats.keyframes += 1;
-                    let wanted = s.fanout.wants_digest(true, None);
-                    let digest = digest_after(&mut own, Some(&kf), wanted);
                     s.fanout.push_keyframe_with_digest(&kf, digest);
                     s.wake_all();
                 }
