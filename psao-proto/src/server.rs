@@ -72,6 +72,10 @@ impl Default for ServerConfig {
 /// The reference server's default digest interval, in frames.
 pub const DIGEST_INTERVAL: u16 = 60;
 
+/// The shortest digest interval a client may ask for (`DIGEST_REQUEST`
+/// with a smaller non-zero `every` gets this).
+pub const MIN_DIGEST_EVERY: u16 = 10;
+
 /// Errors starting a server.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -714,6 +718,13 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
                 ServerEvent::DigestRequested { every } => {
                     if let Some(c) = id {
                         let mut s = hub.lock();
+                        // A digest reads the whole mirror: a client may
+                        // not ask for one every frame.
+                        let every = if every == 0 {
+                            0
+                        } else {
+                            every.max(MIN_DIGEST_EVERY)
+                        };
                         s.fanout.set_digests(c, every);
                         s.fanout.request_digest(c);
                     }
