@@ -67,7 +67,9 @@ pub use grid::{
     key_fits,
 };
 pub use limits::Limits;
-pub use server::encoder::{EncodedFrame, Encoder, EncoderConfig, FrameBuilder, FrameStats};
+pub use server::encoder::{
+    EncodedFrame, Encoder, EncoderConfig, FrameBuilder, FrameStats, PausedFrame,
+};
 pub use server::table::{
     DirtyCell, DirtySet, DropReason, GridTable, Placement, SentPoint, TableStats, Thresholds,
 };

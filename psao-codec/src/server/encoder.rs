@@ -93,6 +93,10 @@ pub struct Encoder {
     payload: Vec<u8>,
     scratch: Scratch,
     compressor: Compressor,
+    /// The frame begun last, numbered over all encoders of the process
+    /// ([`next_generation`]), so that a [`PausedFrame`] resumes only the
+    /// frame it was paused from, on the encoder it came from.
+    generation: u64,
 }
 
 #[derive(Debug, Default)]
@@ -118,6 +122,7 @@ impl Encoder {
             payload: Vec::new(),
             scratch: Scratch::default(),
             compressor: Compressor::default(),
+            generation: 0,
         }
     }
 
@@ -149,11 +154,58 @@ impl Encoder {
 
     fn begin(&mut self, keyframe: bool) -> FrameBuilder<'_> {
         self.payload.clear();
+        self.generation = next_generation();
         FrameBuilder {
             encoder: self,
             keyframe,
             stats: FrameStats::default(),
         }
+    }
+
+    /// Takes up a frame [paused](FrameBuilder::pause) from this encoder.
+    /// Returns `None`, changing nothing, when a frame was begun since (the
+    /// paused frame's messages are gone) or the frame came from another
+    /// encoder.
+    pub fn resume(&mut self, paused: PausedFrame) -> Option<FrameBuilder<'_>> {
+        if paused.generation != self.generation {
+            return None;
+        }
+        Some(FrameBuilder {
+            encoder: self,
+            keyframe: paused.keyframe,
+            stats: paused.stats,
+        })
+    }
+}
+
+/// A number no other frame of this process was begun with (64 bits: no
+/// wrap in practice).
+fn next_generation() -> u64 {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static NEXT: AtomicU64 = AtomicU64::new(1);
+    NEXT.fetch_add(1, Ordering::Relaxed)
+}
+
+/// A frame put aside by [`FrameBuilder::pause`]: its messages stay in the
+/// encoder, and [`Encoder::resume`] takes it up again. For callers that
+/// cannot hold the builder's borrow across calls (the C API builds a frame
+/// over several calls).
+#[derive(Debug)]
+pub struct PausedFrame {
+    generation: u64,
+    keyframe: bool,
+    stats: FrameStats,
+}
+
+impl PausedFrame {
+    /// Whether it is a keyframe.
+    pub fn is_keyframe(&self) -> bool {
+        self.keyframe
+    }
+
+    /// Messages added so far (`EndOfFrame` not yet among them).
+    pub fn messages(&self) -> u32 {
+        self.stats.messages
     }
 }
 
@@ -348,6 +400,16 @@ impl FrameBuilder<'_> {
         write::planar(out, &cells);
         self.stats.messages += 1;
         self.stats.buckets += s.indices.len() as u32;
+    }
+
+    /// Puts the frame aside, keeping its messages in the encoder, to go on
+    /// with [`Encoder::resume`].
+    pub fn pause(self) -> PausedFrame {
+        PausedFrame {
+            generation: self.encoder.generation,
+            keyframe: self.keyframe,
+            stats: self.stats,
+        }
     }
 
     /// Whether no message was added yet.
