@@ -47,3 +47,17 @@ for v in vectors[:20]:
         struct.pack("<QI", 10 * k, len(f)) + f for k, f in enumerate(frames))
     (session / f"capture-{v.stem}").write_bytes(b"\x03" + cap)
 print(f"seeded {len(vectors)} vectors, the glTF test models and {len(examples)} session examples")
+# c_api: programs of C API calls (fuzz_targets/c_api.rs): every vector's
+# frames received in order (opcode 0), and a server program that makes a
+# table, sets points, and encodes a delta and a keyframe.
+c_api = root / "corpus" / "c_api"
+c_api.mkdir(parents=True, exist_ok=True)
+for v in vectors:
+    frames = [bytes.fromhex(l.split(" ", 1)[1]) for l in v.read_text().splitlines() if l.startswith("frame ")]
+    program = b"".join(b"\x00" + struct.pack("<H", len(f)) + f for f in frames if len(f) < 65536)
+    (c_api / v.stem).write_bytes(program + b"\x01\x01\x00\x00\x00\x00\x40\x00\x02\x10\x05\x40")
+f3 = lambda *v: struct.pack("<3f", *v)
+table = b"\x06" + f3(-1, -1, -1) + f3(0.25, 0.25, 0.25) + bytes([8, 8, 8, 6, 8, 7, 0, 1]) + struct.pack("<H", 256) + struct.pack("<3f", 0.2, 0.1, 0.7) + b"\x01"
+points = b"".join(b"\x07" + struct.pack("<H", i) + f3(0.1 * (i % 9) - 0.4, 0.05 * i - 0.5, 0.2) + f3(0, 1, 0) + struct.pack("<f", (i % 10) / 10) + bytes([i % 2]) for i in range(20))
+server = table + points + b"\x08\x02\x01\x00\x00\x00\x00" + b"\x08\x00" + b"\x09\x00" + b"\x0a\xff\xff" + b"\x08\x01" + b"\x09\x01" + b"\x0a\x10\x00" + b"\x0a\xff\xff"
+(c_api / "server").write_bytes(server)

@@ -541,6 +541,17 @@ psao_result psao_decoder_copy_buckets(struct psao_decoder *decoder,
 // `fields` is valid for a write.
 psao_result psao_point_word_fields(uint32_t word, struct psao_point_fields *fields);
 
+// The 256 decoded normals of the point words' normal codes
+// (spec/wire-format.md 6) as `x, y, z, 0` per code, into `out[0..1024]`: the
+// table a shader port of the reconstruction binds (`psao_normals` of
+// psao-gpu's `reconstruct.wgsl`). `*len` receives 1024; a shorter `out`
+// gets nothing and `PSAO_ERROR_BUFFER_TOO_SHORT`.
+//
+// # Safety
+//
+// `out` is valid for writes of `cap` floats; `len` is valid for a write.
+psao_result psao_normal_table(float *out, size_t cap, size_t *len);
+
 // The spec's default limits.
 //
 // Thread-safe.

@@ -195,3 +195,30 @@ pub unsafe extern "C" fn psao_point_word_fields(
         Ok(())
     })
 }
+
+/// The 256 decoded normals of the point words' normal codes
+/// (spec/wire-format.md 6) as `x, y, z, 0` per code, into `out[0..1024]`: the
+/// table a shader port of the reconstruction binds (`psao_normals` of
+/// psao-gpu's `reconstruct.wgsl`). `*len` receives 1024; a shorter `out`
+/// gets nothing and `PSAO_ERROR_BUFFER_TOO_SHORT`.
+///
+/// # Safety
+///
+/// `out` is valid for writes of `cap` floats; `len` is valid for a write.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn psao_normal_table(
+    out: *mut f32,
+    cap: usize,
+    len: *mut usize,
+) -> psao_result {
+    call(|| {
+        let len = out_ptr(len, "len")?;
+        let out = OutArray::new(out, cap, "out")?;
+        let table: Vec<f32> = psao_codec::normal_table()
+            .iter()
+            .flat_map(|n| [n.x, n.y, n.z, 0.0])
+            .collect();
+        // SAFETY: `out` holds `cap` floats, `len` is writable (contract).
+        unsafe { out.fill(&table, len, "out") }
+    })
+}

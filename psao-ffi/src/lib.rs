@@ -41,7 +41,7 @@ mod types;
 
 pub use changes::{
     psao_decoder_changes, psao_decoder_clear_changes, psao_decoder_copy_buckets,
-    psao_decoder_copy_words, psao_point_word_fields,
+    psao_decoder_copy_words, psao_normal_table, psao_point_word_fields,
 };
 pub use decoder::{
     psao_decoder, psao_decoder_apply_transform, psao_decoder_digest, psao_decoder_free,

@@ -812,3 +812,17 @@ fn a_bind_space_instance_is_looked_up_in_bind_space_only() {
     assert!(decoder_error(c).contains("bind space"));
     unsafe { psao_decoder_free(c) };
 }
+
+#[test]
+fn the_normal_table_is_the_codecs() {
+    let mut out = vec![0f32; 1024];
+    let mut len = 0;
+    let r = unsafe { psao_normal_table(out.as_mut_ptr(), 1000, &mut len) };
+    assert_eq!((r, len), (R::PSAO_ERROR_BUFFER_TOO_SHORT, 1024));
+    assert!(out.iter().all(|&f| f == 0.0));
+    let r = unsafe { psao_normal_table(out.as_mut_ptr(), out.len(), &mut len) };
+    assert_eq!(r, R::PSAO_OK);
+    for (code, n) in psao_codec::normal_table().iter().enumerate() {
+        assert_eq!(&out[4 * code..4 * code + 4], &[n.x, n.y, n.z, 0.0]);
+    }
+}
