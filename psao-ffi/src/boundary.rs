@@ -198,6 +198,35 @@ impl<T: Copy> OutArray<T> {
         self.cap
     }
 
+    /// Writes the `n` items of `items` (an iterator that yields exactly
+    /// `n`) without gathering them first; otherwise as [`fill`](Self::fill).
+    ///
+    /// # Safety
+    ///
+    /// As [`fill`](Self::fill).
+    pub(crate) unsafe fn fill_iter(
+        self,
+        n: usize,
+        items: impl Iterator<Item = T>,
+        len: NonNull<usize>,
+        what: &str,
+    ) -> Result<(), Failure> {
+        // SAFETY: `len` is valid for a write by the caller's contract.
+        unsafe { put(len, n) };
+        if n > self.cap {
+            return Err(Failure::new(
+                psao_result::PSAO_ERROR_BUFFER_TOO_SHORT,
+                format!("`{what}` holds {} elements, {n} needed", self.cap),
+            ));
+        }
+        for (i, item) in items.take(n).enumerate() {
+            // SAFETY: `i < n <= cap`, and `ptr` is valid and aligned for
+            // `cap` writes (the caller's contract, checked in `new`).
+            unsafe { self.ptr.add(i).write(item) };
+        }
+        Ok(())
+    }
+
     /// Copies `items` in and returns `Ok(())`, or writes nothing and fails
     /// with `PSAO_ERROR_BUFFER_TOO_SHORT` when they do not fit. `len`
     /// receives `items.len()` either way.

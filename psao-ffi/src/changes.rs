@@ -34,11 +34,12 @@ pub unsafe extern "C" fn psao_decoder_changes(
         let all = out_ptr(all, "all")?;
         let out = OutArray::new(changes, cap, "changes")?;
         let c = d.decoder.mirror().changes();
-        let items: Vec<psao_change> = c.items.iter().filter_map(change_of).collect();
+        let n = c.items.iter().filter(|c| change_of(c).is_some()).count();
         // SAFETY: `all` is valid for a write (contract).
         unsafe { put(all, c.all as u8) };
+        let items = c.items.iter().filter_map(change_of);
         // SAFETY: `changes` holds `cap` entries, `len` is writable.
-        unsafe { out.fill(&items, len, "changes") }
+        unsafe { out.fill_iter(n, items, len, "changes") }
     };
     // SAFETY: `decoder` is live and used by this thread only (contract).
     unsafe { call_on(decoder, body) }
