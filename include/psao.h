@@ -821,8 +821,9 @@ psao_result psao_decoder_reconstruct(struct psao_decoder *decoder,
                                      float *ao);
 
 // AO at a world-space point of instance `id`: `position` and `normal` go
-// through the inverse of the instance's transform (identity when it has
-// none; AO 1 when the transform is singular). For point format 0 only:
+// through the inverse of the instance's transform. AO is 1 (open) while
+// the instance has no transform or when it is singular, as in
+// reconstruct.wgsl's `psao_ao`. For point format 0 only:
 // a bind-space instance is `PSAO_ERROR_INVALID_ARGUMENT`.
 //
 // # Safety

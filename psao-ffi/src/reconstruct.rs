@@ -22,8 +22,10 @@ fn ao_at(inst: &InstanceMirror, space: Space, pos: Vec3, normal: Vec3) -> f32 {
     let (x, n) = match space {
         Space::Grid => (pos, normal.normalize_or_zero()),
         Space::World => {
+            // No transform yet: the instance has no place in the world
+            // (as `psao_ao` of reconstruct.wgsl, which reports it open).
             let Some(t) = inst.transform() else {
-                return reconstruct_ao(inst, pos, normal.normalize_or_zero());
+                return 1.0;
             };
             match world_to_local(&t.affine(), pos, normal) {
                 Some(local) => local,
@@ -115,8 +117,9 @@ pub unsafe extern "C" fn psao_decoder_reconstruct(
 }
 
 /// AO at a world-space point of instance `id`: `position` and `normal` go
-/// through the inverse of the instance's transform (identity when it has
-/// none; AO 1 when the transform is singular). For point format 0 only:
+/// through the inverse of the instance's transform. AO is 1 (open) while
+/// the instance has no transform or when it is singular, as in
+/// reconstruct.wgsl's `psao_ao`. For point format 0 only:
 /// a bind-space instance is `PSAO_ERROR_INVALID_ARGUMENT`.
 ///
 /// # Safety
