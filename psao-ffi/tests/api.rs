@@ -826,3 +826,31 @@ fn the_normal_table_is_the_codecs() {
         assert_eq!(&out[4 * code..4 * code + 4], &[n.x, n.y, n.z, 0.0]);
     }
 }
+
+#[test]
+fn world_lookups_of_an_instance_without_a_transform_are_open() {
+    let mut rt = GridTable::new(3, def(), 10).unwrap();
+    rt.set_point(0, Vec3::new(0.1, 0.1, 0.1), Vec3::Y, 0.25)
+        .unwrap();
+    rt.take_dirty();
+    let mut enc = Encoder::new(EncoderConfig::default());
+    let mut b = enc.keyframe();
+    b.snapshot(&rt).unwrap();
+    let c = decoder(None);
+    receive(c, &b.finish().unwrap().unwrap().bytes).unwrap();
+    let (p, n) = ([0.1f32, 0.1, 0.1], [0.0f32, 1.0, 0.0]);
+    let (mut local, mut world) = (-1.0, -1.0);
+    unsafe {
+        assert_eq!(
+            psao_decoder_reconstruct(c, 3, p.as_ptr(), n.as_ptr(), &mut local),
+            R::PSAO_OK
+        );
+        assert_eq!(
+            psao_decoder_reconstruct_world(c, 3, p.as_ptr(), n.as_ptr(), &mut world),
+            R::PSAO_OK
+        );
+        psao_decoder_free(c);
+    }
+    assert!((local - 0.25).abs() < 1.0 / 255.0, "{local}");
+    assert_eq!(world, 1.0, "no transform: no place in the world");
+}
