@@ -6,7 +6,10 @@
  * outputs are written only on success; arrays are passed with their
  * capacity and a length out, and a short one gets
  * PSAO_ERROR_BUFFER_TOO_SHORT with the length needed; objects are made by
- * _new, freed once by _free, and used from one thread at a time.
+ * _new, freed once by _free, and used from one thread at a time. Inputs
+ * must not be written by anyone during a call, outputs must not point into
+ * psao's objects. Decode errors are the spec's error classes
+ * (psao_result_name); details: psao_*_last_error, psao_last_error.
  */
 
 #ifndef PSAO_H
@@ -31,11 +34,11 @@ enum psao_result
   PSAO_OK = 0,
   // A pointer argument that must not be NULL was NULL.
   PSAO_ERROR_NULL_POINTER = 1,
-  // An output buffer is too short: `*len` holds the length needed and nothing was written.
+  // An output buffer is too short: `*len` holds the length needed and nothing else was written.
   PSAO_ERROR_BUFFER_TOO_SHORT = 2,
-  // An argument is out of its domain (a flag other than 0 or 1, an unknown compression, a zstd level outside 1 to 22, a world-space lookup of a bind-space instance); the object's last error names it.
+  // An argument is out of its domain (a flag other than 0 or 1, an unknown compression, a zstd level outside zstd's range, a misaligned array or one too long to address, a world-space lookup of a bind-space instance, changes in a keyframe); the object's last error names it.
   PSAO_ERROR_INVALID_ARGUMENT = 3,
-  // The instance is not in the mirror.
+  // The instance asked for is not in the mirror.
   PSAO_ERROR_NOT_FOUND = 4,
   // The decoder has no keyframe yet (no sequence, no digest).
   PSAO_ERROR_NO_STATE = 5,
@@ -91,7 +94,7 @@ enum psao_result
   PSAO_ERROR_INVALID_DEFINITION = 120,
   // A transform holds NaN or infinity. Spec error class `non_finite_transform`.
   PSAO_ERROR_NON_FINITE_TRANSFORM = 121,
-  // The instance is not in the mirror. Spec error class `unknown_instance`.
+  // A message (or `psao_decoder_apply_transform`) names an instance the mirror does not hold. Spec error class `unknown_instance`.
   PSAO_ERROR_UNKNOWN_INSTANCE = 122,
   // Defining the instance would exceed `max_instances`. Spec error class `instance_limit`.
   PSAO_ERROR_INSTANCE_LIMIT = 123,
@@ -256,7 +259,10 @@ typedef uint32_t psao_compression;
 // `psao_decoder_free`.
 //
 // Thread-safety: a decoder may be used from one thread at a time and may
-// move between threads; two decoders are independent.
+// move between threads; two decoders are independent. Every call, the
+// read-only ones included, takes the decoder mutably (it keeps the last
+// error): threads that reconstruct in parallel each need their own
+// decoder, or copy the mirror's arrays out and share those.
 typedef struct psao_decoder psao_decoder;
 
 // Writes numbered frames: deltas (sequence + 1) and keyframes (the state
@@ -481,8 +487,8 @@ const char *psao_version(void);
 // order they were written, into `changes[0..*len]`. `*all` receives 1
 // when everything may have changed (a keyframe, or too many ranges to
 // list): upload every instance then. With fewer than `*len` in `cap`,
-// nothing is written and the result is `PSAO_ERROR_BUFFER_TOO_SHORT`
-// (`*len` and `*all` are set). After a rejected frame the list may
+// nothing but `*len` is written and the result is
+// `PSAO_ERROR_BUFFER_TOO_SHORT`. After a rejected frame the list may
 // over-report, never under-report.
 //
 // # Safety
@@ -510,7 +516,7 @@ psao_result psao_decoder_clear_changes(struct psao_decoder *decoder);
 // # Safety
 //
 // `decoder` is a live decoder; `words` is valid for writes of `count`
-// words (NULL with `count == 0`).
+// words (NULL with `count == 0`) and is not memory of a psao object.
 psao_result psao_decoder_copy_words(struct psao_decoder *decoder,
                                     uint32_t id,
                                     uint32_t first,
@@ -585,7 +591,8 @@ void psao_decoder_free(struct psao_decoder *decoder);
 // # Safety
 //
 // `decoder` is a live decoder; `bytes` is valid for reads of `len` bytes
-// (or NULL with `len == 0`); `event` is valid for a write.
+// (or NULL with `len == 0`) that nothing writes during the call; `event`
+// is valid for a write.
 psao_result psao_decoder_receive(struct psao_decoder *decoder,
                                  const uint8_t *bytes,
                                  size_t len,
@@ -632,7 +639,9 @@ psao_result psao_decoder_instance_ids(struct psao_decoder *decoder,
                                       size_t *len);
 
 // What the mirror holds for instance `id`: its definition, transform and
-// array sizes. `PSAO_ERROR_NOT_FOUND` when it is not in the mirror.
+// array sizes. `PSAO_ERROR_NOT_FOUND` when it is not in the mirror
+// (`PSAO_ERROR_UNKNOWN_INSTANCE` is the frame-level class, for a message
+// that names one).
 //
 // # Safety
 //
@@ -643,8 +652,9 @@ psao_result psao_decoder_instance(struct psao_decoder *decoder,
 
 // Applies a transform that arrived outside a frame (a datagram, say).
 // `*replaced` receives 1 when it replaced the stored one (it was newer),
-// else 0. `PSAO_ERROR_NOT_FOUND` for an instance not in the mirror,
-// `PSAO_ERROR_NON_FINITE_TRANSFORM` for NaN or infinity.
+// else 0. As in Rust: `PSAO_ERROR_NON_FINITE_TRANSFORM` for NaN or
+// infinity, then `PSAO_ERROR_UNKNOWN_INSTANCE` for an instance not in the
+// mirror.
 //
 // # Safety
 //
@@ -657,17 +667,47 @@ psao_result psao_decoder_apply_transform(struct psao_decoder *decoder,
 
 // The message of the decoder's last failure, NUL-terminated, into
 // `buf`; `*len` receives its length without the NUL (0 after a success).
-// A buffer shorter than `*len + 1` gets nothing and
-// `PSAO_ERROR_BUFFER_TOO_SHORT`.
+// A buffer too short for the message and its NUL gets nothing,
+// `PSAO_ERROR_BUFFER_TOO_SHORT`, and in `*len` the bytes it needs.
 //
 // # Safety
 //
 // `decoder` is a live decoder; `buf` is valid for writes of `cap` bytes;
 // `len` is valid for a write.
 psao_result psao_decoder_last_error(struct psao_decoder *decoder,
-                                    uint8_t *buf,
+                                    char *buf,
                                     size_t cap,
                                     size_t *len);
+
+// The message of this thread's last failed call that had no object to
+// keep it (a `_new` function, `psao_point_word_fields`,
+// `psao_normal_table`), as `psao_decoder_last_error`. Calls on an object
+// keep theirs in the object.
+//
+// Thread-safe (each thread has its own).
+//
+// # Safety
+//
+// `buf` is valid for writes of `cap` bytes; `len` is valid for a write.
+psao_result psao_last_error(char *buf, size_t cap, size_t *len);
+
+// The `PsaoInstance` record of instance `id` for a port of the
+// reconstruction shader (docs/c-api.md): 48 32-bit words (192 bytes,
+// std430; floats as their bits) into `out[0..48]`, with the instance's
+// bucket entries at entry `first_bucket` of the engine's bucket buffer
+// and its words at word `first_word` of its word buffer. The inverse
+// transform, its invertibility test and the weight parameters are the
+// ones the CPU reconstruction uses. `PSAO_ERROR_NOT_FOUND` for an
+// instance not in the mirror.
+//
+// # Safety
+//
+// `decoder` is a live decoder; `out` is valid for writes of 48 words.
+psao_result psao_decoder_instance_gpu(struct psao_decoder *decoder,
+                                      uint32_t id,
+                                      uint32_t first_bucket,
+                                      uint32_t first_word,
+                                      uint32_t *out);
 
 // zstd level 3, checksums on, the spec's default limits.
 //
@@ -701,6 +741,16 @@ void psao_encoder_free(struct psao_encoder *encoder);
 // `encoder` is a live encoder; `sequence` is valid for a write.
 psao_result psao_encoder_sequence(struct psao_encoder *encoder, uint32_t *sequence);
 
+// Changes the configuration for the next frames (compression, level,
+// checksum, receivers' limits); the sequence goes on. Errors as
+// `psao_encoder_new`; `PSAO_ERROR_FRAME_OPEN` while a frame is open.
+//
+// # Safety
+//
+// `encoder` is a live encoder; `config` points to a `psao_encoder_config`.
+psao_result psao_encoder_set_config(struct psao_encoder *encoder,
+                                    const struct psao_encoder_config *config);
+
 // Begins a frame: a delta (`keyframe == 0`, sequence + 1) or a keyframe
 // (`keyframe == 1`, the state at the current sequence: add a snapshot of
 // every table). `PSAO_ERROR_FRAME_OPEN` while another is open or waits to
@@ -712,9 +762,10 @@ psao_result psao_encoder_sequence(struct psao_encoder *encoder, uint32_t *sequen
 psao_result psao_encoder_begin(struct psao_encoder *encoder, uint8_t keyframe);
 
 // Drops the open frame (or a finished one not collected), so the next
-// `psao_encoder_begin` can start. A delta finished but not collected
-// has already taken its sequence: its changes are lost to clients, who
-// see a gap and ask for a keyframe.
+// `psao_encoder_begin` can start. A delta that already held messages
+// takes its sequence number (as one finished and not collected has): the
+// table changes it took are lost to clients, who see a gap and ask for a
+// keyframe instead of silently diverging.
 //
 // # Safety
 //
@@ -752,6 +803,9 @@ psao_result psao_encoder_transform(struct psao_encoder *encoder,
 
 // Adds everything that changed in `table` since its changes were last
 // taken (by this call or `psao_table_discard_pending`), and takes them.
+// For deltas only: in a keyframe it is `PSAO_ERROR_INVALID_ARGUMENT`
+// (clients that already hold the stream would never get those changes;
+// a keyframe takes `psao_encoder_snapshot`).
 //
 // # Safety
 //
@@ -798,7 +852,7 @@ psao_result psao_encoder_finish(struct psao_encoder *encoder,
 // `encoder` is a live encoder; `buf` is valid for writes of `cap` bytes;
 // `len` is valid for a write.
 psao_result psao_encoder_last_error(struct psao_encoder *encoder,
-                                    uint8_t *buf,
+                                    char *buf,
                                     size_t cap,
                                     size_t *len);
 
@@ -842,8 +896,9 @@ psao_result psao_decoder_reconstruct_world(struct psao_decoder *decoder,
 // # Safety
 //
 // `decoder` is a live decoder; `positions` and `normals` are valid for
-// reads of `3 * n` floats and `ao` for writes of `n` floats (all NULL
-// with `n == 0`).
+// reads of `3 * n` aligned floats that nothing writes during the call,
+// and `ao` for writes of `n` floats, not overlapping them (all NULL with
+// `n == 0`).
 psao_result psao_decoder_reconstruct_many(struct psao_decoder *decoder,
                                           uint32_t id,
                                           const float *positions,
@@ -879,9 +934,13 @@ struct psao_thresholds psao_thresholds_default(void);
 // Makes an empty table for instance `id`. Its memory is fixed by `def`
 // (bucket entries and words, as a client's mirror of it, plus bookkeeping)
 // and by 8 bytes per point id below `max_points`. `limits` (NULL for the
-// defaults) are the receivers': a definition they would refuse is refused
-// here with the decoder's code (`PSAO_ERROR_RESOURCE_LIMIT`), and an
-// invalid one with `PSAO_ERROR_INVALID_DEFINITION`.
+// defaults) are the receivers': a definition whose table size, cell pool
+// or mirror bytes exceed them on its own is refused with the decoder's
+// code (`PSAO_ERROR_RESOURCE_LIMIT`; the count of instances and their
+// bytes together are the server's to keep within `max_instances` and
+// `max_mirror_bytes`). An invalid definition is
+// `PSAO_ERROR_INVALID_DEFINITION`, as is a cell pool of 2^32 - 6 cells or
+// more (the table marks absent points with the top indices).
 //
 // # Safety
 //
@@ -920,8 +979,8 @@ psao_result psao_table_set_point(struct psao_table *table,
 
 // Sets point `id` only if it differs from what clients hold by more than
 // `thresholds` (NULL for the defaults), or moved to another cell, or is
-// not stored. `*sent` receives 1 when it was set (and will be sent), else
-// 0.
+// not stored. `*sent` receives 1 when it was set, else 0 (a point set
+// but dropped, see `psao_table_placement`, is not sent).
 //
 // # Safety
 //
@@ -935,6 +994,16 @@ psao_result psao_table_update_point(struct psao_table *table,
                                     float ao,
                                     const struct psao_thresholds *thresholds,
                                     uint8_t *sent);
+
+// Where point `id` stands now (absent, stored in a cell and slot, or
+// dropped and why) into `*placement`.
+//
+// # Safety
+//
+// `table` is a live table; `placement` is valid for a write.
+psao_result psao_table_placement(struct psao_table *table,
+                                 uint32_t id,
+                                 struct psao_placement *placement);
 
 // Removes point `id`; `*was_stored` (may be NULL) receives 1 when it was
 // stored.
@@ -974,7 +1043,8 @@ psao_result psao_table_discard_pending(struct psao_table *table);
 //
 // # Safety
 //
-// `table` is a live table; `words` is valid for writes of `count` words.
+// `table` is a live table; `words` is valid for writes of `count` words
+// (NULL with `count == 0`).
 psao_result psao_table_copy_words(struct psao_table *table,
                                   uint32_t first,
                                   size_t count,
@@ -986,7 +1056,7 @@ psao_result psao_table_copy_words(struct psao_table *table,
 // # Safety
 //
 // `table` is a live table; `entries` is valid for writes of `count`
-// entries.
+// entries (NULL with `count == 0`).
 psao_result psao_table_copy_buckets(struct psao_table *table,
                                     uint32_t first,
                                     size_t count,
@@ -998,7 +1068,7 @@ psao_result psao_table_copy_buckets(struct psao_table *table,
 //
 // `table` is a live table; `buf` is valid for writes of `cap` bytes;
 // `len` is valid for a write.
-psao_result psao_table_last_error(struct psao_table *table, uint8_t *buf, size_t cap, size_t *len);
+psao_result psao_table_last_error(struct psao_table *table, char *buf, size_t cap, size_t *len);
 
 #ifdef __cplusplus
 }  // extern "C"

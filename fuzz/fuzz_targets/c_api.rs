@@ -146,7 +146,7 @@ fuzz_target!(|data: &[u8]| {
                 let mut buf = vec![FILL; cap];
                 let mut len = 0;
                 // SAFETY: `buf` holds `cap` bytes.
-                let r = unsafe { psao_decoder_last_error(d, buf.as_mut_ptr(), cap, &mut len) };
+                let r = unsafe { psao_decoder_last_error(d, buf.as_mut_ptr().cast(), cap, &mut len) };
                 defined(r);
                 if r == psao_result::PSAO_OK {
                     assert_eq!(buf[len], 0);

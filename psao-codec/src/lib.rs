@@ -56,6 +56,7 @@ mod server;
 pub mod wire;
 
 pub use client::decoder::Decoder;
+pub use client::gpu_record::{GPU_RECORD_WORDS, gpu_instance_record};
 pub use client::mirror::{Change, Changes, Event, InstanceMirror, Mirror, Transform};
 pub use client::reconstruct::{
     WeightParams, base_cell, for_each_candidate, reconstruct_ao, weight, world_to_local,

@@ -69,3 +69,36 @@ fn a_paused_frame_is_refused_after_a_new_begin_or_by_another_encoder() {
     b.remove_instance(3);
     assert_eq!(b.finish().unwrap().unwrap().sequence, 1);
 }
+
+#[test]
+fn an_abandoned_delta_with_messages_takes_its_sequence_so_clients_see_a_gap() {
+    let mut enc = Encoder::new(EncoderConfig::default());
+    let mut table = filled_table();
+    let mut b = enc.delta();
+    b.define_instance(1, &small_def()).unwrap();
+    b.changes(&mut table);
+    let paused = b.pause();
+    enc.abandon(paused);
+    assert_eq!(enc.sequence(), 1);
+    // An empty delta and a keyframe abandoned take nothing.
+    let empty = enc.delta().pause();
+    enc.abandon(empty);
+    let kf = enc.keyframe().pause();
+    enc.abandon(kf);
+    assert_eq!(enc.sequence(), 1);
+    // The next delta is 2, based on 1: a client at 0 needs a keyframe.
+    let mut b = enc.delta();
+    b.remove_instance(9);
+    let frame = b.finish().unwrap().unwrap();
+    assert_eq!(frame.sequence, 2);
+    let mut dec = Decoder::new(Limits::default());
+    let mut other = Encoder::new(EncoderConfig::default());
+    let mut kf = other.keyframe();
+    kf.snapshot(&GridTable::new(1, small_def(), 64).unwrap())
+        .unwrap();
+    dec.receive(&kf.finish().unwrap().unwrap().bytes).unwrap();
+    assert!(matches!(
+        dec.receive(&frame.bytes).unwrap(),
+        Event::NeedKeyframe { base: 1, .. }
+    ));
+}

@@ -3,6 +3,7 @@
 //! message on the object. Pointer helpers turn C arguments into Rust
 //! values only after checking them, and write outputs only on success.
 
+use std::ffi::c_char;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::ptr::NonNull;
 
@@ -29,14 +30,42 @@ pub(crate) trait Object {
     fn slot(&mut self) -> &mut ErrorSlot;
 }
 
+thread_local! {
+    /// The message of this thread's last failed call that had no object
+    /// to keep it (constructors, free functions).
+    static THREAD_MESSAGE: std::cell::RefCell<String> = const { std::cell::RefCell::new(String::new()) };
+}
+
 /// Runs `body` for a function with no object (constructors, pure
-/// functions): a panic becomes `PSAO_ERROR_PANIC`, a failure its code.
+/// functions): a panic becomes `PSAO_ERROR_PANIC`, a failure its code, and
+/// the message goes to this thread's slot (`psao_last_error`).
 pub(crate) fn call(body: impl FnOnce() -> Result<(), Failure>) -> psao_result {
-    match catch_unwind(AssertUnwindSafe(body)) {
-        Ok(Ok(())) => psao_result::PSAO_OK,
-        Ok(Err(f)) => f.code,
-        Err(_) => psao_result::PSAO_ERROR_PANIC,
-    }
+    let (code, message) = match catch_unwind(AssertUnwindSafe(body)) {
+        Ok(Ok(())) => (psao_result::PSAO_OK, String::new()),
+        Ok(Err(f)) => (f.code, f.message),
+        Err(_) => (
+            psao_result::PSAO_ERROR_PANIC,
+            "a bug inside psao panicked".to_string(),
+        ),
+    };
+    THREAD_MESSAGE.with(|m| *m.borrow_mut() = message);
+    code
+}
+
+/// The message of this thread's last failed object-less call.
+///
+/// # Safety
+///
+/// As [`write_message`].
+pub(crate) unsafe fn thread_last_error(
+    buf: *mut c_char,
+    cap: usize,
+    len: *mut usize,
+) -> psao_result {
+    THREAD_MESSAGE.with(|m| {
+        // SAFETY: the caller's contract on `buf`, `cap` and `len`.
+        unsafe { write_message(&m.borrow(), buf, cap, len) }
+    })
 }
 
 /// Runs `body` on the object behind `object`: NULL is
@@ -88,8 +117,9 @@ pub(crate) unsafe fn call_on<T: Object>(
 /// `out` was checked by [`out_ptr`] and is valid for a write.
 pub(crate) unsafe fn give<T>(out: NonNull<*mut T>, value: T) {
     let raw = Box::into_raw(Box::new(value));
-    // SAFETY: `out` is valid for writes by the caller's contract.
-    unsafe { out.as_ptr().write(raw) };
+    // SAFETY: `out` is valid for writes by the caller's contract;
+    // `write_unaligned` needs no alignment.
+    unsafe { out.as_ptr().write_unaligned(raw) };
 }
 
 /// Frees an object made by [`give`]; NULL is ignored.
@@ -104,9 +134,10 @@ pub(crate) unsafe fn take<T>(object: *mut T) {
     }
     // SAFETY: by the caller's contract `object` came from `Box::into_raw`
     // in `give` and is freed only now.
-    drop(unsafe { Box::from_raw(object) });
-    // Dropping cannot panic here: the objects hold only vectors, maps and
-    // strings, whose drops do not panic.
+    let boxed = unsafe { Box::from_raw(object) };
+    // The objects' drops (vectors, maps, strings, zstd contexts) do not
+    // panic; should one ever, it stops here rather than at the boundary.
+    let _ = catch_unwind(AssertUnwindSafe(move || drop(boxed)));
 }
 
 /// An output pointer, checked for NULL before any work is done.
@@ -121,9 +152,10 @@ pub(crate) fn out_ptr<T>(ptr: *mut T, what: &str) -> Result<NonNull<T>, Failure>
 /// `out` is valid for a write of `T` (the C caller's contract for every
 /// output pointer it passes).
 pub(crate) unsafe fn put<T>(out: NonNull<T>, value: T) {
-    // SAFETY: valid for writes by the caller's contract; `write` does not
-    // read or drop the old, possibly uninitialized, contents.
-    unsafe { out.as_ptr().write(value) };
+    // SAFETY: valid for writes by the caller's contract; `write_unaligned`
+    // needs no alignment and does not read or drop the old, possibly
+    // uninitialized, contents.
+    unsafe { out.as_ptr().write_unaligned(value) };
 }
 
 /// Reads an input passed by pointer.
@@ -186,6 +218,14 @@ impl<T: Copy> OutArray<T> {
     pub(crate) fn new(ptr: *mut T, cap: usize, what: &str) -> Result<OutArray<T>, Failure> {
         if cap > 0 && ptr.is_null() {
             return Err(Failure::null(what));
+        }
+        if cap
+            .checked_mul(size_of::<T>())
+            .is_none_or(|b| b > isize::MAX as usize)
+        {
+            return Err(Failure::invalid(format!(
+                "`{what}`: capacity {cap} too large"
+            )));
         }
         if cap > 0 && !ptr.is_aligned() {
             return Err(Failure::invalid(format!("`{what}` is not aligned")));
@@ -274,32 +314,34 @@ pub(crate) fn flag(value: u8, what: &str) -> Result<bool, Failure> {
     }
 }
 
-/// Writes `message` and a NUL into a caller's buffer (`*len` receives its
-/// length without the NUL); a buffer shorter than the message and its NUL
-/// gets nothing and `PSAO_ERROR_BUFFER_TOO_SHORT`.
+/// Writes `message` and a NUL into a caller's buffer: `*len` receives the
+/// message's length without the NUL. A buffer shorter than the message and
+/// its NUL gets nothing, `PSAO_ERROR_BUFFER_TOO_SHORT`, and in `*len` the
+/// bytes needed (the length plus one).
 ///
 /// # Safety
 ///
 /// `buf` is valid for writes of `cap` bytes, `len` for a write.
 pub(crate) unsafe fn write_message(
     message: &str,
-    buf: *mut u8,
+    buf: *mut c_char,
     cap: usize,
     len: *mut usize,
 ) -> psao_result {
     let Ok(len) = out_ptr(len, "len") else {
         return psao_result::PSAO_ERROR_NULL_POINTER;
     };
-    let Ok(out) = OutArray::new(buf, cap, "buf") else {
-        return psao_result::PSAO_ERROR_NULL_POINTER;
+    let out = match OutArray::new(buf.cast::<u8>(), cap, "buf") {
+        Ok(out) => out,
+        Err(f) => return f.code,
     };
-    let mut bytes = Vec::with_capacity(message.len() + 1);
-    bytes.extend_from_slice(message.as_bytes());
-    bytes.push(0);
+    let bytes = message.bytes().chain([0u8]);
     // SAFETY: the caller's contract on `buf`, `cap` and `len`.
-    let r = unsafe { out.fill(&bytes, len, "buf") };
-    // SAFETY: as above; `*len` is the message's length without its NUL.
-    unsafe { put(len, message.len()) };
+    let r = unsafe { out.fill_iter(message.len() + 1, bytes, len, "buf") };
+    if r.is_ok() {
+        // SAFETY: as above; on success `*len` is the length without NUL.
+        unsafe { put(len, message.len()) };
+    }
     match r {
         Ok(()) => psao_result::PSAO_OK,
         Err(f) => f.code,
@@ -316,7 +358,7 @@ pub(crate) unsafe fn write_message(
 /// is valid for writes of `cap` bytes, `len` for a write.
 pub(crate) unsafe fn last_error<T: Object>(
     object: *mut T,
-    buf: *mut u8,
+    buf: *mut c_char,
     cap: usize,
     len: *mut usize,
 ) -> psao_result {
@@ -335,7 +377,11 @@ pub(crate) unsafe fn last_error<T: Object>(
 ///
 /// `ptr` is NULL or valid for reads of 3 floats.
 pub(crate) unsafe fn read_vec3(ptr: *const f32, what: &str) -> Result<glam::Vec3, Failure> {
-    // SAFETY: valid for 3 reads (contract).
-    let v = unsafe { slice_in(ptr, 3, what) }?;
-    Ok(glam::Vec3::new(v[0], v[1], v[2]))
+    if ptr.is_null() {
+        return Err(Failure::null(what));
+    }
+    // SAFETY: not NULL, valid for reads of 3 floats (contract); unaligned
+    // reads need no alignment.
+    let v = unsafe { [0, 1, 2].map(|i| ptr.add(i).read_unaligned()) };
+    Ok(glam::Vec3::from_array(v))
 }

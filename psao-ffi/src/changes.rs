@@ -13,8 +13,8 @@ use crate::types::{psao_bucket_entry, psao_change, psao_change_kind, psao_point_
 /// order they were written, into `changes[0..*len]`. `*all` receives 1
 /// when everything may have changed (a keyframe, or too many ranges to
 /// list): upload every instance then. With fewer than `*len` in `cap`,
-/// nothing is written and the result is `PSAO_ERROR_BUFFER_TOO_SHORT`
-/// (`*len` and `*all` are set). After a rejected frame the list may
+/// nothing but `*len` is written and the result is
+/// `PSAO_ERROR_BUFFER_TOO_SHORT`. After a rejected frame the list may
 /// over-report, never under-report.
 ///
 /// # Safety
@@ -35,11 +35,12 @@ pub unsafe extern "C" fn psao_decoder_changes(
         let out = OutArray::new(changes, cap, "changes")?;
         let c = d.decoder.mirror().changes();
         let n = c.items.iter().filter(|c| change_of(c).is_some()).count();
-        // SAFETY: `all` is valid for a write (contract).
-        unsafe { put(all, c.all as u8) };
         let items = c.items.iter().filter_map(change_of);
         // SAFETY: `changes` holds `cap` entries, `len` is writable.
-        unsafe { out.fill_iter(n, items, len, "changes") }
+        unsafe { out.fill_iter(n, items, len, "changes") }?;
+        // SAFETY: `all` is valid for a write (contract).
+        unsafe { put(all, c.all as u8) };
+        Ok(())
     };
     // SAFETY: `decoder` is live and used by this thread only (contract).
     unsafe { call_on(decoder, body) }
@@ -110,11 +111,11 @@ pub(crate) unsafe fn copy_range<S, T: Copy>(
             ));
         }
     };
-    let items: Vec<T> = all[start..end].iter().map(convert).collect();
     let mut written = 0usize;
-    // SAFETY: `out` holds `count == items.len()` elements (contract);
+    let items = all[start..end].iter().map(convert);
+    // SAFETY: `out` holds `count == end - start` elements (contract);
     // `written` is a local.
-    unsafe { out.fill(&items, (&mut written).into(), what) }
+    unsafe { out.fill_iter(end - start, items, (&mut written).into(), what) }
 }
 
 /// Copies point words `[first, first + count)` of instance `id` (the
@@ -125,7 +126,7 @@ pub(crate) unsafe fn copy_range<S, T: Copy>(
 /// # Safety
 ///
 /// `decoder` is a live decoder; `words` is valid for writes of `count`
-/// words (NULL with `count == 0`).
+/// words (NULL with `count == 0`) and is not memory of a psao object.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn psao_decoder_copy_words(
     decoder: *mut psao_decoder,

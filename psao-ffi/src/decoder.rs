@@ -16,7 +16,10 @@ use crate::types::{psao_event, psao_event_kind, psao_instance_info, psao_limits,
 /// `psao_decoder_free`.
 ///
 /// Thread-safety: a decoder may be used from one thread at a time and may
-/// move between threads; two decoders are independent.
+/// move between threads; two decoders are independent. Every call, the
+/// read-only ones included, takes the decoder mutably (it keeps the last
+/// error): threads that reconstruct in parallel each need their own
+/// decoder, or copy the mirror's arrays out and share those.
 #[allow(non_camel_case_types)]
 pub struct psao_decoder {
     pub(crate) decoder: Decoder,
@@ -102,7 +105,8 @@ pub unsafe extern "C" fn psao_decoder_free(decoder: *mut psao_decoder) {
 /// # Safety
 ///
 /// `decoder` is a live decoder; `bytes` is valid for reads of `len` bytes
-/// (or NULL with `len == 0`); `event` is valid for a write.
+/// (or NULL with `len == 0`) that nothing writes during the call; `event`
+/// is valid for a write.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn psao_decoder_receive(
     decoder: *mut psao_decoder,
@@ -263,7 +267,9 @@ pub unsafe extern "C" fn psao_decoder_instance_ids(
 }
 
 /// What the mirror holds for instance `id`: its definition, transform and
-/// array sizes. `PSAO_ERROR_NOT_FOUND` when it is not in the mirror.
+/// array sizes. `PSAO_ERROR_NOT_FOUND` when it is not in the mirror
+/// (`PSAO_ERROR_UNKNOWN_INSTANCE` is the frame-level class, for a message
+/// that names one).
 ///
 /// # Safety
 ///
@@ -298,8 +304,9 @@ pub unsafe extern "C" fn psao_decoder_instance(
 
 /// Applies a transform that arrived outside a frame (a datagram, say).
 /// `*replaced` receives 1 when it replaced the stored one (it was newer),
-/// else 0. `PSAO_ERROR_NOT_FOUND` for an instance not in the mirror,
-/// `PSAO_ERROR_NON_FINITE_TRANSFORM` for NaN or infinity.
+/// else 0. As in Rust: `PSAO_ERROR_NON_FINITE_TRANSFORM` for NaN or
+/// infinity, then `PSAO_ERROR_UNKNOWN_INSTANCE` for an instance not in the
+/// mirror.
 ///
 /// # Safety
 ///
@@ -316,7 +323,6 @@ pub unsafe extern "C" fn psao_decoder_apply_transform(
         let out = out_ptr(replaced, "replaced")?;
         // SAFETY: points to a `psao_transform` (contract).
         let t = unsafe { read_in(transform, "transform") }?;
-        d.instance(id)?;
         let r = d.decoder.mirror_mut().apply_transform(
             id,
             Transform {
@@ -334,8 +340,8 @@ pub unsafe extern "C" fn psao_decoder_apply_transform(
 
 /// The message of the decoder's last failure, NUL-terminated, into
 /// `buf`; `*len` receives its length without the NUL (0 after a success).
-/// A buffer shorter than `*len + 1` gets nothing and
-/// `PSAO_ERROR_BUFFER_TOO_SHORT`.
+/// A buffer too short for the message and its NUL gets nothing,
+/// `PSAO_ERROR_BUFFER_TOO_SHORT`, and in `*len` the bytes it needs.
 ///
 /// # Safety
 ///
@@ -344,10 +350,71 @@ pub unsafe extern "C" fn psao_decoder_apply_transform(
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn psao_decoder_last_error(
     decoder: *mut psao_decoder,
-    buf: *mut u8,
+    buf: *mut std::ffi::c_char,
     cap: usize,
     len: *mut usize,
 ) -> psao_result {
     // SAFETY: the contract above is `last_error`'s.
     unsafe { last_error(decoder, buf, cap, len) }
 }
+
+/// The message of this thread's last failed call that had no object to
+/// keep it (a `_new` function, `psao_point_word_fields`,
+/// `psao_normal_table`), as `psao_decoder_last_error`. Calls on an object
+/// keep theirs in the object.
+///
+/// Thread-safe (each thread has its own).
+///
+/// # Safety
+///
+/// `buf` is valid for writes of `cap` bytes; `len` is valid for a write.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn psao_last_error(
+    buf: *mut std::ffi::c_char,
+    cap: usize,
+    len: *mut usize,
+) -> psao_result {
+    // SAFETY: the contract above is `thread_last_error`'s.
+    unsafe { crate::boundary::thread_last_error(buf, cap, len) }
+}
+
+/// The `PsaoInstance` record of instance `id` for a port of the
+/// reconstruction shader (docs/c-api.md): 48 32-bit words (192 bytes,
+/// std430; floats as their bits) into `out[0..48]`, with the instance's
+/// bucket entries at entry `first_bucket` of the engine's bucket buffer
+/// and its words at word `first_word` of its word buffer. The inverse
+/// transform, its invertibility test and the weight parameters are the
+/// ones the CPU reconstruction uses. `PSAO_ERROR_NOT_FOUND` for an
+/// instance not in the mirror.
+///
+/// # Safety
+///
+/// `decoder` is a live decoder; `out` is valid for writes of 48 words.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn psao_decoder_instance_gpu(
+    decoder: *mut psao_decoder,
+    id: u32,
+    first_bucket: u32,
+    first_word: u32,
+    out: *mut u32,
+) -> psao_result {
+    let body = |d: &mut psao_decoder| -> Result<(), Failure> {
+        let arr = OutArray::new(out, psao_codec::GPU_RECORD_WORDS, "out")?;
+        let record = psao_codec::gpu_instance_record(d.instance(id)?, first_bucket, first_word);
+        let mut written = 0usize;
+        // SAFETY: `out` holds 48 words (contract).
+        unsafe { arr.fill(&record, (&mut written).into(), "out") }
+    };
+    // SAFETY: `decoder` is live and used by this thread only (contract).
+    unsafe { call_on(decoder, body) }
+}
+
+/// The decoder, tables and encoder are plain data owned by one object each:
+/// they may move between threads (what "used from one thread at a time"
+/// relies on).
+const _: () = {
+    const fn assert_send<T: Send>() {}
+    assert_send::<psao_decoder>();
+    assert_send::<crate::table::psao_table>();
+    assert_send::<crate::encoder::psao_encoder>();
+};

@@ -98,6 +98,9 @@ pub extern "C" fn psao_encoder_config_default() -> psao_encoder_config {
     }
 }
 
+/// zstd's fastest level (`ZSTD_minCLevel`).
+const ZSTD_MIN_LEVEL: i32 = -(1 << 17);
+
 fn config_of(c: psao_encoder_config) -> Result<EncoderConfig, Failure> {
     let compression = match c.compression {
         0 => Compression::None,
@@ -105,11 +108,14 @@ fn config_of(c: psao_encoder_config) -> Result<EncoderConfig, Failure> {
         2 => Compression::Zstd,
         v => return Err(Failure::invalid(format!("unknown compression {v}"))),
     };
-    if !(1..=22).contains(&c.zstd_level) {
+    if compression == Compression::Zstd && !(ZSTD_MIN_LEVEL..=22).contains(&c.zstd_level) {
         return Err(Failure::invalid(format!(
-            "zstd level {} outside 1..=22",
+            "zstd level {} outside zstd's {ZSTD_MIN_LEVEL}..=22",
             c.zstd_level
         )));
+    }
+    if !compression.available() {
+        return Err(psao_codec::EncodeError::CompressionUnavailable(compression).into());
     }
     Ok(EncoderConfig {
         compression,
@@ -141,9 +147,6 @@ pub unsafe extern "C" fn psao_encoder_new(
             // SAFETY: not NULL, points to a config (contract).
             config_of(unsafe { read_in(config, "config") }?)?
         };
-        if !config.compression.available() {
-            return Err(psao_codec::EncodeError::CompressionUnavailable(config.compression).into());
-        }
         let encoder = psao_encoder {
             encoder: Encoder::starting_at(config, start_sequence),
             state: FrameState::Idle,
@@ -187,6 +190,31 @@ pub unsafe extern "C" fn psao_encoder_sequence(
     unsafe { call_on(encoder, body) }
 }
 
+/// Changes the configuration for the next frames (compression, level,
+/// checksum, receivers' limits); the sequence goes on. Errors as
+/// `psao_encoder_new`; `PSAO_ERROR_FRAME_OPEN` while a frame is open.
+///
+/// # Safety
+///
+/// `encoder` is a live encoder; `config` points to a `psao_encoder_config`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn psao_encoder_set_config(
+    encoder: *mut psao_encoder,
+    config: *const psao_encoder_config,
+) -> psao_result {
+    let body = |e: &mut psao_encoder| -> Result<(), Failure> {
+        // SAFETY: points to a config (contract).
+        let config = config_of(unsafe { read_in(config, "config") }?)?;
+        if !matches!(e.state, FrameState::Idle) {
+            return Err(frame_open("finish or abort the open frame first"));
+        }
+        e.encoder.set_config(config);
+        Ok(())
+    };
+    // SAFETY: `encoder` is live and used by this thread only (contract).
+    unsafe { call_on(encoder, body) }
+}
+
 /// Begins a frame: a delta (`keyframe == 0`, sequence + 1) or a keyframe
 /// (`keyframe == 1`, the state at the current sequence: add a snapshot of
 /// every table). `PSAO_ERROR_FRAME_OPEN` while another is open or waits to
@@ -220,9 +248,10 @@ pub unsafe extern "C" fn psao_encoder_begin(
 }
 
 /// Drops the open frame (or a finished one not collected), so the next
-/// `psao_encoder_begin` can start. A delta finished but not collected
-/// has already taken its sequence: its changes are lost to clients, who
-/// see a gap and ask for a keyframe.
+/// `psao_encoder_begin` can start. A delta that already held messages
+/// takes its sequence number (as one finished and not collected has): the
+/// table changes it took are lost to clients, who see a gap and ask for a
+/// keyframe instead of silently diverging.
 ///
 /// # Safety
 ///
@@ -230,7 +259,9 @@ pub unsafe extern "C" fn psao_encoder_begin(
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn psao_encoder_abort(encoder: *mut psao_encoder) -> psao_result {
     let body = |e: &mut psao_encoder| -> Result<(), Failure> {
-        e.state = FrameState::Idle;
+        if let FrameState::Open(paused) = std::mem::replace(&mut e.state, FrameState::Idle) {
+            e.encoder.abandon(paused);
+        }
         Ok(())
     };
     // SAFETY: `encoder` is live and used by this thread only (contract).
@@ -324,6 +355,9 @@ unsafe fn table_arg<'a>(table: *mut psao_table) -> Result<&'a mut psao_table, Fa
 
 /// Adds everything that changed in `table` since its changes were last
 /// taken (by this call or `psao_table_discard_pending`), and takes them.
+/// For deltas only: in a keyframe it is `PSAO_ERROR_INVALID_ARGUMENT`
+/// (clients that already hold the stream would never get those changes;
+/// a keyframe takes `psao_encoder_snapshot`).
 ///
 /// # Safety
 ///
@@ -337,6 +371,11 @@ pub unsafe extern "C" fn psao_encoder_changes(
     let body = |e: &mut psao_encoder| -> Result<(), Failure> {
         // SAFETY: `table` is live and used by this thread only.
         let t = unsafe { table_arg(table) }?;
+        if matches!(&e.state, FrameState::Open(p) if p.is_keyframe()) {
+            return Err(Failure::invalid(
+                "psao_encoder_changes in a keyframe: changes go in deltas, a keyframe takes snapshots",
+            ));
+        }
         e.with_frame(|b| {
             b.changes(&mut t.table);
             Ok(())
@@ -475,7 +514,7 @@ unsafe fn write_info(info: *mut psao_frame_info, value: psao_frame_info) {
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn psao_encoder_last_error(
     encoder: *mut psao_encoder,
-    buf: *mut u8,
+    buf: *mut std::ffi::c_char,
     cap: usize,
     len: *mut usize,
 ) -> psao_result {

@@ -22,7 +22,8 @@
 //! needs); every pointer is checked; a panic is caught at the boundary
 //! and poisons its object. Nothing allocates beyond the limits a caller
 //! configured. Objects are used from one thread at a time and may move
-//! between threads.
+//! between threads. Inputs must not be written by anyone during a call,
+//! and outputs must not point into psao's own objects.
 //!
 //! This crate is the one place in the workspace with `unsafe` code: each
 //! entry point states its contract under `# Safety`, and each `unsafe`
@@ -45,15 +46,15 @@ pub use changes::{
 };
 pub use decoder::{
     psao_decoder, psao_decoder_apply_transform, psao_decoder_digest, psao_decoder_free,
-    psao_decoder_instance, psao_decoder_instance_ids, psao_decoder_last_error,
-    psao_decoder_mirror_bytes, psao_decoder_new, psao_decoder_receive, psao_decoder_sequence,
-    psao_limits_default,
+    psao_decoder_instance, psao_decoder_instance_gpu, psao_decoder_instance_ids,
+    psao_decoder_last_error, psao_decoder_mirror_bytes, psao_decoder_new, psao_decoder_receive,
+    psao_decoder_sequence, psao_last_error, psao_limits_default,
 };
 pub use encoder::{
     psao_encoder, psao_encoder_abort, psao_encoder_begin, psao_encoder_changes,
     psao_encoder_config_default, psao_encoder_define_instance, psao_encoder_finish,
     psao_encoder_free, psao_encoder_last_error, psao_encoder_new, psao_encoder_remove_instance,
-    psao_encoder_sequence, psao_encoder_snapshot, psao_encoder_transform,
+    psao_encoder_sequence, psao_encoder_set_config, psao_encoder_snapshot, psao_encoder_transform,
 };
 pub use reconstruct::{
     psao_decoder_reconstruct, psao_decoder_reconstruct_many, psao_decoder_reconstruct_world,
@@ -63,8 +64,8 @@ pub use result::{psao_result, psao_result_name};
 pub use table::{
     psao_table, psao_table_copy_buckets, psao_table_copy_words, psao_table_discard_pending,
     psao_table_free, psao_table_get_stats, psao_table_has_pending, psao_table_last_error,
-    psao_table_new, psao_table_remove_point, psao_table_set_point, psao_table_update_point,
-    psao_thresholds_default,
+    psao_table_new, psao_table_placement, psao_table_remove_point, psao_table_set_point,
+    psao_table_update_point, psao_thresholds_default,
 };
 pub use types::{
     psao_bucket_entry, psao_change, psao_change_kind, psao_compression, psao_drop_reason,

@@ -19,6 +19,12 @@ enum Space {
 }
 
 fn ao_at(inst: &InstanceMirror, space: Space, pos: Vec3, normal: Vec3) -> f32 {
+    // As the shader's `psao_ao`: a non-finite input is open (normalizing
+    // first would turn a NaN normal into zero, which weighs points when
+    // T_n < 0).
+    if !pos.is_finite() || !normal.is_finite() {
+        return 1.0;
+    }
     let (x, n) = match space {
         Space::Grid => (pos, normal.normalize_or_zero()),
         Space::World => {
@@ -76,17 +82,13 @@ unsafe fn reconstruct_many(
         let nr = unsafe { slice_in(normals, floats, "normals") }?;
         let inst = d.instance(id)?;
         check_space(inst, id, space)?;
-        let values: Vec<f32> = p
-            .chunks_exact(3)
-            .zip(nr.chunks_exact(3))
-            .map(|(p, nr)| {
-                let pos = Vec3::new(p[0], p[1], p[2]);
-                ao_at(inst, space, pos, Vec3::new(nr[0], nr[1], nr[2]))
-            })
-            .collect();
+        let values = p.chunks_exact(3).zip(nr.chunks_exact(3)).map(|(p, nr)| {
+            let pos = Vec3::new(p[0], p[1], p[2]);
+            ao_at(inst, space, pos, Vec3::new(nr[0], nr[1], nr[2]))
+        });
         let mut written = 0usize;
         // SAFETY: `ao` holds `n` floats (contract).
-        unsafe { out.fill(&values, (&mut written).into(), "ao") }
+        unsafe { out.fill_iter(n, values, (&mut written).into(), "ao") }
     };
     // SAFETY: `decoder` is live and used by this thread only (contract).
     unsafe { call_on(decoder, body) }
@@ -172,8 +174,9 @@ unsafe fn reconstruct_one(
 /// # Safety
 ///
 /// `decoder` is a live decoder; `positions` and `normals` are valid for
-/// reads of `3 * n` floats and `ao` for writes of `n` floats (all NULL
-/// with `n == 0`).
+/// reads of `3 * n` aligned floats that nothing writes during the call,
+/// and `ao` for writes of `n` floats, not overlapping them (all NULL with
+/// `n == 0`).
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn psao_decoder_reconstruct_many(
     decoder: *mut psao_decoder,

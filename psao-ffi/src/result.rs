@@ -18,11 +18,11 @@ pub enum psao_result {
     PSAO_OK = 0,
     /// A pointer argument that must not be NULL was NULL.
     PSAO_ERROR_NULL_POINTER = 1,
-    /// An output buffer is too short: `*len` holds the length needed and nothing was written.
+    /// An output buffer is too short: `*len` holds the length needed and nothing else was written.
     PSAO_ERROR_BUFFER_TOO_SHORT = 2,
-    /// An argument is out of its domain (a flag other than 0 or 1, an unknown compression, a zstd level outside 1 to 22, a world-space lookup of a bind-space instance); the object's last error names it.
+    /// An argument is out of its domain (a flag other than 0 or 1, an unknown compression, a zstd level outside zstd's range, a misaligned array or one too long to address, a world-space lookup of a bind-space instance, changes in a keyframe); the object's last error names it.
     PSAO_ERROR_INVALID_ARGUMENT = 3,
-    /// The instance is not in the mirror.
+    /// The instance asked for is not in the mirror.
     PSAO_ERROR_NOT_FOUND = 4,
     /// The decoder has no keyframe yet (no sequence, no digest).
     PSAO_ERROR_NO_STATE = 5,
@@ -78,7 +78,7 @@ pub enum psao_result {
     PSAO_ERROR_INVALID_DEFINITION = 120,
     /// A transform holds NaN or infinity. Spec error class `non_finite_transform`.
     PSAO_ERROR_NON_FINITE_TRANSFORM = 121,
-    /// The instance is not in the mirror. Spec error class `unknown_instance`.
+    /// A message (or `psao_decoder_apply_transform`) names an instance the mirror does not hold. Spec error class `unknown_instance`.
     PSAO_ERROR_UNKNOWN_INSTANCE = 122,
     /// Defining the instance would exceed `max_instances`. Spec error class `instance_limit`.
     PSAO_ERROR_INSTANCE_LIMIT = 123,
@@ -311,7 +311,9 @@ impl From<EncodeError> for Failure {
             EncodeError::FrameTooLarge => PSAO_ERROR_ENCODE_FRAME_TOO_LARGE,
             EncodeError::ReceiverLimit { .. } => PSAO_ERROR_RECEIVER_LIMIT,
             EncodeError::CompressionUnavailable(_) => PSAO_ERROR_COMPRESSION_UNAVAILABLE,
-            _ => PSAO_ERROR_COMPRESSOR_FAILED,
+            EncodeError::Compressor(_) => PSAO_ERROR_COMPRESSOR_FAILED,
+            // An error a newer codec adds before this list learns it.
+            _ => PSAO_ERROR_INVALID_ARGUMENT,
         };
         Failure::new(code, e.to_string())
     }

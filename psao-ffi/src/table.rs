@@ -43,9 +43,13 @@ pub extern "C" fn psao_thresholds_default() -> psao_thresholds {
 /// Makes an empty table for instance `id`. Its memory is fixed by `def`
 /// (bucket entries and words, as a client's mirror of it, plus bookkeeping)
 /// and by 8 bytes per point id below `max_points`. `limits` (NULL for the
-/// defaults) are the receivers': a definition they would refuse is refused
-/// here with the decoder's code (`PSAO_ERROR_RESOURCE_LIMIT`), and an
-/// invalid one with `PSAO_ERROR_INVALID_DEFINITION`.
+/// defaults) are the receivers': a definition whose table size, cell pool
+/// or mirror bytes exceed them on its own is refused with the decoder's
+/// code (`PSAO_ERROR_RESOURCE_LIMIT`; the count of instances and their
+/// bytes together are the server's to keep within `max_instances` and
+/// `max_mirror_bytes`). An invalid definition is
+/// `PSAO_ERROR_INVALID_DEFINITION`, as is a cell pool of 2^32 - 6 cells or
+/// more (the table marks absent points with the top indices).
 ///
 /// # Safety
 ///
@@ -179,8 +183,8 @@ pub unsafe extern "C" fn psao_table_set_point(
 
 /// Sets point `id` only if it differs from what clients hold by more than
 /// `thresholds` (NULL for the defaults), or moved to another cell, or is
-/// not stored. `*sent` receives 1 when it was set (and will be sent), else
-/// 0.
+/// not stored. `*sent` receives 1 when it was set, else 0 (a point set
+/// but dropped, see `psao_table_placement`, is not sent).
 ///
 /// # Safety
 ///
@@ -212,6 +216,28 @@ pub unsafe extern "C" fn psao_table_update_point(
         let s = t.table.update_point(id, p, n, ao, &th)?;
         // SAFETY: valid for a write (contract).
         unsafe { put(out, s as u8) };
+        Ok(())
+    };
+    // SAFETY: `table` is live and used by this thread only (contract).
+    unsafe { call_on(table, body) }
+}
+
+/// Where point `id` stands now (absent, stored in a cell and slot, or
+/// dropped and why) into `*placement`.
+///
+/// # Safety
+///
+/// `table` is a live table; `placement` is valid for a write.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn psao_table_placement(
+    table: *mut psao_table,
+    id: u32,
+    placement: *mut psao_placement,
+) -> psao_result {
+    let body = |t: &mut psao_table| -> Result<(), Failure> {
+        let out = out_ptr(placement, "placement")?;
+        // SAFETY: valid for a write (contract).
+        unsafe { put(out, placement_of(t.table.placement(id))) };
         Ok(())
     };
     // SAFETY: `table` is live and used by this thread only (contract).
@@ -316,7 +342,8 @@ pub unsafe extern "C" fn psao_table_discard_pending(table: *mut psao_table) -> p
 ///
 /// # Safety
 ///
-/// `table` is a live table; `words` is valid for writes of `count` words.
+/// `table` is a live table; `words` is valid for writes of `count` words
+/// (NULL with `count == 0`).
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn psao_table_copy_words(
     table: *mut psao_table,
@@ -339,7 +366,7 @@ pub unsafe extern "C" fn psao_table_copy_words(
 /// # Safety
 ///
 /// `table` is a live table; `entries` is valid for writes of `count`
-/// entries.
+/// entries (NULL with `count == 0`).
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn psao_table_copy_buckets(
     table: *mut psao_table,
@@ -366,7 +393,7 @@ pub unsafe extern "C" fn psao_table_copy_buckets(
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn psao_table_last_error(
     table: *mut psao_table,
-    buf: *mut u8,
+    buf: *mut std::ffi::c_char,
     cap: usize,
     len: *mut usize,
 ) -> psao_result {

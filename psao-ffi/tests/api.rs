@@ -47,7 +47,7 @@ fn name(r: R) -> String {
 fn decoder_error(d: *mut psao_decoder) -> String {
     let mut buf = vec![0u8; 1024];
     let mut len = 0;
-    let r = unsafe { psao_decoder_last_error(d, buf.as_mut_ptr(), buf.len(), &mut len) };
+    let r = unsafe { psao_decoder_last_error(d, buf.as_mut_ptr().cast(), buf.len(), &mut len) };
     assert_eq!(r, R::PSAO_OK);
     assert_eq!(buf[len], 0, "NUL-terminated");
     String::from_utf8(buf[..len].to_vec()).unwrap()
@@ -567,9 +567,13 @@ fn short_buffers_get_the_length_needed_and_nothing_written() {
 
     // The message buffer: too short gets nothing and the length.
     let mut msg = [0x55u8; 8];
-    let r = unsafe { psao_decoder_last_error(d, msg.as_mut_ptr(), msg.len(), &mut n) };
+    let r = unsafe { psao_decoder_last_error(d, msg.as_mut_ptr().cast(), msg.len(), &mut n) };
     assert_eq!(r, R::PSAO_ERROR_BUFFER_TOO_SHORT);
-    assert_eq!(n, decoder_error(d).len());
+    assert_eq!(
+        n,
+        decoder_error(d).len() + 1,
+        "the bytes needed, NUL included"
+    );
     assert!(n > 8 && msg.iter().all(|&b| b == 0x55));
     unsafe {
         psao_decoder_free(d);
@@ -612,7 +616,7 @@ fn invalid_arguments_and_misuse_get_typed_errors() {
         let mut c = cfg;
         match field {
             0 => c.compression = 9,
-            1 => c.zstd_level = 0,
+            1 => c.zstd_level = 23,
             _ => c.checksum = 3,
         }
         assert_eq!(unsafe { psao_encoder_new(&c, 0, &mut e) }, r);
@@ -673,7 +677,7 @@ fn invalid_arguments_and_misuse_get_typed_errors() {
         let mut msg = vec![0u8; 256];
         let mut n = 0;
         assert_eq!(
-            psao_encoder_last_error(e, msg.as_mut_ptr(), msg.len(), &mut n),
+            psao_encoder_last_error(e, msg.as_mut_ptr().cast(), msg.len(), &mut n),
             R::PSAO_OK
         );
         s.push_str(std::str::from_utf8(&msg[..n]).unwrap());
@@ -853,4 +857,218 @@ fn world_lookups_of_an_instance_without_a_transform_are_open() {
     }
     assert!((local - 0.25).abs() < 1.0 / 255.0, "{local}");
     assert_eq!(world, 1.0, "no transform: no place in the world");
+}
+
+#[test]
+fn object_less_failures_keep_their_message_per_thread() {
+    let mut bad = c_def(&def());
+    bad.cell_capacity = 0;
+    let mut t = null_mut();
+    let r = unsafe { psao_table_new(1, &bad, 10, null(), &mut t) };
+    assert_eq!(r, R::PSAO_ERROR_INVALID_DEFINITION);
+    let mut buf = vec![0u8; 256];
+    let mut n = 0;
+    assert_eq!(
+        unsafe { psao_last_error(buf.as_mut_ptr().cast(), buf.len(), &mut n) },
+        R::PSAO_OK
+    );
+    let msg = std::str::from_utf8(&buf[..n]).unwrap().to_string();
+    assert!(msg.contains("cell capacity"), "{msg}");
+    // Another thread has its own (empty) message.
+    let other = std::thread::spawn(|| {
+        let mut buf = [1u8; 4];
+        let mut n = 9;
+        let r = unsafe { psao_last_error(buf.as_mut_ptr().cast(), buf.len(), &mut n) };
+        (r, n, buf[0])
+    })
+    .join()
+    .unwrap();
+    assert_eq!(other, (R::PSAO_OK, 0, 0));
+    // A success clears it.
+    let d = decoder(None);
+    unsafe { psao_last_error(buf.as_mut_ptr().cast(), buf.len(), &mut n) };
+    assert_eq!(n, 0);
+    unsafe { psao_decoder_free(d) };
+}
+
+#[test]
+fn abort_after_taking_changes_makes_clients_see_a_gap_and_keyframes_refuse_changes() {
+    let (t, e) = (table(&def(), 500), encoder(&psao_encoder_config_default()));
+    let d = decoder(None);
+    unsafe {
+        assert_eq!(psao_encoder_begin(e, 1), R::PSAO_OK);
+        assert_eq!(psao_encoder_snapshot(e, t), R::PSAO_OK);
+    }
+    receive(d, &finish(e)).unwrap();
+    for i in 0..50 {
+        let (p, n, ao) = point(i, 0);
+        unsafe {
+            psao_table_set_point(
+                t,
+                i,
+                p.to_array().as_ptr(),
+                n.to_array().as_ptr(),
+                ao,
+                null_mut(),
+            );
+        }
+    }
+    unsafe {
+        // Changes belong in deltas.
+        assert_eq!(psao_encoder_begin(e, 1), R::PSAO_OK);
+        assert_eq!(psao_encoder_changes(e, t), R::PSAO_ERROR_INVALID_ARGUMENT);
+        assert_eq!(psao_encoder_abort(e), R::PSAO_OK);
+        // A delta that took the table's changes, then aborted.
+        assert_eq!(psao_encoder_begin(e, 0), R::PSAO_OK);
+        assert_eq!(psao_encoder_changes(e, t), R::PSAO_OK);
+        assert_eq!(psao_encoder_abort(e), R::PSAO_OK);
+        let mut seq = 0;
+        psao_encoder_sequence(e, &mut seq);
+        assert_eq!(seq, 1, "the aborted delta took its sequence");
+        let (p, n, _) = point(0, 0);
+        psao_table_set_point(
+            t,
+            0,
+            p.to_array().as_ptr(),
+            n.to_array().as_ptr(),
+            0.9,
+            null_mut(),
+        );
+        assert_eq!(psao_encoder_begin(e, 0), R::PSAO_OK);
+        assert_eq!(psao_encoder_changes(e, t), R::PSAO_OK);
+    }
+    let ev = receive(d, &finish(e)).unwrap();
+    assert_eq!(ev.kind, psao_event_kind::PSAO_EVENT_NEED_KEYFRAME);
+    assert_eq!((ev.have, ev.base), (0, 1));
+    // The encoder's configuration changes between frames only.
+    let mut cfg = psao_encoder_config_default();
+    cfg.compression = 1;
+    unsafe {
+        assert_eq!(psao_encoder_set_config(e, &cfg), R::PSAO_OK);
+        assert_eq!(psao_encoder_begin(e, 0), R::PSAO_OK);
+        assert_eq!(psao_encoder_set_config(e, &cfg), R::PSAO_ERROR_FRAME_OPEN);
+        cfg.compression = 5;
+        assert_eq!(psao_encoder_abort(e), R::PSAO_OK);
+        assert_eq!(
+            psao_encoder_set_config(e, &cfg),
+            R::PSAO_ERROR_INVALID_ARGUMENT
+        );
+        // Placement of a stored point, and of one never set.
+        let mut pl = std::mem::MaybeUninit::<psao_placement>::uninit();
+        assert_eq!(psao_table_placement(t, 0, pl.as_mut_ptr()), R::PSAO_OK);
+        assert_eq!(
+            pl.assume_init().kind,
+            psao_placement_kind::PSAO_PLACEMENT_STORED
+        );
+        assert_eq!(psao_table_placement(t, 400, pl.as_mut_ptr()), R::PSAO_OK);
+        assert_eq!(
+            pl.assume_init().kind,
+            psao_placement_kind::PSAO_PLACEMENT_ABSENT
+        );
+        psao_decoder_free(d);
+        psao_table_free(t);
+        psao_encoder_free(e);
+    }
+}
+
+#[test]
+fn outputs_need_no_alignment_and_non_finite_inputs_are_open() {
+    let mut rt = GridTable::new(3, def(), 10).unwrap();
+    rt.set_point(0, Vec3::new(0.1, 0.1, 0.1), Vec3::Y, 0.25)
+        .unwrap();
+    rt.take_dirty();
+    let mut enc = Encoder::new(EncoderConfig::default());
+    let mut b = enc.keyframe();
+    b.snapshot(&rt).unwrap();
+    let m = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+    b.transform(3, 1, &m);
+    let c = decoder(None);
+    receive(c, &b.finish().unwrap().unwrap().bytes).unwrap();
+    // A u32 and a float written at odd addresses, read from odd addresses.
+    let mut bytes = [0u8; 64];
+    let odd = unsafe { bytes.as_mut_ptr().add(1) };
+    let mut src = [0u8; 32];
+    let p = unsafe { src.as_mut_ptr().add(1) }.cast::<f32>();
+    unsafe {
+        for (i, v) in [0.1f32, 0.1, 0.1, 0.0, 1.0, 0.0].iter().enumerate() {
+            p.add(i).write_unaligned(*v);
+        }
+        assert_eq!(psao_decoder_sequence(c, odd.cast()), R::PSAO_OK);
+        assert_eq!(odd.cast::<u32>().read_unaligned(), 0);
+        assert_eq!(
+            psao_decoder_reconstruct(c, 3, p, p.add(3), odd.cast()),
+            R::PSAO_OK
+        );
+        let ao = odd.cast::<f32>().read_unaligned();
+        assert!((ao - 0.25).abs() < 1.0 / 255.0, "{ao}");
+        // A NaN normal is open, as in the shader, whatever T_n.
+        p.add(4).write_unaligned(f32::NAN);
+        let mut ao = 0.0;
+        assert_eq!(
+            psao_decoder_reconstruct(c, 3, p, p.add(3), &mut ao),
+            R::PSAO_OK
+        );
+        assert_eq!(ao, 1.0);
+        assert_eq!(
+            psao_decoder_reconstruct_world(c, 3, p, p.add(3), &mut ao),
+            R::PSAO_OK
+        );
+        assert_eq!(ao, 1.0);
+        // A transform to an instance the mirror lacks: Rust's class.
+        let t = psao_transform {
+            sequence: 2,
+            matrix: m,
+        };
+        let mut replaced = 0;
+        assert_eq!(
+            psao_decoder_apply_transform(c, 8, &t, &mut replaced),
+            R::PSAO_ERROR_UNKNOWN_INSTANCE
+        );
+        psao_decoder_free(c);
+    }
+}
+
+#[test]
+fn the_gpu_record_maps_world_points_into_the_grid_like_the_cpu() {
+    let mut rt = GridTable::new(3, def(), 10).unwrap();
+    rt.set_point(0, Vec3::new(0.1, 0.1, 0.1), Vec3::Y, 0.25)
+        .unwrap();
+    rt.take_dirty();
+    let mut enc = Encoder::new(EncoderConfig::default());
+    let mut b = enc.keyframe();
+    b.snapshot(&rt).unwrap();
+    let m = [0.0, 0.0, -2.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 2.0, 0.5, -1.0];
+    b.transform(3, 1, &m);
+    let kf = b.finish().unwrap().unwrap();
+    let c = decoder(None);
+    receive(c, &kf.bytes).unwrap();
+    let mut rec = [0u32; 48];
+    unsafe {
+        assert_eq!(
+            psao_decoder_instance_gpu(c, 3, 100, 200, rec.as_mut_ptr()),
+            R::PSAO_OK
+        );
+        assert_eq!(
+            psao_decoder_instance_gpu(c, 4, 0, 0, rec.as_mut_ptr()),
+            R::PSAO_ERROR_NOT_FOUND
+        );
+        psao_decoder_free(c);
+    }
+    let f = |i: usize| f32::from_bits(rec[i]);
+    let col = |k: usize| Vec3::new(f(4 * k), f(4 * k + 1), f(4 * k + 2));
+    let mut rust = Decoder::new(Limits::default());
+    rust.receive(&kf.bytes).unwrap();
+    let inst = rust.mirror().instance(3).unwrap();
+    let affine = inst.transform().unwrap().affine();
+    let local = Vec3::new(0.3, -0.2, 0.7);
+    let world = affine.transform_point3(local);
+    let back = col(0) * world.x + col(1) * world.y + col(2) * world.z + col(3);
+    assert!((back - local).length() < 1e-5, "{back} {local}");
+    assert_eq!(f(15), 1.0, "overflow chains");
+    assert_eq!(&rec[36..44], &[8, 8, 8, 63, 8, 7, 100, 200]);
+    assert_eq!((f(28), f(31)), (-1.0, def().radius));
+    assert_eq!(
+        (f(44), f(45), f(46), f(47)),
+        (def().t_n, def().t_d, 1.0, 0.0)
+    );
 }

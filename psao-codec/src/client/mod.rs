@@ -4,5 +4,6 @@
 //! ([`reconstruct_ao`](crate::reconstruct_ao), paper eq. 2-4).
 
 pub(crate) mod decoder;
+pub(crate) mod gpu_record;
 pub(crate) mod mirror;
 pub(crate) mod reconstruct;

@@ -178,6 +178,25 @@ impl Encoder {
     }
 }
 
+impl Encoder {
+    /// Drops a paused frame instead of finishing it. A delta that already
+    /// holds messages takes its sequence number, as a delta refused by
+    /// [`FrameBuilder::finish`] does: changes it took from a table (its
+    /// dirty set) are lost to clients, who then see a gap and ask for a
+    /// keyframe instead of silently diverging. A stale paused frame
+    /// (see [`resume`](Self::resume)) changes nothing.
+    pub fn abandon(&mut self, paused: PausedFrame) {
+        if paused.generation != self.generation {
+            return;
+        }
+        self.generation = next_generation();
+        self.payload.clear();
+        if !paused.keyframe && paused.stats.messages > 0 {
+            self.sequence = self.sequence.wrapping_add(1);
+        }
+    }
+}
+
 /// A number no other frame of this process was begun with (64 bits: no
 /// wrap in practice).
 fn next_generation() -> u64 {

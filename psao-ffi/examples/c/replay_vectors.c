@@ -98,7 +98,7 @@ static long unhex(const char *s, uint8_t **out) {
 static void fail_with(psao_decoder *d, const char *what, psao_result r) {
     char msg[512];
     size_t len = 0;
-    if (psao_decoder_last_error(d, (uint8_t *)msg, sizeof msg, &len) != PSAO_OK) msg[0] = 0;
+    if (psao_decoder_last_error(d, msg, sizeof msg, &len) != PSAO_OK) msg[0] = 0;
     fprintf(stderr, "%s: %s (%s)\n", what, psao_result_name(r), msg);
     exit(2);
 }

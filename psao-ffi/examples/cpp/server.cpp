@@ -41,10 +41,19 @@ using Encoder = std::unique_ptr<psao_encoder, EncoderFree>;
     std::exit(1);
 }
 
+// The message of this thread's last failed call without an object (a
+// constructor that failed has no object to keep it).
+std::string thread_error() {
+    char buf[512];
+    size_t len = 0;
+    if (psao_last_error(buf, sizeof buf, &len) != PSAO_OK) return "(no message)";
+    return buf;
+}
+
 std::string table_error(psao_table *t) {
     char buf[512];
     size_t len = 0;
-    if (psao_table_last_error(t, reinterpret_cast<uint8_t *>(buf), sizeof buf, &len) != PSAO_OK)
+    if (psao_table_last_error(t, buf, sizeof buf, &len) != PSAO_OK)
         return "(no message)";
     return buf;
 }
@@ -52,7 +61,7 @@ std::string table_error(psao_table *t) {
 std::string encoder_error(psao_encoder *e) {
     char buf[512];
     size_t len = 0;
-    if (psao_encoder_last_error(e, reinterpret_cast<uint8_t *>(buf), sizeof buf, &len) != PSAO_OK)
+    if (psao_encoder_last_error(e, buf, sizeof buf, &len) != PSAO_OK)
         return "(no message)";
     return buf;
 }
@@ -148,14 +157,14 @@ int main(int argc, char **argv) {
 
     psao_table *raw_table = nullptr;
     psao_result r = psao_table_new(instance, &def, n_points, nullptr, &raw_table);
-    if (r != PSAO_OK) die("psao_table_new", r, "");
+    if (r != PSAO_OK) die("psao_table_new", r, thread_error());
     Table table(raw_table);
 
     psao_encoder_config config = psao_encoder_config_default();
     config.compression = PSAO_COMPRESSION_ZSTD;
     psao_encoder *raw_encoder = nullptr;
     r = psao_encoder_new(&config, 0, &raw_encoder);
-    if (r != PSAO_OK) die("psao_encoder_new", r, "");
+    if (r != PSAO_OK) die("psao_encoder_new", r, thread_error());
     Encoder enc(raw_encoder);
 
     std::FILE *frames = std::fopen((dir + "/frames.bin").c_str(), "wb");

@@ -4,12 +4,13 @@
 //! of instances or their layout changes and by the changed ranges the
 //! [`Mirror`] reports otherwise.
 
-use psao_codec::{Change, InstanceDef, Mirror, WeightParams, normal_table};
+use psao_codec::{Change, InstanceDef, Mirror, gpu_instance_record, normal_table};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
 
-/// `PsaoInstance` of `reconstruct.wgsl`.
+/// `PsaoInstance` of `reconstruct.wgsl`: the words of
+/// [`gpu_instance_record`], which computes it.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 struct InstanceGpu {
@@ -255,68 +256,8 @@ impl GpuMirror {
             let (Some(slot), Some(inst)) = (slot, mirror.instance(id as u32)) else {
                 continue;
             };
-            let d = slot.def;
-            let w = WeightParams::of(&d);
-            let mut g = InstanceGpu {
-                origin: d.origin.extend(w.radius).to_array(),
-                cell_size: d.cell_size.extend(w.noise).to_array(),
-                dims: [
-                    d.dims.x,
-                    d.dims.y,
-                    d.dims.z,
-                    (1u32 << d.table_log2).wrapping_sub(1),
-                ],
-                layout: [
-                    d.bucket_capacity as u32,
-                    d.cell_capacity as u32,
-                    slot.first_bucket,
-                    slot.first_word,
-                ],
-                params: [w.t_n, w.t_d, 0.0, 0.0],
-                ..InstanceGpu::default()
-            };
-            if d.bind_space() {
-                // Point format 1: looked up by bind-space attributes as
-                // they are (identity), whatever the transform.
-                g.to_local = [
-                    [1.0, 0.0, 0.0, 0.0],
-                    [0.0, 1.0, 0.0, 0.0],
-                    [0.0, 0.0, 1.0, 0.0],
-                    [0.0; 4],
-                ];
-                g.normal = [
-                    [1.0, 0.0, 0.0, 0.0],
-                    [0.0, 1.0, 0.0, 0.0],
-                    [0.0, 0.0, 1.0, 0.0],
-                ];
-                g.params[2] = 1.0;
-                g.params[3] = 1.0;
-            } else if let Some(t) = inst.transform() {
-                let m = t.affine();
-                let det = m.matrix3.determinant();
-                if m.is_finite() && det.is_finite() && det.abs() > f32::MIN_POSITIVE {
-                    let inv = m.inverse();
-                    g.to_local = [
-                        inv.matrix3.x_axis.extend(0.0).to_array(),
-                        inv.matrix3.y_axis.extend(0.0).to_array(),
-                        inv.matrix3.z_axis.extend(0.0).to_array(),
-                        inv.translation.extend(0.0).to_array(),
-                    ];
-                    // Rows of M^T are the columns of M.
-                    g.normal = [
-                        m.matrix3.x_axis.extend(0.0).to_array(),
-                        m.matrix3.y_axis.extend(0.0).to_array(),
-                        m.matrix3.z_axis.extend(0.0).to_array(),
-                    ];
-                    g.params[2] = 1.0;
-                }
-            }
-            if d.overflow {
-                // Full cells continue in overflow chains (the shader's
-                // flag: the translation column's unused w).
-                g.to_local[3][3] = 1.0;
-            }
-            table[id] = g;
+            let record = gpu_instance_record(inst, slot.first_bucket, slot.first_word);
+            table[id] = bytemuck::cast(record);
         }
         table
     }
