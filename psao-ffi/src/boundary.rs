@@ -186,24 +186,48 @@ pub(crate) unsafe fn slice_in<'a, T>(
     if len == 0 {
         return Ok(&[]);
     }
+    check_array(ptr, len, what)?;
+    // SAFETY: not NULL, aligned, at most isize::MAX bytes, and valid for
+    // reads of `len` elements unchanged during the call by the caller's
+    // contract.
+    Ok(unsafe { std::slice::from_raw_parts(ptr, len) })
+}
+
+/// The rules for a C array of `n > 0` elements: not NULL, at most
+/// `isize::MAX` bytes, aligned for `T`.
+fn check_array<T>(ptr: *const T, n: usize, what: &str) -> Result<(), Failure> {
     if ptr.is_null() {
         return Err(Failure::null(what));
     }
-    if len
-        .checked_mul(size_of::<T>())
+    if n.checked_mul(size_of::<T>())
         .is_none_or(|b| b > isize::MAX as usize)
     {
         return Err(Failure::invalid(format!(
-            "`{what}`: length {len} too large"
+            "`{what}`: {n} elements are too many"
         )));
     }
     if !ptr.is_aligned() {
         return Err(Failure::invalid(format!("`{what}` is not aligned")));
     }
-    // SAFETY: not NULL, aligned, at most isize::MAX bytes, and valid for
-    // reads of `len` elements unchanged during the call by the caller's
-    // contract.
-    Ok(unsafe { std::slice::from_raw_parts(ptr, len) })
+    Ok(())
+}
+
+/// Sets `*len` to `n` and fails with `PSAO_ERROR_BUFFER_TOO_SHORT` when
+/// `n` elements do not fit in `cap`.
+///
+/// # Safety
+///
+/// `len` is valid for a write.
+unsafe fn fits(n: usize, cap: usize, len: NonNull<usize>, what: &str) -> Result<(), Failure> {
+    // SAFETY: `len` is valid for a write by the caller's contract.
+    unsafe { put(len, n) };
+    if n > cap {
+        return Err(Failure::new(
+            psao_result::PSAO_ERROR_BUFFER_TOO_SHORT,
+            format!("`{what}` holds {cap} elements, {n} needed"),
+        ));
+    }
+    Ok(())
 }
 
 /// A caller's output array of `cap` elements, checked before any work.
@@ -216,19 +240,8 @@ pub(crate) struct OutArray<T> {
 impl<T: Copy> OutArray<T> {
     /// Checks `ptr` (NULL only with `cap == 0`) and alignment.
     pub(crate) fn new(ptr: *mut T, cap: usize, what: &str) -> Result<OutArray<T>, Failure> {
-        if cap > 0 && ptr.is_null() {
-            return Err(Failure::null(what));
-        }
-        if cap
-            .checked_mul(size_of::<T>())
-            .is_none_or(|b| b > isize::MAX as usize)
-        {
-            return Err(Failure::invalid(format!(
-                "`{what}`: capacity {cap} too large"
-            )));
-        }
-        if cap > 0 && !ptr.is_aligned() {
-            return Err(Failure::invalid(format!("`{what}` is not aligned")));
+        if cap > 0 {
+            check_array(ptr.cast_const(), cap, what)?;
         }
         Ok(OutArray { ptr, cap })
     }
@@ -252,13 +265,7 @@ impl<T: Copy> OutArray<T> {
         what: &str,
     ) -> Result<(), Failure> {
         // SAFETY: `len` is valid for a write by the caller's contract.
-        unsafe { put(len, n) };
-        if n > self.cap {
-            return Err(Failure::new(
-                psao_result::PSAO_ERROR_BUFFER_TOO_SHORT,
-                format!("`{what}` holds {} elements, {n} needed", self.cap),
-            ));
-        }
+        unsafe { fits(n, self.cap, len, what) }?;
         for (i, item) in items.take(n).enumerate() {
             // SAFETY: `i < n <= cap`, and `ptr` is valid and aligned for
             // `cap` writes (the caller's contract, checked in `new`).
@@ -282,17 +289,7 @@ impl<T: Copy> OutArray<T> {
         what: &str,
     ) -> Result<(), Failure> {
         // SAFETY: `len` is valid for a write by the caller's contract.
-        unsafe { put(len, items.len()) };
-        if items.len() > self.cap {
-            return Err(Failure::new(
-                psao_result::PSAO_ERROR_BUFFER_TOO_SHORT,
-                format!(
-                    "`{what}` holds {} elements, {} needed",
-                    self.cap,
-                    items.len()
-                ),
-            ));
-        }
+        unsafe { fits(items.len(), self.cap, len, what) }?;
         if !items.is_empty() {
             // SAFETY: `ptr` is valid for `cap >= items.len()` writes and
             // aligned (checked in `new`), and cannot overlap `items`, which

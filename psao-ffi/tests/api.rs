@@ -229,20 +229,23 @@ fn def() -> InstanceDef {
 }
 
 fn c_def(d: &InstanceDef) -> psao_instance_def {
-    psao_instance_def {
-        origin: d.origin.to_array(),
-        cell_size: d.cell_size.to_array(),
-        dims: d.dims.to_array(),
-        table_log2: d.table_log2,
-        bucket_capacity: d.bucket_capacity,
-        cell_capacity: d.cell_capacity,
-        point_format: d.point_format,
-        overflow: d.overflow as u8,
-        cell_pool: d.cell_pool,
-        radius: d.radius,
-        t_n: d.t_n,
-        t_d: d.t_d,
+    psao_instance_def::from(d)
+}
+
+/// The keyframe of instance 3 of `d` holding one point (id 0 at
+/// (0.1, 0.1, 0.1), normal +y, AO 0.25), with transform `m` if given.
+fn one_point_keyframe(d: InstanceDef, m: Option<[f32; 12]>) -> Vec<u8> {
+    let mut rt = GridTable::new(3, d, 10).unwrap();
+    rt.set_point(0, Vec3::new(0.1, 0.1, 0.1), Vec3::Y, 0.25)
+        .unwrap();
+    rt.take_dirty();
+    let mut enc = Encoder::new(EncoderConfig::default());
+    let mut b = enc.keyframe();
+    b.snapshot(&rt).unwrap();
+    if let Some(m) = m {
+        b.transform(3, 1, &m);
     }
+    b.finish().unwrap().unwrap().bytes.to_vec()
 }
 
 fn point(i: u32, tick: u32) -> (Vec3, Vec3, f32) {
@@ -790,16 +793,9 @@ fn result_names_are_stable_and_cover_every_code() {
 fn a_bind_space_instance_is_looked_up_in_bind_space_only() {
     let mut d = def();
     d.point_format = psao_codec::POINT_FORMAT_BIND32;
-    let mut rt = GridTable::new(3, d, 10).unwrap();
-    rt.set_point(0, Vec3::new(0.1, 0.1, 0.1), Vec3::Y, 0.25)
-        .unwrap();
-    rt.take_dirty();
-    let mut enc = Encoder::new(EncoderConfig::default());
-    let mut b = enc.keyframe();
-    b.snapshot(&rt).unwrap();
-    let kf = b.finish().unwrap().unwrap();
+    let kf = one_point_keyframe(d, None);
     let c = decoder(None);
-    receive(c, &kf.bytes).unwrap();
+    receive(c, &kf).unwrap();
     let (p, n) = ([0.1f32, 0.1, 0.1], [0.0f32, 1.0, 0.0]);
     let mut ao = -1.0;
     unsafe {
@@ -833,15 +829,9 @@ fn the_normal_table_is_the_codecs() {
 
 #[test]
 fn world_lookups_of_an_instance_without_a_transform_are_open() {
-    let mut rt = GridTable::new(3, def(), 10).unwrap();
-    rt.set_point(0, Vec3::new(0.1, 0.1, 0.1), Vec3::Y, 0.25)
-        .unwrap();
-    rt.take_dirty();
-    let mut enc = Encoder::new(EncoderConfig::default());
-    let mut b = enc.keyframe();
-    b.snapshot(&rt).unwrap();
+    let kf = one_point_keyframe(def(), None);
     let c = decoder(None);
-    receive(c, &b.finish().unwrap().unwrap().bytes).unwrap();
+    receive(c, &kf).unwrap();
     let (p, n) = ([0.1f32, 0.1, 0.1], [0.0f32, 1.0, 0.0]);
     let (mut local, mut world) = (-1.0, -1.0);
     unsafe {
@@ -973,17 +963,10 @@ fn abort_after_taking_changes_makes_clients_see_a_gap_and_keyframes_refuse_chang
 
 #[test]
 fn outputs_need_no_alignment_and_non_finite_inputs_are_open() {
-    let mut rt = GridTable::new(3, def(), 10).unwrap();
-    rt.set_point(0, Vec3::new(0.1, 0.1, 0.1), Vec3::Y, 0.25)
-        .unwrap();
-    rt.take_dirty();
-    let mut enc = Encoder::new(EncoderConfig::default());
-    let mut b = enc.keyframe();
-    b.snapshot(&rt).unwrap();
     let m = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
-    b.transform(3, 1, &m);
+    let kf = one_point_keyframe(def(), Some(m));
     let c = decoder(None);
-    receive(c, &b.finish().unwrap().unwrap().bytes).unwrap();
+    receive(c, &kf).unwrap();
     // A u32 and a float written at odd addresses, read from odd addresses.
     let mut bytes = [0u8; 64];
     let odd = unsafe { bytes.as_mut_ptr().add(1) };
@@ -1030,18 +1013,10 @@ fn outputs_need_no_alignment_and_non_finite_inputs_are_open() {
 
 #[test]
 fn the_gpu_record_maps_world_points_into_the_grid_like_the_cpu() {
-    let mut rt = GridTable::new(3, def(), 10).unwrap();
-    rt.set_point(0, Vec3::new(0.1, 0.1, 0.1), Vec3::Y, 0.25)
-        .unwrap();
-    rt.take_dirty();
-    let mut enc = Encoder::new(EncoderConfig::default());
-    let mut b = enc.keyframe();
-    b.snapshot(&rt).unwrap();
     let m = [0.0, 0.0, -2.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 2.0, 0.5, -1.0];
-    b.transform(3, 1, &m);
-    let kf = b.finish().unwrap().unwrap();
+    let kf = one_point_keyframe(def(), Some(m));
     let c = decoder(None);
-    receive(c, &kf.bytes).unwrap();
+    receive(c, &kf).unwrap();
     let mut rec = [0u32; 48];
     unsafe {
         assert_eq!(
@@ -1057,7 +1032,7 @@ fn the_gpu_record_maps_world_points_into_the_grid_like_the_cpu() {
     let f = |i: usize| f32::from_bits(rec[i]);
     let col = |k: usize| Vec3::new(f(4 * k), f(4 * k + 1), f(4 * k + 2));
     let mut rust = Decoder::new(Limits::default());
-    rust.receive(&kf.bytes).unwrap();
+    rust.receive(&kf).unwrap();
     let inst = rust.mirror().instance(3).unwrap();
     let affine = inst.transform().unwrap().affine();
     let local = Vec3::new(0.3, -0.2, 0.7);
