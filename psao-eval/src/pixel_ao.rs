@@ -7,7 +7,7 @@
 //! not).
 
 use glam::Vec3;
-use psao_codec::{InstanceMirror, Mirror, reconstruct_ao, world_to_local};
+use psao_codec::{InstanceMirror, LocalFrame, Mirror, reconstruct_ao};
 use rayon::prelude::*;
 
 use crate::gbuffer::{GBuffer, NO_INSTANCE};
@@ -61,13 +61,14 @@ pub fn psao_image(mirror: &Mirror, g: &GBuffer) -> Result<ClientImage, SceneErro
         .into_par_iter()
         .map(|py| {
             let mut unknown = 0;
+            let mut space = PixelSpace::new(mirror);
             let row = (py * w..py * w + w)
                 .map(|k| {
                     let id = g.instance[k];
                     if id == NO_INSTANCE {
                         return 1.0;
                     }
-                    let local = pixel_local(mirror, g, k);
+                    let local = space.local(g, k);
                     match local {
                         Some((inst, (x, n))) => reconstruct_ao(inst, x, n),
                         None => {
@@ -99,15 +100,56 @@ pub(crate) fn pixel_local<'m>(
     g: &GBuffer,
     k: usize,
 ) -> Option<(&'m InstanceMirror, (Vec3, Vec3))> {
-    let id = g.instance[k];
-    if id == NO_INSTANCE {
-        return None;
+    PixelSpace::new(mirror).local(g, k)
+}
+
+/// [`pixel_local`] for a run of pixels: the last instance looked up and its
+/// world-to-local frame are kept, so neighbouring pixels of one instance
+/// take one map lookup and one matrix inverse between them (the same
+/// arithmetic as [`world_to_local`](psao_codec::world_to_local)).
+pub(crate) struct PixelSpace<'m> {
+    mirror: &'m Mirror,
+    /// The last instance id, and what the mirror holds for it: the
+    /// instance and its frame (`None` in bind space or without a usable
+    /// transform).
+    last: Option<(u32, Option<(&'m InstanceMirror, Option<LocalFrame>)>)>,
+}
+
+impl<'m> PixelSpace<'m> {
+    pub(crate) fn new(mirror: &'m Mirror) -> PixelSpace<'m> {
+        PixelSpace { mirror, last: None }
     }
-    let inst = mirror.instance(id)?;
-    if inst.def().bind_space() {
-        // Point format 1: looked up in bind space.
-        return Some((inst, (g.bind_position[k], g.bind_normal[k])));
+
+    /// As [`pixel_local`].
+    pub(crate) fn local(
+        &mut self,
+        g: &GBuffer,
+        k: usize,
+    ) -> Option<(&'m InstanceMirror, (Vec3, Vec3))> {
+        let id = g.instance[k];
+        if id == NO_INSTANCE {
+            return None;
+        }
+        let entry = match self.last {
+            Some((last, entry)) if last == id => entry,
+            _ => {
+                let entry = self.mirror.instance(id).map(|inst| {
+                    let frame = if inst.def().bind_space() {
+                        None
+                    } else {
+                        inst.transform().and_then(|t| LocalFrame::new(&t.affine()))
+                    };
+                    (inst, frame)
+                });
+                self.last = Some((id, entry));
+                entry
+            }
+        };
+        let (inst, frame) = entry?;
+        if inst.def().bind_space() {
+            // Point format 1: looked up in bind space.
+            return Some((inst, (g.bind_position[k], g.bind_normal[k])));
+        }
+        frame?.map(g.position[k], g.normal[k]).map(|x| (inst, x))
     }
-    let m = inst.transform()?.affine();
-    world_to_local(&m, g.position[k], g.normal[k]).map(|x| (inst, x))
 }

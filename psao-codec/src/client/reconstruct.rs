@@ -41,13 +41,19 @@ impl WeightParams {
 #[inline]
 pub fn weight(p: Vec3, n_p: Vec3, x: Vec3, n_x: Vec3, w: &WeightParams) -> f32 {
     let (r, t_n, t_d) = (w.radius, w.t_n, w.t_d);
-    // NaN fails every test and gives weight 0.
+    let d = p - x;
+    let dist2 = d.length_squared();
+    // Clearly beyond r: out before the square root. The margin covers the
+    // rounding of the square and the root; the exact test is below. (NaN
+    // fails every test and gives weight 0.)
+    if !(dist2 <= r * r * (1.0 + 1e-4)) {
+        return 0.0;
+    }
     let facing = n_p.dot(n_x);
     if facing.is_nan() || facing <= t_n {
         return 0.0;
     }
-    let d = p - x;
-    let dist = d.length();
+    let dist = dist2.sqrt();
     let a = (r - dist) / r;
     if a.is_nan() || a <= 0.0 {
         return 0.0;
@@ -87,7 +93,9 @@ pub fn reconstruct_ao(inst: &InstanceMirror, x: Vec3, n: Vec3) -> f32 {
     }
     // No point within r (a gap in the points' spread, or points dropped
     // from a full cell): look once more with twice the radius, over the
-    // same cells.
+    // same cells. (One sweep for both radii was measured slower: most
+    // pixels are done at r, and the shell out to 2r holds seven times the
+    // points.)
     let wide = WeightParams {
         radius: 2.0 * params.radius,
         ..params
@@ -139,18 +147,40 @@ pub fn for_each_candidate(inst: &InstanceMirror, x: Vec3, mut f: impl FnMut(Vec3
 /// Maps a world position and unit normal into instance-local space with the
 /// inverse of a local-to-world transform (normals by the transpose of the
 /// linear part, renormalized). Returns `None` for a singular or
-/// non-finite transform, or when the result is not finite.
+/// non-finite transform, or when the result is not finite. For many points
+/// of one instance, make a [`LocalFrame`] once (the same arithmetic, the
+/// inverse computed once).
 pub fn world_to_local(local_to_world: &Affine3A, pos: Vec3, normal: Vec3) -> Option<(Vec3, Vec3)> {
-    let det = local_to_world.matrix3.determinant();
-    if !det.is_finite() || det.abs() <= f32::MIN_POSITIVE {
-        return None;
+    LocalFrame::new(local_to_world)?.map(pos, normal)
+}
+
+/// The world-to-local mapping of one transform, for mapping many points:
+/// [`world_to_local`] with its inverse computed once.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LocalFrame {
+    to_local: Affine3A,
+    normal: glam::Mat3A,
+}
+
+impl LocalFrame {
+    /// The frame of a local-to-world transform; `None` when it is singular
+    /// (`|det| <= f32::MIN_POSITIVE`) or not finite.
+    pub fn new(local_to_world: &Affine3A) -> Option<LocalFrame> {
+        let det = local_to_world.matrix3.determinant();
+        if !det.is_finite() || det.abs() <= f32::MIN_POSITIVE {
+            return None;
+        }
+        Some(LocalFrame {
+            to_local: local_to_world.inverse(),
+            normal: local_to_world.matrix3.transpose(),
+        })
     }
-    let inv = local_to_world.inverse();
-    let x = inv.transform_point3(pos);
-    let n = local_to_world
-        .matrix3
-        .transpose()
-        .mul_vec3(normal)
-        .normalize_or_zero();
-    (x.is_finite() && n.is_finite()).then_some((x, n))
+
+    /// A world position and unit normal in local space; `None` when the
+    /// result is not finite.
+    pub fn map(&self, pos: Vec3, normal: Vec3) -> Option<(Vec3, Vec3)> {
+        let x = self.to_local.transform_point3(pos);
+        let n = self.normal.mul_vec3(normal).normalize_or_zero();
+        (x.is_finite() && n.is_finite()).then_some((x, n))
+    }
 }
