@@ -46,7 +46,7 @@ pub fn weight(p: Vec3, n_p: Vec3, x: Vec3, n_x: Vec3, w: &WeightParams) -> f32 {
     // Clearly beyond r: out before the square root. The margin covers the
     // rounding of the square and the root; the exact test is below. (NaN
     // fails every test and gives weight 0.)
-    if !(dist2 <= r * r * (1.0 + 1e-4)) {
+    if dist2.is_nan() || dist2 > r * r * (1.0 + 1e-4) {
         return 0.0;
     }
     let facing = n_p.dot(n_x);
