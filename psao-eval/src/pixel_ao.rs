@@ -103,16 +103,19 @@ pub(crate) fn pixel_local<'m>(
     PixelSpace::new(mirror).local(g, k)
 }
 
+/// What the mirror holds for one instance id, for its pixels: the instance
+/// and its world-to-local frame (`None` in bind space or without a usable
+/// transform); `None` when the mirror does not hold it.
+type InstanceSpace<'m> = Option<(&'m InstanceMirror, Option<LocalFrame>)>;
+
 /// [`pixel_local`] for a run of pixels: the last instance looked up and its
 /// world-to-local frame are kept, so neighbouring pixels of one instance
 /// take one map lookup and one matrix inverse between them (the same
 /// arithmetic as [`world_to_local`](psao_codec::world_to_local)).
 pub(crate) struct PixelSpace<'m> {
     mirror: &'m Mirror,
-    /// The last instance id, and what the mirror holds for it: the
-    /// instance and its frame (`None` in bind space or without a usable
-    /// transform).
-    last: Option<(u32, Option<(&'m InstanceMirror, Option<LocalFrame>)>)>,
+    /// The last instance id, and what the mirror holds for it.
+    last: Option<(u32, InstanceSpace<'m>)>,
 }
 
 impl<'m> PixelSpace<'m> {
