@@ -382,3 +382,39 @@ pub(crate) unsafe fn read_vec3(ptr: *const f32, what: &str) -> Result<glam::Vec3
     let v = unsafe { [0, 1, 2].map(|i| ptr.add(i).read_unaligned()) };
     Ok(glam::Vec3::from_array(v))
 }
+
+/// Copies `all[first..first + count]`, each element through `convert`,
+/// into `out` (an array of `count`); `PSAO_ERROR_OUT_OF_RANGE`, writing
+/// nothing, when the range is beyond `all`.
+///
+/// # Safety
+///
+/// `out` was made from a caller's array valid for writes of `count`
+/// elements.
+pub(crate) unsafe fn copy_range<S, T: Copy>(
+    all: &[S],
+    first: u32,
+    out: OutArray<T>,
+    what: &str,
+    convert: impl Fn(&S) -> T,
+) -> Result<(), Failure> {
+    let count = out.cap();
+    let start = first as usize;
+    let end = match start.checked_add(count) {
+        Some(end) if end <= all.len() => end,
+        _ => {
+            return Err(Failure::new(
+                psao_result::PSAO_ERROR_OUT_OF_RANGE,
+                format!(
+                    "{what} [{first}, {first} + {count}) beyond the instance's {}",
+                    all.len()
+                ),
+            ));
+        }
+    };
+    let mut written = 0usize;
+    let items = all[start..end].iter().map(convert);
+    // SAFETY: `out` holds `count == end - start` elements (contract);
+    // `written` is a local.
+    unsafe { out.fill_iter(end - start, items, (&mut written).into(), what) }
+}

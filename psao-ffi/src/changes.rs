@@ -4,7 +4,7 @@
 
 use psao_codec::{Change, PointWord};
 
-use crate::boundary::{OutArray, call, call_on, out_ptr, put};
+use crate::boundary::{OutArray, call, call_on, copy_range, out_ptr, put};
 use crate::decoder::psao_decoder;
 use crate::result::{Failure, psao_result};
 use crate::types::{psao_bucket_entry, psao_change, psao_change_kind, psao_point_fields};
@@ -80,42 +80,6 @@ pub unsafe extern "C" fn psao_decoder_clear_changes(decoder: *mut psao_decoder) 
     };
     // SAFETY: `decoder` is live and used by this thread only (contract).
     unsafe { call_on(decoder, body) }
-}
-
-/// Copies `all[first..first + count]`, each element through `convert`,
-/// into `out` (an array of `count`); `PSAO_ERROR_OUT_OF_RANGE`, writing
-/// nothing, when the range is beyond `all`.
-///
-/// # Safety
-///
-/// `out` was made from a caller's array valid for writes of `count`
-/// elements.
-pub(crate) unsafe fn copy_range<S, T: Copy>(
-    all: &[S],
-    first: u32,
-    out: OutArray<T>,
-    what: &str,
-    convert: impl Fn(&S) -> T,
-) -> Result<(), Failure> {
-    let count = out.cap();
-    let start = first as usize;
-    let end = match start.checked_add(count) {
-        Some(end) if end <= all.len() => end,
-        _ => {
-            return Err(Failure::new(
-                psao_result::PSAO_ERROR_OUT_OF_RANGE,
-                format!(
-                    "{what} [{first}, {first} + {count}) beyond the instance's {}",
-                    all.len()
-                ),
-            ));
-        }
-    };
-    let mut written = 0usize;
-    let items = all[start..end].iter().map(convert);
-    // SAFETY: `out` holds `count == end - start` elements (contract);
-    // `written` is a local.
-    unsafe { out.fill_iter(end - start, items, (&mut written).into(), what) }
 }
 
 /// Copies point words `[first, first + count)` of instance `id` (the

@@ -408,13 +408,3 @@ pub unsafe extern "C" fn psao_decoder_instance_gpu(
     // SAFETY: `decoder` is live and used by this thread only (contract).
     unsafe { call_on(decoder, body) }
 }
-
-/// The decoder, tables and encoder are plain data owned by one object each:
-/// they may move between threads (what "used from one thread at a time"
-/// relies on).
-const _: () = {
-    const fn assert_send<T: Send>() {}
-    assert_send::<psao_decoder>();
-    assert_send::<crate::table::psao_table>();
-    assert_send::<crate::encoder::psao_encoder>();
-};

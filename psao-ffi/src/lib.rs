@@ -84,3 +84,13 @@ pub const PSAO_WIRE_VERSION: u8 = 1;
 pub extern "C" fn psao_version() -> *const std::ffi::c_char {
     concat!(env!("CARGO_PKG_VERSION"), "\0").as_ptr().cast()
 }
+
+/// The decoder, tables and encoder are plain data owned by one object each:
+/// they may move between threads (what "used from one thread at a time"
+/// relies on).
+const _: () = {
+    const fn assert_send<T: Send>() {}
+    assert_send::<psao_decoder>();
+    assert_send::<psao_table>();
+    assert_send::<psao_encoder>();
+};

@@ -5,9 +5,9 @@
 use psao_codec::{DropReason, GridTable, Limits, Placement, Thresholds};
 
 use crate::boundary::{
-    ErrorSlot, Object, OutArray, call, call_on, give, last_error, out_ptr, put, read_in, take,
+    ErrorSlot, Object, OutArray, call, call_on, copy_range, give, last_error, out_ptr, put,
+    read_in, take,
 };
-use crate::changes::copy_range;
 use crate::result::{Failure, psao_result};
 use crate::types::{
     psao_bucket_entry, psao_drop_reason, psao_instance_def, psao_limits, psao_placement,
