@@ -255,6 +255,24 @@ fn point(i: u32, tick: u32) -> (Vec3, Vec3, f32) {
     (p, Vec3::new(a.cos(), 0.2, a.sin()), ao)
 }
 
+/// Sets points `0..count` of [`point`] at `tick` through the C API.
+fn set_points(t: *mut psao_table, count: u32, tick: u32) {
+    for i in 0..count {
+        let (p, n, ao) = point(i, tick);
+        let r = unsafe {
+            psao_table_set_point(
+                t,
+                i,
+                p.to_array().as_ptr(),
+                n.to_array().as_ptr(),
+                ao,
+                null_mut(),
+            )
+        };
+        assert_eq!(r, R::PSAO_OK);
+    }
+}
+
 fn table(d: &InstanceDef, max_points: u32) -> *mut psao_table {
     let mut t = null_mut();
     let r = unsafe { psao_table_new(3, &c_def(d), max_points, null(), &mut t) };
@@ -472,19 +490,7 @@ fn psao_event_zero() -> psao_event {
 #[test]
 fn short_buffers_get_the_length_needed_and_nothing_written() {
     let (t, e) = (table(&def(), 500), encoder(&psao_encoder_config_default()));
-    for i in 0..300 {
-        let (p, n, ao) = point(i, 0);
-        unsafe {
-            psao_table_set_point(
-                t,
-                i,
-                p.to_array().as_ptr(),
-                n.to_array().as_ptr(),
-                ao,
-                null_mut(),
-            );
-        }
-    }
+    set_points(t, 300, 0);
     unsafe {
         assert_eq!(psao_encoder_begin(e, 0), R::PSAO_OK);
         assert_eq!(
@@ -890,19 +896,7 @@ fn abort_after_taking_changes_makes_clients_see_a_gap_and_keyframes_refuse_chang
         assert_eq!(psao_encoder_snapshot(e, t), R::PSAO_OK);
     }
     receive(d, &finish(e)).unwrap();
-    for i in 0..50 {
-        let (p, n, ao) = point(i, 0);
-        unsafe {
-            psao_table_set_point(
-                t,
-                i,
-                p.to_array().as_ptr(),
-                n.to_array().as_ptr(),
-                ao,
-                null_mut(),
-            );
-        }
-    }
+    set_points(t, 50, 0);
     unsafe {
         // Changes belong in deltas.
         assert_eq!(psao_encoder_begin(e, 1), R::PSAO_OK);

@@ -41,37 +41,31 @@ using Encoder = std::unique_ptr<psao_encoder, EncoderFree>;
     std::exit(1);
 }
 
-// The message of this thread's last failed call without an object (a
-// constructor that failed has no object to keep it).
-std::string thread_error() {
+// A failure's message: this thread's last object-less call's (a
+// constructor that failed has no object to keep it), or an object's.
+std::string message(psao_result (*last_error)(char *, size_t, size_t *)) {
     char buf[512];
     size_t len = 0;
-    if (psao_last_error(buf, sizeof buf, &len) != PSAO_OK) return "(no message)";
+    if (last_error(buf, sizeof buf, &len) != PSAO_OK) return "(no message)";
     return buf;
 }
 
-std::string table_error(psao_table *t) {
+template <typename T>
+std::string message(T *object, psao_result (*last_error)(T *, char *, size_t, size_t *)) {
     char buf[512];
     size_t len = 0;
-    if (psao_table_last_error(t, buf, sizeof buf, &len) != PSAO_OK)
-        return "(no message)";
+    if (last_error(object, buf, sizeof buf, &len) != PSAO_OK) return "(no message)";
     return buf;
 }
 
-std::string encoder_error(psao_encoder *e) {
-    char buf[512];
-    size_t len = 0;
-    if (psao_encoder_last_error(e, buf, sizeof buf, &len) != PSAO_OK)
-        return "(no message)";
-    return buf;
-}
+std::string thread_error() { return message(psao_last_error); }
 
 void check(psao_result r, psao_encoder *e, const char *what) {
-    if (r != PSAO_OK) die(what, r, encoder_error(e));
+    if (r != PSAO_OK) die(what, r, message(e, psao_encoder_last_error));
 }
 
 void check(psao_result r, psao_table *t, const char *what) {
-    if (r != PSAO_OK) die(what, r, table_error(t));
+    if (r != PSAO_OK) die(what, r, message(t, psao_table_last_error));
 }
 
 struct Point {

@@ -4,24 +4,17 @@
 //! of instances or their layout changes and by the changed ranges the
 //! [`Mirror`] reports otherwise.
 
-use psao_codec::{Change, InstanceDef, Mirror, gpu_instance_record, normal_table};
+use psao_codec::{
+    Change, GPU_RECORD_WORDS, InstanceDef, Mirror, gpu_instance_record, normal_table,
+};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
 
-/// `PsaoInstance` of `reconstruct.wgsl`: the words of
-/// [`gpu_instance_record`], which computes it.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
-struct InstanceGpu {
-    to_local: [[f32; 4]; 4],
-    normal: [[f32; 4]; 3],
-    origin: [f32; 4],
-    cell_size: [f32; 4],
-    dims: [u32; 4],
-    layout: [u32; 4],
-    params: [f32; 4],
-}
+/// `PsaoInstance` of `reconstruct.wgsl`: the words
+/// [`gpu_instance_record`] computes (its documentation has the layout); an
+/// all-zero record is an instance that cannot be sampled.
+type InstanceGpu = [u32; GPU_RECORD_WORDS];
 
 /// Where one instance's arrays start in the flat buffers.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -251,13 +244,12 @@ impl GpuMirror {
     }
 
     fn table_of(slots: &[Option<Slot>], mirror: &Mirror) -> Vec<InstanceGpu> {
-        let mut table = vec![InstanceGpu::default(); slots.len().max(1)];
+        let mut table = vec![[0u32; GPU_RECORD_WORDS]; slots.len().max(1)];
         for (id, slot) in slots.iter().enumerate() {
             let (Some(slot), Some(inst)) = (slot, mirror.instance(id as u32)) else {
                 continue;
             };
-            let record = gpu_instance_record(inst, slot.first_bucket, slot.first_word);
-            table[id] = bytemuck::cast(record);
+            table[id] = gpu_instance_record(inst, slot.first_bucket, slot.first_word);
         }
         table
     }
