@@ -260,13 +260,21 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
     let cube = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../psao-scene/tests/data/AnimatedMorphCube.glb");
     let morph = stage(load_gltf(&cube).unwrap()).unwrap();
-    for (name, scene) in [("default", default_scene()), ("morph cube", morph)] {
+    // Settling (the AO of every traced point read back and compared on
+    // the host) and a lead, on the default scene.
+    for (name, scene, settle_steps, lead) in [
+        ("default", default_scene(), 0, 0.0),
+        ("default, settling, lead", default_scene(), 1, 1.0 / 30.0),
+        ("morph cube", morph, 0, 0.0),
+    ] {
         let config = PipelineConfig {
             density: 16.0,
             ao: AoParams {
                 rays: 16,
                 ..AoParams::default()
             },
+            settle_steps,
+            lead,
             ..PipelineConfig::default()
         };
         let mut cpu = Pipeline::new(scene.clone(), config.clone()).unwrap();
@@ -279,17 +287,20 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
         );
         assert_eq!(cpu.keyframe().unwrap().bytes, gpu.keyframe().unwrap().bytes);
         // The same points are traced and the same dirty sets sent.
-        let (mut traced, mut deformed) = (0, 0);
+        let (mut traced, mut deformed, mut settled) = (0, 0, 0);
         for _ in 0..20 {
             let (a, ra) = cpu.step(1.0 / 30.0).unwrap();
             let (b, rb) = gpu.step(1.0 / 30.0).unwrap();
             assert_eq!(ra.traced, rb.traced, "{name}");
             assert_eq!(ra.updated, rb.updated, "{name}: dirty sets differ");
+            assert_eq!(ra.settled, rb.settled, "{name}");
+            settled += rb.settled;
             assert_eq!(a.map(|f| f.bytes), b.map(|f| f.bytes), "{name}");
             traced += rb.traced;
             deformed += rb.deformed;
         }
         assert!(traced > 0 && deformed > 0, "{name}: {traced} {deformed}");
+        assert_eq!(settled > 0, settle_steps > 0, "{name}: {settled} settled");
     }
 }
 

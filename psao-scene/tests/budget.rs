@@ -1,6 +1,8 @@
 //! The ray budget and ray reuse (issue 20): rays motion cannot reach are
 //! not cast again, frames stay byte-identical, and under a budget no point
-//! waits longer than `max_wait` steps.
+//! waits longer than `max_wait` steps. Settling and the lead (issue 15):
+//! where motion has passed, clients hold what a full trace gives, to the
+//! quantization; a lead poses the scene ahead of the clock.
 
 use glam::{Affine3A, Vec3};
 use psao_codec::PointWord;
@@ -41,17 +43,28 @@ fn reused_rays_give_the_same_frames_byte_for_byte() {
         (default_scene(), "default"),
         (cesium_man_scene(), "cesium man"),
     ] {
-        for est in [Estimator::ClosestHit, Estimator::LaineKarras] {
-            let (a, ra) = run(&scene, config(est), 24);
+        for (est, settle) in [
+            (Estimator::ClosestHit, 0),
+            (Estimator::ClosestHit, 1),
+            (Estimator::LaineKarras, 0),
+        ] {
+            let c = PipelineConfig {
+                settle_steps: settle,
+                ..config(est)
+            };
+            let (a, ra) = run(&scene, c.clone(), 24);
             let (b, rb) = run(
                 &scene,
                 PipelineConfig {
                     ray_reuse: false,
-                    ..config(est)
+                    ..c
                 },
                 24,
             );
-            assert!(a == b, "{name} {est:?}: ray reuse changed a frame");
+            assert!(
+                a == b,
+                "{name} {est:?} settle {settle}: ray reuse changed a frame"
+            );
             let (rays_a, rays_b) = (total(&ra, |r| r.rays), total(&rb, |r| r.rays));
             assert!(
                 rays_a * 10 < rays_b * 9,
@@ -62,6 +75,8 @@ fn reused_rays_give_the_same_frames_byte_for_byte() {
             if est == Estimator::ClosestHit {
                 assert!(total(&ra, |r| r.rays_kept) > 0, "{name}: scores kept");
             }
+            // Settled points are in these frames, when asked for.
+            assert_eq!(total(&ra, |r| r.settled) > 0, settle > 0, "{name} {est:?}");
             assert!(ra.iter().all(|r| r.waiting == 0 && r.budget.is_none()));
         }
     }
@@ -161,5 +176,117 @@ fn an_automatic_budget_is_measured_and_reported() {
         let (_, r) = p.step(1.0 / 60.0).unwrap();
         assert!(r.budget.is_some(), "{r:?}");
         assert!(r.oldest_wait <= max_wait, "{r:?}");
+    }
+}
+
+/// The box slides across the floor and comes to rest; one step later,
+/// what clients hold of every point of both (floor and box) against a
+/// full trace of the scene as it is now: the largest AO difference.
+fn held_error_after_the_box_rests(c: PipelineConfig) -> f32 {
+    let (scene, b) = sliding_box();
+    let ao = c.ao;
+    let mut p = Pipeline::new(scene, c).unwrap();
+    for t in 0..24 {
+        if t < 20 {
+            let x = -1.5 + 0.15 * t as f32;
+            p.place_instance(b, Affine3A::from_translation(Vec3::new(x, 0.0, 0.0)))
+                .unwrap();
+        }
+        p.step(1.0 / 30.0).unwrap();
+    }
+    let floor = p.points(0).unwrap().len() as u32;
+    worst_held_error(&mut p, 0, 0, &ao).max(worst_held_error(&mut p, b, floor, &ao))
+}
+
+#[test]
+fn where_motion_has_passed_clients_hold_a_full_trace_to_the_quantization() {
+    let c = PipelineConfig {
+        settle_steps: 1,
+        ..config(Estimator::ClosestHit)
+    };
+    let settled = held_error_after_the_box_rests(c.clone());
+    // Half a step of 1/255 (the quantization), and float rounding.
+    assert!(
+        settled <= 0.51 / 255.0,
+        "held AO off by {}",
+        settled * 255.0
+    );
+    // Without settling the send threshold's worth stays behind (this test
+    // fails on the code before it).
+    let unsettled = held_error_after_the_box_rests(PipelineConfig {
+        settle_steps: 0,
+        ..c
+    });
+    assert!(
+        unsettled > 1.5 / 255.0,
+        "the baseline holds AO within {} steps",
+        unsettled * 255.0
+    );
+}
+
+#[test]
+fn settling_sends_each_point_once_and_casts_no_ray_for_it() {
+    let (scene, b) = sliding_box();
+    let c = PipelineConfig {
+        settle_steps: 1,
+        ..config(Estimator::ClosestHit)
+    };
+    let mut p = Pipeline::new(scene, c).unwrap();
+    let mut reports = Vec::new();
+    for t in 0..30 {
+        if t < 10 {
+            let x = -1.5 + 0.3 * t as f32;
+            p.place_instance(b, Affine3A::from_translation(Vec3::new(x, 0.0, 0.0)))
+                .unwrap();
+        }
+        reports.push(p.step(1.0 / 30.0).unwrap().1);
+    }
+    assert!(total(&reports, |r| r.settled) > 0, "points settled");
+    // The step after the box rests traces nothing: what it sends is
+    // settled from the last trace, with no ray cast.
+    let rest = &reports[10];
+    assert_eq!((rest.traced, rest.rays), (0, 0), "{rest:?}");
+    assert!(rest.settled > 0 && rest.updated >= rest.settled, "{rest:?}");
+    // After that, a still scene sends nothing.
+    for r in &reports[11..] {
+        assert_eq!((r.traced, r.updated, r.settled), (0, 0, 0), "{r:?}");
+    }
+}
+
+#[test]
+fn a_lead_poses_the_scene_ahead_of_the_clock() {
+    let (scene, b) = sliding_box();
+    // The box slides 3 m in 2/3 s: 4.5 m/s.
+    let x_at = |t: f32| -1.5 + 4.5 * t;
+    let lead = 0.1;
+    let mut p = Pipeline::new(
+        scene.clone(),
+        PipelineConfig {
+            lead,
+            ..config(Estimator::ClosestHit)
+        },
+    )
+    .unwrap();
+    let x = |p: &Pipeline| p.transform(b).unwrap().translation.x;
+    assert!((x(&p) - x_at(lead)).abs() < 1e-4, "setup at {}", x(&p));
+    p.step(0.2).unwrap();
+    assert!((p.time() - 0.2).abs() < 1e-6);
+    assert!((p.posed_time() - 0.3).abs() < 1e-6);
+    assert!((x(&p) - x_at(0.3)).abs() < 1e-4, "step at {}", x(&p));
+    // No lead: the clock's own pose.
+    let mut q = Pipeline::new(scene, config(Estimator::ClosestHit)).unwrap();
+    q.step(0.2).unwrap();
+    assert!((x(&q) - x_at(0.2)).abs() < 1e-4);
+    // A lead must be finite, in [0, 1000] s.
+    for bad in [-0.1, f32::NAN, f32::INFINITY, 2000.0] {
+        let err = Pipeline::new(
+            sliding_box().0,
+            PipelineConfig {
+                lead: bad,
+                ..config(Estimator::ClosestHit)
+            },
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("lead"), "{bad}: {err}");
     }
 }

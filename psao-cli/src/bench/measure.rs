@@ -10,7 +10,10 @@
 //!   R Hz; at a client frame at time t the client holds the frames of every
 //!   tick up to `floor((t - 1/R - network) R) / R` and reconstructs with the
 //!   last transforms it received (so lower rates are staler, as in the
-//!   paper's latency video);
+//!   paper's latency video); the server poses its scene that far ahead of
+//!   each tick (one period plus the network's delay: the pipeline's
+//!   `lead`), so what the client holds is the pose it draws, unless
+//!   `lead` is off;
 //! - RTAO-k: k closest-hit rays per pixel (another seed than the
 //!   reference's);
 //! - SAO: the screen-space baseline on the G-buffer's depth.
@@ -34,12 +37,17 @@ use psao_eval::{
     NO_INSTANCE, PosedScene, SaoParams, View, psao_image, ray_traced_ao, rmse, sao, ssim,
 };
 use psao_scene::{
-    AoBackend, AoParams, Camera, Estimator, Pipeline, RayBudget, Scene, SetupProgress, SetupStage,
+    AoBackend, AoParams, Camera, Estimator, Pipeline, PipelineConfig, RayBudget, Scene,
+    SetupProgress, SetupStage,
 };
 
 use super::Backend;
 use super::images;
 use super::model::{Breakdown, Frame, Method, Row, SceneResult, Showcase, Shown};
+
+/// Ticks an unbudgeted server steps one by one before each measured
+/// frame (the rest of the way there in one step).
+pub const WARM_TICKS: u64 = 4;
 
 /// Client frames per second: frame times lie on this grid.
 pub const CLIENT_HZ: f64 = 60.0;
@@ -95,6 +103,15 @@ pub struct Settings {
     /// small meshes spawn a few points (else elimination's points alone:
     /// the baseline).
     pub fill_gaps: bool,
+    /// PSAO servers pose the scene one period plus `network_ms` ahead of
+    /// each tick, the time its frame is shown
+    /// ([`PipelineConfig::lead`](psao_scene::PipelineConfig::lead)), or at
+    /// the tick itself (false: the baseline, a period or more behind).
+    pub lead: bool,
+    /// PSAO servers' [`PipelineConfig::settle_steps`](psao_scene::PipelineConfig::settle_steps)
+    /// (0: points stay within the send threshold where motion passed, the
+    /// baseline).
+    pub settle_steps: u8,
     /// A ray budget for the servers of extra PSAO configurations, one per
     /// density at the first rate ("PSAO-N @R Hz budget"), beside the
     /// unbudgeted ones (`None`: none). With one, every PSAO server steps
@@ -200,6 +217,8 @@ impl Settings {
             bind_space: true,
             overflow: true,
             fill_gaps: true,
+            lead: true,
+            settle_steps: PipelineConfig::default().settle_steps,
             budget: None,
             max_wait: 8,
             image_frames: ImageFrames::List(vec![0]),
@@ -689,6 +708,11 @@ fn measure_psao(
     config.bind_space = s.bind_space;
     config.layout.overflow = s.overflow;
     config.fill_gaps = s.fill_gaps;
+    let period = 1.0 / rate as f64;
+    config.settle_steps = s.settle_steps;
+    if s.lead {
+        config.lead = (period + s.network_ms as f64 / 1e3) as f32;
+    }
     let started = Instant::now();
     say("setup");
     let backend = match s.backend {
@@ -705,7 +729,6 @@ fn measure_psao(
     let points: usize = (0..pipeline.instance_count())
         .filter_map(|i| pipeline.points(i).map(|p| p.len()))
         .sum();
-    let period = 1.0 / rate as f64;
     let (mut errors, mut ms, mut unknown) = (Errors::default(), 0.0, 0usize);
     let mut open = psao_eval::OpenReasons::default();
     let mut worst_wait = 0u32;
@@ -726,14 +749,20 @@ fn measure_psao(
         }
         if dt > 1e-6 {
             // With a budget in the run, every server steps tick by tick (a
-            // budget is per tick); else in one step to the frame's tick.
-            let steps = if s.budget.is_some() {
-                ((dt / period).round() as u64).max(1)
+            // budget is per tick); else in one step to WARM_TICKS ticks
+            // before the frame's, then tick by tick, so that what the
+            // last ticks do (the settle pass a tick after motion leaves a
+            // point) is as at the rate.
+            let ticks = ((dt / period).round() as u64).max(1);
+            let mut steps = Vec::new();
+            if s.budget.is_some() || ticks <= WARM_TICKS {
+                steps.resize(ticks as usize, dt / ticks as f64);
             } else {
-                1
-            };
-            for _ in 0..steps {
-                let (frame, r) = pipeline.step((dt / steps as f64) as f32)?;
+                steps.push(dt - WARM_TICKS as f64 * period);
+                steps.resize(WARM_TICKS as usize + 1, period);
+            }
+            for step in steps {
+                let (frame, r) = pipeline.step(step as f32)?;
                 worst_wait = worst_wait.max(r.oldest_wait);
                 if let Some(frame) = frame {
                     client.receive(&frame.bytes).context("frame")?;

@@ -16,7 +16,7 @@ use std::path::PathBuf;
 
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressStyle};
-use psao_scene::{AoParams, Scene, load_scene_file, stage};
+use psao_scene::{AoParams, PipelineConfig, Scene, load_scene_file, stage};
 
 use crate::cmd::common::Embedded;
 
@@ -137,6 +137,18 @@ pub struct BenchArgs {
     /// and spawning a few points on meshes smaller than two points' area.
     #[arg(long)]
     no_gap_fill: bool,
+    /// Servers trace each tick's scene at the tick's own time (the
+    /// baseline: what a client holds is a period or more behind what it
+    /// draws) instead of one period plus --network-ms ahead, the time the
+    /// tick's frame is shown.
+    #[arg(long)]
+    no_lead: bool,
+    /// Servers send a point whose AO stopped changing (or that motion has
+    /// left) once it is this many 1/255 steps from what clients hold, below
+    /// the send threshold (0: never, the baseline: the threshold's worth of
+    /// error stays behind where motion passed).
+    #[arg(long, default_value_t = PipelineConfig::default().settle_steps)]
+    settle_steps: u8,
     /// Add, per density, a PSAO configuration whose server traces within
     /// this ray budget (`auto`: what 80% of the period affords on this
     /// machine; or a number of rays per tick), beside the unbudgeted ones.
@@ -181,6 +193,8 @@ impl BenchArgs {
         settings.bind_space = !self.posed_deforming;
         settings.overflow = !self.no_overflow;
         settings.fill_gaps = !self.no_gap_fill;
+        settings.lead = !self.no_lead;
+        settings.settle_steps = self.settle_steps;
         settings.budget = self.ray_budget;
         settings.max_wait = self.max_wait;
         settings
@@ -317,6 +331,8 @@ mod tests {
             assert_eq!(got.rates, want.rates);
             assert_eq!(got.radius, want.radius);
             assert_eq!(got.network_ms, want.network_ms);
+            assert_eq!(got.lead, want.lead);
+            assert_eq!(got.settle_steps, want.settle_steps);
             assert_eq!(got.image_frames, ImageFrames::List(vec![0]));
             assert_eq!(got.backend, Backend::Cpu);
         }

@@ -83,7 +83,7 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}; {}; {}; {}); client times are the AO work per frame on {} threads.\n",
+        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}; {}; {}; {}; {}; {}); client times are the AO work per frame on {} threads.\n",
         s.width,
         s.height,
         s.frames,
@@ -113,6 +113,18 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
             "gaps on thin strips filled"
         } else {
             "elimination's points alone: --no-gap-fill"
+        },
+        if s.lead {
+            "the scene posed one period plus the network's delay ahead of each tick"
+        } else {
+            "the scene posed at each tick: --no-lead"
+        },
+        match s.settle_steps {
+            0 => "points motion has left held within the send threshold: --settle-steps 0"
+                .to_string(),
+            n => format!(
+                "points whose AO stopped changing sent {n} or more steps (1/255) from what clients hold"
+            ),
         },
         std::thread::available_parallelism().map_or(1, |n| n.get())
     );

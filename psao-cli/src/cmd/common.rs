@@ -196,6 +196,51 @@ impl BudgetArgs {
     }
 }
 
+/// How far ahead of its clock a server poses the scene
+/// ([`PipelineConfig::lead`]).
+#[derive(clap::Args, Clone, Debug)]
+pub struct LeadArgs {
+    /// Milliseconds the server poses the scene's animation ahead of each
+    /// frame's tick, so that a frame shows the pose its clients draw when
+    /// it arrives: `auto` (one frame period, the time a frame takes to be
+    /// traced and sent), or a number (add the network's delay; 0: the
+    /// tick's own pose, a period or more behind on the client).
+    #[arg(long, default_value = "auto", value_parser = parse_lead)]
+    pub lead_ms: Lead,
+}
+
+/// A `--lead-ms` value.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Lead {
+    /// One frame period.
+    Auto,
+    /// This many milliseconds.
+    Millis(f32),
+}
+
+/// Parses `--lead-ms`: `auto` or milliseconds in [0, 10000].
+pub fn parse_lead(s: &str) -> Result<Lead, String> {
+    if s == "auto" {
+        return Ok(Lead::Auto);
+    }
+    match s.parse::<f32>() {
+        Ok(ms) if (0.0..=10_000.0).contains(&ms) => Ok(Lead::Millis(ms)),
+        _ => Err(format!(
+            "expected auto or milliseconds in [0, 10000], not {s:?}"
+        )),
+    }
+}
+
+impl LeadArgs {
+    /// The lead in seconds at `rate` frames a second.
+    pub fn seconds(&self, rate: u16) -> f32 {
+        match self.lead_ms {
+            Lead::Auto => 1.0 / rate.max(1) as f32,
+            Lead::Millis(ms) => ms / 1e3,
+        }
+    }
+}
+
 /// The pipeline settings of `--density`, `--rays` and `--radius`. Every
 /// command's `--density` counts points kept per square metre, the paper's
 /// N (as `psao bench --densities` does); the pipeline spawns twice as many

@@ -59,6 +59,8 @@ pub struct Args {
     camera: CameraArgs,
     #[command(flatten)]
     budget: super::common::BudgetArgs,
+    #[command(flatten)]
+    lead: super::common::LeadArgs,
     /// A mirror digest (spec/session.md 3.8) every this many frames to
     /// each client, which checks it (0: no digests).
     #[arg(long, default_value_t = psao_proto::server::DIGEST_INTERVAL)]
@@ -79,6 +81,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         cull,
         camera,
         budget,
+        lead,
         digest_interval,
     } = args;
     if !(seconds > 0.0 && seconds <= 3600.0) {
@@ -101,6 +104,8 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         ..pipeline_config(density, rays, radius)
     };
     budget.apply(&mut pipeline);
+    pipeline.lead = lead.seconds(rate);
+    let lead = pipeline.lead;
     println!("psao demo: preparing the default scene (points, grids, first trace)...");
     let t = Instant::now();
     let pipeline = pipeline_with_progress(scene, pipeline)?;
@@ -180,7 +185,8 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         }
         while shots.due(frames, total) {
             let mirror = handles[0].with_session(|s| s.mirror().clone());
-            let line = shots.take(mirror, t).await?;
+            // The mirror holds the scene posed `lead` ahead of its tick.
+            let line = shots.take(mirror, t + lead).await?;
             bar.println(line);
         }
         if frames >= total {

@@ -70,6 +70,8 @@ pub struct Args {
     no_overflow: bool,
     #[command(flatten)]
     budget: super::common::BudgetArgs,
+    #[command(flatten)]
+    lead: super::common::LeadArgs,
 }
 
 /// What the server holds for the scene, in a line: triangles, instances
@@ -130,6 +132,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     };
     pipeline.layout.overflow = !args.no_overflow;
     args.budget.apply(&mut pipeline);
+    pipeline.lead = args.lead.seconds(args.rate);
     for w in super::common::scale_warnings(&scene, args.density, args.radius)? {
         eprintln!("warning: {w}");
     }

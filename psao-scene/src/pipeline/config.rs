@@ -137,6 +137,27 @@ pub struct PipelineConfig {
     /// Under a budget, the most steps a point waits: one that waited this
     /// long is traced whatever the budget (8).
     pub max_wait: u32,
+    /// Seconds the scene is posed ahead of the pipeline's clock: a step
+    /// to time `t` traces and sends the scene's animation (and its camera
+    /// path, for culling) at `t + lead`, so a frame that reaches its
+    /// clients `lead` after its tick shows the pose they draw then, not
+    /// the one of a tick earlier. A server sets it to its period plus the
+    /// network's delay; placements
+    /// ([`place_instance`](crate::Pipeline::place_instance)) are not
+    /// predicted and apply as they come. 0: the scene at the clock's time.
+    pub lead: f32,
+    /// A point whose trace gives the AO its last trace gave (motion
+    /// changes it no more), or that motion has just left (it is not traced
+    /// again: it keeps that AO), is sent if its AO is this many 1/255
+    /// steps or more from what clients hold, however far below the send
+    /// threshold: without this the threshold's worth of error stays behind
+    /// wherever motion passed (1: to the quantization; 0: off, the
+    /// default). No ray is cast for it, and frames stay the same with or
+    /// without ray reuse. It pays where AO is near white and motion is
+    /// fast (a spinning triangle: +14 dB), and costs bytes for little
+    /// elsewhere (+27-90% bit rate for 0.0-0.1 dB on the bench's animated
+    /// scenes; BENCHMARKS.md), so it is off unless asked for.
+    pub settle_steps: u8,
 }
 
 impl PipelineConfig {
@@ -171,6 +192,8 @@ impl Default for PipelineConfig {
             ray_cache_bytes: 64 << 20,
             budget: RayBudget::Unlimited,
             max_wait: 8,
+            lead: 0.0,
+            settle_steps: 0,
             split_bvh: true,
             cull: None,
             fill_buried: true,

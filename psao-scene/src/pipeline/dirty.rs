@@ -6,7 +6,7 @@
 use std::time::Duration;
 
 use glam::{Affine3A, Vec3};
-use psao_codec::SentPoint;
+use psao_codec::{SentPoint, Thresholds};
 use rayon::prelude::*;
 
 use super::Pipeline;
@@ -17,6 +17,7 @@ use crate::error::SceneError;
 use crate::model::pose::normal_matrix;
 use crate::morton::morton_order;
 use crate::trace::ao::{AoResult, AoTracer, ChangedPoints, PointRays, ao_of_scores};
+use psao_codec::wire::point::{dequantize_ao, quantize_ao};
 
 /// What a step's motion means for tracing ([`Pipeline::trace_step`]).
 pub(super) struct StepMotion {
@@ -40,6 +41,15 @@ pub(super) struct StepTrace {
     pub rays_kept: u64,
     pub budget: Option<u64>,
     pub overdue: u64,
+    pub settled: u64,
+}
+
+/// What [`Pipeline::settle_left`] did.
+pub(super) struct Settled {
+    /// Per instance, whether any of its points was set.
+    pub touched: Vec<bool>,
+    /// Points set.
+    pub updated: u64,
 }
 
 /// How one point is traced this step.
@@ -100,7 +110,8 @@ impl Pipeline {
     ) -> Result<(u64, u64, u64), SceneError> {
         let traced = self.traced_only(which);
         let batch = self.batch(traced.as_deref().unwrap_or(which), force);
-        let result = self.trace_batch(tracer, &batch, force)?;
+        let th = self.config.thresholds;
+        let result = self.trace_batch(tracer, &batch, force, &th)?;
         self.apply(&batch.owner, &result)?;
         let filled = if traced.is_some() && !force {
             let touched: Vec<bool> = which.iter().map(|w| !w.is_empty()).collect();
@@ -211,12 +222,20 @@ impl Pipeline {
         let sub = batch.select(&take);
         let sub_plans: Vec<&Plan> = take.iter().map(|&b| &plans[b]).collect();
         let casting = std::time::Instant::now();
-        let result = if self.backend.is_some() {
-            self.trace_batch(tracer, &sub, false)?
+        let th = self.config.thresholds;
+        let settling = self.config.settle_steps > 0;
+        let (result, settled) = if self.backend.is_some() && !settling {
+            // Compared where it was traced.
+            (self.trace_batch(tracer, &sub, false, &th)?, 0)
         } else {
-            let owned = tracer.is_none().then(|| self.tracer(false));
-            let tracer = tracer.or(owned.as_ref()).expect("a tracer");
-            self.trace_planned(tracer, &sub, &sub_plans)?
+            let values = if self.backend.is_some() {
+                self.trace_values(&sub)?
+            } else {
+                let owned = tracer.is_none().then(|| self.tracer(false));
+                let tracer = tracer.or(owned.as_ref()).expect("a tracer");
+                self.trace_planned(tracer, &sub, &sub_plans)?
+            };
+            self.compare_remembered(&values, &sub)?
         };
         let (traced, rays_cast) = (sub.ids.len() as u64, result.rays);
         if rays_cast >= 1024 {
@@ -237,7 +256,11 @@ impl Pipeline {
             })
             .sum();
         self.apply(&sub.owner, &result)?;
-        let touched: Vec<bool> = lists.iter().map(|w| !w.is_empty()).collect();
+        let settle = self.settle_left(&sub.owner)?;
+        let mut touched: Vec<bool> = lists.iter().map(|w| !w.is_empty()).collect();
+        for (t, s) in touched.iter_mut().zip(&settle.touched) {
+            *t |= *s;
+        }
         let filled = if self.instances.iter().any(|s| !s.buried.ids.is_empty()) {
             self.fill_buried(&touched, false)?
         } else {
@@ -246,12 +269,117 @@ impl Pipeline {
         Ok(StepTrace {
             traced,
             rays: rays_cast,
-            updated: result.changed.len() as u64 + filled,
+            updated: result.changed.len() as u64 + settle.updated + filled,
+            settled: settled + settle.updated,
             unreached,
             rays_kept: (traced * rays as u64).saturating_sub(planned),
             budget,
             overdue,
         })
+    }
+
+    /// Compares the AO `values` traced for `batch` with what clients hold,
+    /// and remembers them as each point's last trace. A point goes out when
+    /// it passes the thresholds, or when it has *settled*: its trace gave
+    /// the same AO (to the quantization) as the one before, so motion
+    /// changes it no more, and that is at least
+    /// [`settle_steps`](super::PipelineConfig::settle_steps) from what
+    /// clients hold. (A point whose rays motion no longer reaches is not
+    /// traced again, and [`settle_left`](Self::settle_left) settles it the
+    /// same way, so frames do not depend on ray reuse.)
+    fn compare_remembered(
+        &mut self,
+        values: &AoResult,
+        batch: &Batch,
+    ) -> Result<(ChangedPoints, u64), SceneError> {
+        let th = self.config.thresholds;
+        let steps = self.config.settle_steps;
+        let mut settle = th;
+        settle.ao_steps = th.ao_steps.min(steps.saturating_sub(1));
+        let repeated: Vec<bool> = batch
+            .owner
+            .iter()
+            .zip(&values.ao)
+            .map(|(&(i, k), &ao)| {
+                let q = quantize_ao(ao);
+                match self.instances[i].last_ao.get_mut(k as usize) {
+                    Some(last) => std::mem::replace(last, q) == q,
+                    None => false,
+                }
+            })
+            .collect();
+        let out = ChangedPoints::compare_each(values, &batch.sent, |b| {
+            if steps > 0 && repeated[b] { settle } else { th }
+        })?;
+        // Those the thresholds alone would not have sent.
+        let settled = out
+            .changed
+            .iter()
+            .zip(&out.ao)
+            .filter(|&(&b, &ao)| !batch.sent[b as usize].changed(ao, &th))
+            .count() as u64;
+        Ok((out, settled))
+    }
+
+    /// Traces `batch` on the backend (placed first) and reads every AO
+    /// back, for [`compare_remembered`](Self::compare_remembered).
+    fn trace_values(&mut self, batch: &Batch) -> Result<AoResult, SceneError> {
+        let ao = self.config.ao;
+        let transforms: Vec<Affine3A> = self.instances.iter().map(|s| s.transform).collect();
+        let vertices: Vec<Option<&[Vec3]>> = self
+            .instances
+            .iter()
+            .map(|s| (!s.vertices.is_empty()).then_some(s.vertices.as_slice()))
+            .collect();
+        let backend = self.backend.as_mut().expect("a backend");
+        backend.place(&transforms, &vertices)?;
+        backend.trace_ids(&batch.ids, &batch.points, &batch.normals, &ao)
+    }
+
+    /// Settles the points the last step traced and this one left alone
+    /// (motion no longer reaches them; they wait neither for the budget
+    /// nor for a view): nothing has changed what their last trace gave
+    /// ([`compare_remembered`](Self::compare_remembered) keeps it), so that
+    /// value is set, with no ray cast, where it is
+    /// [`settle_steps`](super::PipelineConfig::settle_steps) or more from
+    /// what clients hold. `now`: the points this step traced (the next
+    /// step's last ones).
+    pub(super) fn settle_left(&mut self, now: &[(usize, u32)]) -> Result<Settled, SceneError> {
+        let mut keys: Vec<u64> = now.iter().map(|&(i, k)| key(i, k)).collect();
+        keys.sort_unstable();
+        let last = std::mem::replace(&mut self.last_traced, keys);
+        let mut out = Settled {
+            touched: vec![false; self.instances.len()],
+            updated: 0,
+        };
+        let steps = self.config.settle_steps;
+        if steps == 0 {
+            self.last_traced.clear();
+            return Ok(out);
+        }
+        for k in last {
+            if self.last_traced.binary_search(&k).is_ok() || self.waiting.get(k).is_some() {
+                continue;
+            }
+            let (i, p) = ((k >> 32) as usize, k as u32);
+            let Some(s) = self.instances.get_mut(i) else {
+                continue;
+            };
+            let at = p as usize;
+            if s.pending.get(at).copied().unwrap_or(false) || at >= s.last_ao.len() {
+                continue;
+            }
+            let q = s.last_ao[at];
+            let (positions, normals) = s.stored();
+            let (pos, nrm) = (positions[at], normals[at]);
+            let held = s.table.sent(p, pos, nrm);
+            if held.word.is_allocated() && held.word.fields().ao.abs_diff(q) >= steps {
+                s.table.set_point(p, pos, nrm, dequantize_ao(q))?;
+                out.touched[i] = true;
+                out.updated += 1;
+            }
+        }
+        Ok(out)
     }
 
     /// How each point of `batch` is traced this step: in full for a moving
@@ -327,7 +455,7 @@ impl Pipeline {
         tracer: &AoTracer,
         batch: &Batch,
         plans: &[&Plan],
-    ) -> Result<ChangedPoints, SceneError> {
+    ) -> Result<AoResult, SceneError> {
         let ao = self.config.ao;
         ao.validate()?;
         let rays = ao.rays as usize;
@@ -389,7 +517,7 @@ impl Pipeline {
                 }
             }
         }
-        ChangedPoints::compare(&result, &batch.sent, &self.config.thresholds)
+        Ok(result)
     }
 
     /// The listed points of each instance in world space, with what clients
@@ -447,9 +575,10 @@ impl Pipeline {
         tracer: Option<&AoTracer>,
         batch: &Batch,
         force: bool,
+        th: &Thresholds,
     ) -> Result<ChangedPoints, SceneError> {
         let (ids, pts, nrm, sent) = (&batch.ids, &batch.points, &batch.normals, &batch.sent);
-        let (ao, th) = (self.config.ao, self.config.thresholds);
+        let (ao, th) = (self.config.ao, *th);
         Ok(match (&mut self.backend, tracer) {
             (Some(backend), _) => {
                 let transforms: Vec<Affine3A> =

@@ -89,6 +89,9 @@ struct InstanceState {
     dynamic: bool,
     /// Points waiting to be traced until they come into view.
     pending: Vec<bool>,
+    /// Each point's AO as its last trace gave it, quantized (what the
+    /// settle rule compares with; the held AO after setup).
+    last_ao: Vec<u8>,
     /// Its own BVH in local space (dynamic instances, split BVH): moved by
     /// its transform, refitted when it deforms.
     bvh: Option<Arc<TriangleBvh>>,
@@ -166,6 +169,7 @@ impl InstanceState {
             + self.joints.capacity() as u64 * std::mem::size_of::<Affine3A>() as u64
             + self.weights.capacity() as u64 * 4
             + self.pending.capacity() as u64
+            + self.last_ao.capacity() as u64
             + self.table.memory_bytes()
             + self.buried.memory_bytes()
     }
@@ -224,6 +228,9 @@ pub struct Pipeline {
     ray_cache: ray_cache::RayCache,
     /// Points the ray budget put off to a later step.
     waiting: budget::Waiting,
+    /// Keys of the points the last step traced (sorted): those the next
+    /// leaves alone are settled.
+    last_traced: Vec<u64>,
     /// Nanoseconds a ray costs, measured over the last steps (from setup's
     /// trace at first): what an automatic budget divides by.
     ray_ns: f64,
@@ -316,7 +323,8 @@ impl Pipeline {
     /// Generates points for every instance, lays out their grids and traces
     /// every point once (the state the first keyframe carries). Refuses a
     /// scene that f32 cannot place finely enough for its AO radius and
-    /// point spacing ([`check_precision`], in the pose at time 0).
+    /// point spacing ([`check_precision`], in the first pose: time 0 plus the
+    /// [`lead`](PipelineConfig::lead)).
     pub fn new(scene: Scene, config: PipelineConfig) -> Result<Pipeline, SceneError> {
         Pipeline::build(scene, config, None, &|_| {})
     }
@@ -363,6 +371,7 @@ impl Pipeline {
         if let config::RayBudget::Auto { share } = config.budget {
             check_param("budget share", share as f64, 1e-6, 1.0, "in (0, 1]")?;
         }
+        check_param("lead", config.lead as f64, 0.0, 1e3, "in [0, 1000] seconds")?;
         check_param(
             "max_wait",
             config.max_wait as f64,
@@ -376,7 +385,7 @@ impl Pipeline {
             check_param("cull.margin", c.margin as f64, 0.0, 1e9, "in [0, 1e9]")?;
         }
         let dynamic = scene.dynamic_instances();
-        let pose = scene.pose(0.0);
+        let pose = scene.pose(config.lead);
         check_density(config.density)?;
         let area_scales = area_scales(&scene, &pose);
         let estimated = estimated_points(&scene, &area_scales, config.density);
@@ -469,6 +478,7 @@ impl Pipeline {
                 } else {
                     Vec::new()
                 },
+                last_ao: vec![u8::MAX; points.len()],
                 points,
                 positions,
                 normals,
@@ -525,6 +535,7 @@ impl Pipeline {
             views: Views::CameraPath,
             ray_cache,
             waiting: budget::Waiting::default(),
+            last_traced: Vec::new(),
             ray_ns: 0.0,
         };
         if pipeline.config.fill_buried {
@@ -595,6 +606,19 @@ impl Pipeline {
         for s in &mut pipeline.instances {
             s.table.take_dirty();
             s.table.shrink_to_fit();
+            // The first trace set every point: what it gave is held.
+            let (positions, normals) = s.stored();
+            let held: Vec<u8> = (0..positions.len())
+                .map(|k| {
+                    let w = s.table.sent(k as u32, positions[k], normals[k]).word;
+                    if w.is_allocated() {
+                        w.fields().ao
+                    } else {
+                        u8::MAX
+                    }
+                })
+                .collect();
+            s.last_ao = held;
         }
         Ok(pipeline)
     }

@@ -35,6 +35,11 @@ pub struct FrameReport {
     pub overdue: u64,
     /// Points whose change passed the thresholds (set in their table).
     pub updated: u64,
+    /// Points sent because they settled below the send threshold (their
+    /// AO stopped changing,
+    /// [`PipelineConfig::settle_steps`](crate::PipelineConfig::settle_steps)),
+    /// counted in `updated` too.
+    pub settled: u64,
     /// Transforms sent.
     pub transforms: u32,
     /// Skinned instances whose pose changed.
@@ -76,6 +81,7 @@ impl FrameReport {
         self.waiting = other.waiting;
         self.oldest_wait = self.oldest_wait.max(other.oldest_wait);
         self.updated += other.updated;
+        self.settled += other.settled;
         self.transforms += other.transforms;
         self.deformed += other.deformed;
         self.held += other.held;

@@ -96,6 +96,17 @@ impl Pipeline {
             report.rays_kept = done.rays_kept;
             report.budget = done.budget;
             report.overdue = done.overdue;
+            report.settled = done.settled;
+        } else if !self.last_traced.is_empty() {
+            // Nothing to trace: the points the last step traced settle.
+            let settle = self.settle_left(&[])?;
+            let filled = if self.instances.iter().any(|s| !s.buried.ids.is_empty()) {
+                self.fill_buried(&settle.touched, false)?
+            } else {
+                0
+            };
+            report.updated = settle.updated + filled;
+            report.settled = settle.updated;
         }
         report.waiting = self.waiting.len() as u64;
         report.oldest_wait = self.waiting.oldest();
@@ -107,6 +118,12 @@ impl Pipeline {
         Ok((frame, report))
     }
 
+    /// The scene time a step to the pipeline's time poses: that time plus
+    /// [`lead`](crate::PipelineConfig::lead).
+    pub fn posed_time(&self) -> f32 {
+        (self.time + self.config.lead as f64) as f32
+    }
+
     /// Animates the scene to the pipeline's time and takes each dynamic
     /// instance to its new pose (its transform, from the animation or
     /// [`place_instance`](Self::place_instance), and for a skinned one its
@@ -115,7 +132,7 @@ impl Pipeline {
     /// `report`.
     fn animate(&mut self, report: &mut FrameReport) -> Motion {
         let ao = self.config.ao;
-        self.scene.pose_into(self.time as f32, &mut self.pose);
+        self.scene.pose_into(self.posed_time(), &mut self.pose);
         let mut motion = Motion {
             moved: vec![false; self.instances.len()],
             changed: vec![false; self.instances.len()],
@@ -243,7 +260,7 @@ impl Pipeline {
             Views::CameraPath => match &self.scene.camera {
                 Some(path) => {
                     vec![
-                        path.at(self.time as f32)
+                        path.at(self.posed_time())
                             .frustum(cull.aspect, cull.near(), cull.far),
                     ]
                 }

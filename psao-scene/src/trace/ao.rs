@@ -140,6 +140,16 @@ impl ChangedPoints {
         sent: &[SentPoint],
         thresholds: &Thresholds,
     ) -> Result<ChangedPoints, SceneError> {
+        ChangedPoints::compare_each(result, sent, |_| *thresholds)
+    }
+
+    /// [`compare`](Self::compare) with the thresholds of each point of the
+    /// batch by its index.
+    pub fn compare_each(
+        result: &AoResult,
+        sent: &[SentPoint],
+        thresholds: impl Fn(usize) -> Thresholds,
+    ) -> Result<ChangedPoints, SceneError> {
         if sent.len() != result.ao.len() {
             return Err(SceneError::SentCount {
                 points: result.ao.len(),
@@ -151,7 +161,7 @@ impl ChangedPoints {
             ..ChangedPoints::default()
         };
         for (i, (s, &ao)) in sent.iter().zip(&result.ao).enumerate() {
-            if s.changed(ao, thresholds) {
+            if s.changed(ao, &thresholds(i)) {
                 out.changed.push(i as u32);
                 out.ao.push(ao);
                 if s.word.is_allocated() {
