@@ -196,8 +196,9 @@ impl BudgetArgs {
     }
 }
 
-/// How far ahead of its clock a server poses the scene
-/// ([`PipelineConfig::lead`]).
+/// How a server keeps what clients hold current: how far ahead of its
+/// clock it poses the scene ([`PipelineConfig::lead`]) and settling
+/// ([`PipelineConfig::settle_steps`]).
 #[derive(clap::Args, Clone, Debug)]
 pub struct LeadArgs {
     /// Milliseconds the server poses the scene's animation ahead of each
@@ -207,6 +208,12 @@ pub struct LeadArgs {
     /// tick's own pose, a period or more behind on the client).
     #[arg(long, default_value = "auto", value_parser = parse_lead)]
     pub lead_ms: Lead,
+    /// Send a point whose AO stopped changing (or that motion has left)
+    /// once it is this many 1/255 steps from what clients hold, below the
+    /// send threshold (0: never). Pays on near-white scenes with fast
+    /// motion; costs bit rate elsewhere (BENCHMARKS.md).
+    #[arg(long, default_value_t = PipelineConfig::default().settle_steps)]
+    pub settle_steps: u8,
 }
 
 /// A `--lead-ms` value.
@@ -238,6 +245,12 @@ impl LeadArgs {
             Lead::Auto => 1.0 / rate.max(1) as f32,
             Lead::Millis(ms) => ms / 1e3,
         }
+    }
+
+    /// Sets the lead (at `rate` frames a second) and settling in `config`.
+    pub fn apply(&self, config: &mut PipelineConfig, rate: u16) {
+        config.lead = self.seconds(rate);
+        config.settle_steps = self.settle_steps;
     }
 }
 
@@ -395,6 +408,25 @@ mod tests {
     use super::*;
     use glam::{Affine3A, Vec3};
     use psao_scene::Mesh;
+
+    #[test]
+    fn the_lead_is_a_period_or_the_milliseconds_given() {
+        assert_eq!(parse_lead("auto"), Ok(Lead::Auto));
+        assert_eq!(parse_lead("25"), Ok(Lead::Millis(25.0)));
+        assert_eq!(parse_lead("0"), Ok(Lead::Millis(0.0)));
+        for bad in ["-1", "nan", "inf", "10001", "soon"] {
+            assert!(parse_lead(bad).is_err(), "{bad}");
+        }
+        let args = |lead_ms| LeadArgs {
+            lead_ms,
+            settle_steps: 2,
+        };
+        let mut c = PipelineConfig::default();
+        args(Lead::Auto).apply(&mut c, 50);
+        assert_eq!((c.lead, c.settle_steps), (0.02, 2));
+        args(Lead::Millis(5.0)).apply(&mut c, 50);
+        assert_eq!(c.lead, 0.005);
+    }
 
     fn cube(side: f32) -> Scene {
         let mut s = Scene::default();

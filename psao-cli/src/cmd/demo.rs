@@ -104,7 +104,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         ..pipeline_config(density, rays, radius)
     };
     budget.apply(&mut pipeline);
-    pipeline.lead = lead.seconds(rate);
+    lead.apply(&mut pipeline, rate);
     let lead = pipeline.lead;
     println!("psao demo: preparing the default scene (points, grids, first trace)...");
     let t = Instant::now();

@@ -132,7 +132,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     };
     pipeline.layout.overflow = !args.no_overflow;
     args.budget.apply(&mut pipeline);
-    pipeline.lead = args.lead.seconds(args.rate);
+    args.lead.apply(&mut pipeline, args.rate);
     for w in super::common::scale_warnings(&scene, args.density, args.radius)? {
         eprintln!("warning: {w}");
     }
