@@ -277,3 +277,38 @@ async fn a_client_that_never_asks_for_a_keyframe_fails_those_cases() {
     assert_eq!(report.summary(), "6 passed, 3 failed, 0 skipped");
     let _ = double.await;
 }
+
+/// A violation that arrives while the keyframe fills the server's
+/// congestion window still gets its own close code. quinn-proto 0.11.19
+/// held the CONNECTION_CLOSE back behind the full window, which a closed
+/// connection never empties, so the client heard nothing and got a
+/// stateless reset after the drain (patches/README.md): this fails
+/// without the patch.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_violation_while_the_keyframe_fills_the_window_gets_its_close_code() {
+    use psao_conformance::probe::{Probe, open_hello};
+    let id = Identity::self_signed().unwrap();
+    // A keyframe of tens of kB: more than a new connection's window.
+    let pipeline = Pipeline::new(psao_scene::default_scene(), pipeline_config(64.0, 4)).unwrap();
+    let server = serve(pipeline, ServerConfig::default(), &id).await.unwrap();
+    let t = target(server.local_addr(), server.fingerprint());
+    // An undefined message type (session.md 3): protocol_violation.
+    let violation = [5, 0, 0x7f, 0, 0, 0, 0];
+    let mut failed = Vec::new();
+    for k in 0..64u64 {
+        let mut p = Probe::connect(&t).await.unwrap();
+        p.hello(open_hello()).await.unwrap();
+        // The server sends the keyframe at its next tick after WELCOME
+        // (60 Hz): over 64 connections the violation comes twice at each
+        // millisecond of two ticks, so some find the keyframe in flight.
+        tokio::time::sleep(Duration::from_millis(k % 32)).await;
+        p.write(&violation).await.unwrap();
+        if let Err(e) = p
+            .expect_close(CloseCode::ProtocolViolation, Duration::from_secs(5))
+            .await
+        {
+            failed.push(format!("connection {k}: {e}"));
+        }
+    }
+    assert!(failed.is_empty(), "{}", failed.join("\n"));
+}
