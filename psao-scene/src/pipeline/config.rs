@@ -152,8 +152,9 @@ pub struct PipelineConfig {
     /// steps or more from what clients hold, however far below the send
     /// threshold: without this the threshold's worth of error stays behind
     /// wherever motion passed (1: to the quantization; 0: off, the
-    /// default). No ray is cast for it, and frames stay the same with or
-    /// without ray reuse. It pays where AO is near white and motion is
+    /// default). A point motion has left casts no ray for it; frames stay
+    /// the same with or without ray reuse (points dropped from a full cell
+    /// aside, as before). It pays where AO is near white and motion is
     /// fast (a spinning triangle: +14 dB), and costs bytes for little
     /// elsewhere (+27-90% bit rate for 0.0-0.1 dB on the bench's animated
     /// scenes; BENCHMARKS.md), so it is off unless asked for.

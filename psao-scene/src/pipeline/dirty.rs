@@ -294,8 +294,12 @@ impl Pipeline {
     ) -> Result<(ChangedPoints, u64), SceneError> {
         let th = self.config.thresholds;
         let steps = self.config.settle_steps;
+        if steps == 0 {
+            // Nothing settles: no last trace to keep.
+            return Ok((ChangedPoints::compare(values, &batch.sent, &th)?, 0));
+        }
         let mut settle = th;
-        settle.ao_steps = th.ao_steps.min(steps.saturating_sub(1));
+        settle.ao_steps = th.ao_steps.min(steps - 1);
         let repeated: Vec<bool> = batch
             .owner
             .iter()
@@ -309,7 +313,7 @@ impl Pipeline {
             })
             .collect();
         let out = ChangedPoints::compare_each(values, &batch.sent, |b| {
-            if steps > 0 && repeated[b] { settle } else { th }
+            if repeated[b] { settle } else { th }
         })?;
         // Those the thresholds alone would not have sent.
         let settled = out
@@ -345,18 +349,17 @@ impl Pipeline {
     /// what clients hold. `now`: the points this step traced (the next
     /// step's last ones).
     pub(super) fn settle_left(&mut self, now: &[(usize, u32)]) -> Result<Settled, SceneError> {
-        let mut keys: Vec<u64> = now.iter().map(|&(i, k)| key(i, k)).collect();
-        keys.sort_unstable();
-        let last = std::mem::replace(&mut self.last_traced, keys);
         let mut out = Settled {
             touched: vec![false; self.instances.len()],
             updated: 0,
         };
         let steps = self.config.settle_steps;
         if steps == 0 {
-            self.last_traced.clear();
             return Ok(out);
         }
+        let mut keys: Vec<u64> = now.iter().map(|&(i, k)| key(i, k)).collect();
+        keys.sort_unstable();
+        let last = std::mem::replace(&mut self.last_traced, keys);
         for k in last {
             if self.last_traced.binary_search(&k).is_ok() || self.waiting.get(k).is_some() {
                 continue;

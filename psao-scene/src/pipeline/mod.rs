@@ -323,8 +323,9 @@ impl Pipeline {
     /// Generates points for every instance, lays out their grids and traces
     /// every point once (the state the first keyframe carries). Refuses a
     /// scene that f32 cannot place finely enough for its AO radius and
-    /// point spacing ([`check_precision`], in the first pose: time 0 plus the
-    /// [`lead`](PipelineConfig::lead)).
+    /// point spacing ([`check_precision`]). Everything is set up in the
+    /// first pose, time 0 plus the [`lead`](PipelineConfig::lead): its
+    /// node scales also set how many points each instance gets.
     pub fn new(scene: Scene, config: PipelineConfig) -> Result<Pipeline, SceneError> {
         Pipeline::build(scene, config, None, &|_| {})
     }
