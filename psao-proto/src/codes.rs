@@ -220,7 +220,7 @@ impl SessionError {
     }
 
     /// A [`Malformed`](SessionError::Malformed) error.
-    pub(crate) fn malformed(message: &'static str, problem: impl Into<Cow<'static, str>>) -> Self {
+    pub fn malformed(message: &'static str, problem: impl Into<Cow<'static, str>>) -> Self {
         SessionError::Malformed {
             message,
             problem: problem.into(),

@@ -12,7 +12,8 @@
 //!   resynchronizing with a keyframe) and [`Fanout`] (every client's
 //!   outbox, one keyframe per state shared by all who ask, notices,
 //!   views) and [`rate::RateWatch`] (whether the server keeps its
-//!   announced frame rate): the server's session logic;
+//!   announced frame rate) and [`OwnMirror`] (the server's mirror of
+//!   its own stream, for digests): the server's session logic;
 //! - [`ClientSession`]: the client's session logic around a
 //!   [`psao_codec::Decoder`];
 //! - [`FrameSource`]: what a server streams (a scene that steps and
@@ -40,6 +41,7 @@ pub mod connect;
 pub mod control;
 pub mod fanout;
 pub mod outbox;
+pub mod own_mirror;
 pub mod rate;
 pub mod records;
 #[cfg(feature = "scene")]
@@ -60,6 +62,7 @@ pub use codes::{Close, CloseCode, SessionError};
 pub use connect::{ClientHandle, ConnectError, Ended, connect};
 pub use fanout::{ClientId, Fanout, Keyframes, Transmit};
 pub use outbox::{Outbox, Pushed};
+pub use own_mirror::{OwnFrameRefused, OwnMirror};
 #[cfg(feature = "quic")]
 pub use server::{ServeError, ServerConfig, ServerHandle, ServerStats, serve};
 pub use server_conn::{Offer, ServerConn, ServerEvent, negotiate};

@@ -25,6 +25,7 @@ use tracing::{debug, info, warn};
 use crate::codes::{Close, CloseCode, SessionError};
 use crate::control::NoticeCode;
 use crate::fanout::{ClientId, Fanout, Keyframes, Transmit};
+use crate::own_mirror::OwnMirror;
 use crate::records::record_prefix;
 use crate::server_conn::{Offer, ServerConn, ServerEvent};
 use crate::source::{ClientViews, FrameSource, StepReport};
@@ -395,15 +396,7 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
     let mut watch = crate::rate::RateWatch::new(hub.config.frame_rate);
     // A mirror of the server's own stream, for digests: every frame and
     // keyframe handed to the fan-out is applied to it.
-    let mut own = (hub.config.digest_interval > 0).then(|| {
-        let info = source.info();
-        psao_codec::Decoder::new(psao_codec::Limits {
-            max_frame_bytes: info.max_frame_bytes,
-            max_payload_bytes: info.max_payload_bytes,
-            max_mirror_bytes: info.mirror_bytes.max(1 << 30),
-            ..psao_codec::Limits::default()
-        })
-    });
+    let mut own = (hub.config.digest_interval > 0).then(|| OwnMirror::new(&source.info()));
     while !hub.stop.load(Ordering::SeqCst) {
         // Scene events first, so the frame carries them.
         let moves = std::mem::take(&mut hub.lock().moves);
@@ -434,7 +427,7 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
         // (a digest reads the whole mirror).
         let idle_at = match &frame {
             Some(_) => None,
-            None => own.as_ref().and_then(|m| m.mirror().sequence()),
+            None => own.as_ref().and_then(|m| m.sequence()),
         };
         let wanted = hub.lock().fanout.wants_digest(false, idle_at);
         let digest = digest_after(&mut own, frame.as_ref(), wanted);
@@ -453,7 +446,7 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
                 }
                 s.fanout.push_frame_with_digest(f, digest);
             }
-            if let Some((seq, d)) = own.as_ref().and_then(|m| m.mirror().sequence()).zip(digest)
+            if let Some((seq, d)) = own.as_ref().and_then(|m| m.sequence()).zip(digest)
                 && s.fanout.answer_digests(seq, d) > 0
             {
                 s.wake_all();
@@ -507,34 +500,18 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
 /// (a source bug) is logged and leaves digests off until a keyframe
 /// applies.
 fn digest_after(
-    own: &mut Option<psao_codec::Decoder>,
+    own: &mut Option<OwnMirror>,
     frame: Option<&psao_codec::EncodedFrame>,
     wanted: bool,
 ) -> Option<u32> {
-    let d = own.as_mut()?;
-    let mut ok = true;
-    if let Some(f) = frame {
-        match d.receive(&f.bytes) {
-            Ok(psao_codec::Event::Applied { .. }) | Ok(psao_codec::Event::Stale { .. }) => {}
-            // No keyframe was encoded yet (no client has joined): the
-            // mirror starts at the first one.
-            Ok(psao_codec::Event::NeedKeyframe { .. }) if d.mirror().sequence().is_none() => {
-                return None;
-            }
-            other => {
-                warn!(
-                    "the server's own frame {} did not apply to its mirror: {other:?}",
-                    f.sequence
-                );
-                ok = false;
-            }
-        }
-    }
-    if !ok {
-        *d = psao_codec::Decoder::new(*d.limits());
+    let m = own.as_mut()?;
+    if let Some(f) = frame
+        && let Err(e) = m.apply(f)
+    {
+        warn!("{e}");
         return None;
     }
-    if wanted { d.mirror().digest() } else { None }
+    if wanted { m.digest() } else { None }
 }
 
 async fn serve_connection(hub: Arc<Hub>, conn: quinn::Connection) {

@@ -59,6 +59,21 @@ impl Identity {
         })
     }
 
+    /// A fresh self-signed certificate for `localhost` and 127.0.0.1, with
+    /// its certificate and key in PEM too (for another server that reads
+    /// files, such as a relay of a test cluster that shares one
+    /// certificate).
+    pub fn self_signed_pem() -> Result<(Identity, String, String), TlsError> {
+        let ck = rcgen::generate_simple_self_signed(vec!["localhost".into(), "127.0.0.1".into()])
+            .map_err(|e| TlsError::Config(e.to_string()))?;
+        let pems = (ck.cert.pem(), ck.signing_key.serialize_pem());
+        let id = Identity {
+            chain: vec![ck.cert.der().clone()],
+            key: PrivateKeyDer::Pkcs8(ck.signing_key.serialize_der().into()),
+        };
+        Ok((id, pems.0, pems.1))
+    }
+
     /// Reads a PEM certificate chain and a PEM private key.
     pub fn from_pem_files(cert: &Path, key: &Path) -> Result<Identity, TlsError> {
         let file_err = |p: &Path, r: String| TlsError::File {
@@ -167,8 +182,13 @@ impl Trust {
     }
 }
 
-/// The client's QUIC configuration.
-pub fn client_config(trust: &Trust) -> Result<quinn::ClientConfig, TlsError> {
+/// The TLS side of a QUIC client that trusts a server as `trust` says and
+/// offers these ALPNs, most preferred first (psao's own: [`ALPN`]; the MoQ
+/// binding in psao-moq offers MoQ's).
+pub fn client_crypto(
+    trust: &Trust,
+    alpns: &[&[u8]],
+) -> Result<quinn::crypto::rustls::QuicClientConfig, TlsError> {
     let builder = rustls::ClientConfig::builder_with_provider(provider())
         .with_protocol_versions(&[&rustls::version::TLS13])
         .map_err(|e| TlsError::Config(e.to_string()))?;
@@ -190,9 +210,14 @@ pub fn client_config(trust: &Trust) -> Result<quinn::ClientConfig, TlsError> {
             builder.with_root_certificates(store).with_no_client_auth()
         }
     };
-    tls.alpn_protocols = vec![ALPN.to_vec()];
-    let quic = quinn::crypto::rustls::QuicClientConfig::try_from(tls)
-        .map_err(|e| TlsError::Config(e.to_string()))?;
+    tls.alpn_protocols = alpns.iter().map(|a| a.to_vec()).collect();
+    quinn::crypto::rustls::QuicClientConfig::try_from(tls)
+        .map_err(|e| TlsError::Config(e.to_string()))
+}
+
+/// The client's QUIC configuration.
+pub fn client_config(trust: &Trust) -> Result<quinn::ClientConfig, TlsError> {
+    let quic = client_crypto(trust, &[ALPN])?;
     let mut config = quinn::ClientConfig::new(Arc::new(quic));
     let mut transport = quinn::TransportConfig::default();
     // The server opens one unidirectional stream (frames) and no

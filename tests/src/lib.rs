@@ -12,12 +12,16 @@
 //! - `scenes` (feature `scenes`): small scenes where something changes
 //!   every frame, pipelines over them, their points in world space;
 //! - `relay` (feature `relay`): a lossy, reordering UDP relay for QUIC
-//!   over loopback.
+//!   over loopback;
+//! - `moq_relay` (feature `moq-relay`): the real `moq-relay` as a process on loopback (one,
+//!   or two clustered), for the MoQ tests.
 //!
 //! Without default features only psao-codec comes with it, so the codec's
 //! own tests use it without building the rest of the workspace. Nothing
 //! here ships in a library crate's public API.
 
+#[cfg(feature = "moq-relay")]
+pub mod moq_relay;
 pub mod raw;
 pub mod reference;
 #[cfg(feature = "relay")]

@@ -1,0 +1,20 @@
+//! The I/O layer (feature `net`): a publisher and a subscriber that speak
+//! moq-lite to `moq-relay` over raw QUIC, with moq-net on
+//! web-transport-quinn (quinn 0.11 and tokio, the stack psao's own server
+//! uses).
+//!
+//! - [`dial`]: a relay's URL and the QUIC connection to it;
+//! - [`publish()`]: steps a [`psao_proto::FrameSource`] and publishes its
+//!   broadcast (spec/moq.md), reconnecting when the relay goes away;
+//! - [`subscribe()`]: follows a broadcast through a relay (or the next of
+//!   several, when one fails) into a [`crate::Follower`].
+
+pub mod dial;
+pub mod publish;
+pub mod subscribe;
+
+pub use dial::{MoqError, RelayUrl};
+pub use publish::{
+    Link, PublishOptions, PublishStats, Publisher, Publishing, publish, publish_alongside,
+};
+pub use subscribe::{SubscribeOptions, SubscribeStats, Subscription, subscribe};

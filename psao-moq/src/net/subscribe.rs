@@ -1,0 +1,312 @@
+//! The subscriber: follows one broadcast through a relay into a
+//! [`Follower`] (spec/moq.md 3-5). It reads the catalog, then the
+//! `frames` track group by group (a newer group replaces the one being
+//! read) and the `digest` track; when the session or the broadcast ends
+//! it discards its mirror and subscribes again, through the next relay
+//! of its list when the one it used failed.
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use moq_net::{broadcast, group, origin};
+use psao_codec::Limits;
+use psao_proto::tls::Trust;
+use tracing::{debug, warn};
+
+use super::dial::{MoqError, RelayUrl, dial};
+use crate::catalog::track as names;
+use crate::follower::{FollowStats, Follower};
+
+/// What to follow, through which relays.
+#[derive(Clone, Debug)]
+pub struct SubscribeOptions {
+    /// Relays to subscribe through, tried in order (the next when one
+    /// fails); each URL's path is the broadcast.
+    pub relays: Vec<RelayUrl>,
+    /// How the relays' certificates are checked.
+    pub trust: Trust,
+    /// The subscriber's decoding limits.
+    pub limits: Limits,
+    /// Whether to follow the `digest` track (when the catalog has one).
+    pub digests: bool,
+}
+
+/// What a subscription has seen.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SubscribeStats {
+    /// The follower's counts (since the last restart of the mirror).
+    pub follow: FollowStats,
+    /// Sessions established with relays.
+    pub connects: u64,
+    /// Index in the relay list of the relay in use (or last tried).
+    pub relay: usize,
+    /// Mirror discarded to subscribe again (spec/moq.md 4, restarts).
+    pub restarts: u64,
+    /// From [`subscribe`] to the first keyframe applied.
+    pub join_time: Option<Duration>,
+    /// The last error that ended a session.
+    pub last_error: Option<String>,
+}
+
+#[derive(Debug)]
+struct Shared {
+    follower: Follower,
+    stats: SubscribeStats,
+    fatal: Option<String>,
+}
+
+/// A running subscription.
+#[derive(Debug)]
+pub struct Subscription {
+    shared: Arc<Mutex<Shared>>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Starts following a broadcast; returns at once (the session is set up in
+/// the background: see [`Subscription::stats`] and
+/// [`Subscription::failed`]).
+pub fn subscribe(options: SubscribeOptions) -> Result<Subscription, MoqError> {
+    let first = options.relays.first().ok_or_else(|| MoqError::Url {
+        url: String::new(),
+        why: "no relay given",
+    })?;
+    if first.path.is_empty() {
+        return Err(MoqError::Url {
+            url: first.to_string(),
+            why: "its path (the broadcast) is empty",
+        });
+    }
+    let shared = Arc::new(Mutex::new(Shared {
+        follower: Follower::new(options.limits),
+        stats: SubscribeStats::default(),
+        fatal: None,
+    }));
+    let task = tokio::spawn(run(options, shared.clone(), Instant::now()));
+    Ok(Subscription { shared, task })
+}
+
+impl Subscription {
+    /// Runs `f` on the follower (its mirror, decoder and catalog).
+    pub fn with_follower<R>(&self, f: impl FnOnce(&mut Follower) -> R) -> R {
+        f(&mut lock(&self.shared).follower)
+    }
+
+    /// What it has seen so far.
+    pub fn stats(&self) -> SubscribeStats {
+        let s = lock(&self.shared);
+        SubscribeStats {
+            follow: s.follower.stats(),
+            ..s.stats.clone()
+        }
+    }
+
+    /// Why it stopped for good (a broadcast it cannot follow), if it did.
+    pub fn failed(&self) -> Option<String> {
+        lock(&self.shared).fatal.clone()
+    }
+
+    /// Whether its mirror follows the broadcast now.
+    pub fn in_sync(&self) -> bool {
+        lock(&self.shared).follower.in_sync()
+    }
+
+    /// Ends the subscription.
+    pub fn close(self) {
+        self.task.abort();
+    }
+}
+
+impl Drop for Subscription {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+/// Subscribes, again and again, until a fatal error.
+async fn run(options: SubscribeOptions, shared: Arc<Mutex<Shared>>, started: Instant) {
+    let n = options.relays.len();
+    let mut index = 0;
+    let mut backoff = Duration::from_millis(100);
+    loop {
+        let url = &options.relays[index];
+        lock(&shared).stats.relay = index;
+        let result = follow_once(url, &options, &shared, started).await;
+        let healthy_for;
+        {
+            let mut s = lock(&shared);
+            match &result {
+                Err(MoqError::Follow(e)) => {
+                    warn!(relay = %url, "cannot follow the broadcast: {e}");
+                    s.fatal = Some(e.to_string());
+                    return;
+                }
+                Err(e) => {
+                    debug!(relay = %url, "subscription ended: {e}");
+                    s.stats.last_error = Some(e.to_string());
+                }
+                Ok(since) => {
+                    s.stats.last_error = Some("the broadcast ended".into());
+                    let _ = since;
+                }
+            }
+            s.follower.restart();
+            s.stats.restarts += 1;
+            healthy_for = match &result {
+                Ok(since) => *since,
+                Err(_) => Duration::ZERO,
+            };
+        }
+        // A relay that failed at once: try the next one. One that served
+        // for a while and ended: back to it first, after a short pause.
+        if result.is_err() {
+            index = (index + 1) % n;
+        }
+        if healthy_for > Duration::from_secs(2) {
+            backoff = Duration::from_millis(100);
+        }
+        tokio::time::sleep(backoff).await;
+        if index == 0 || result.is_ok() {
+            backoff = (backoff * 2).min(Duration::from_secs(2));
+        }
+    }
+}
+
+/// One session: connect, wait for the broadcast, read its catalog, then
+/// follow its tracks until something ends. `Ok` (how long it ran) when
+/// the broadcast ended cleanly.
+async fn follow_once(
+    url: &RelayUrl,
+    options: &SubscribeOptions,
+    shared: &Arc<Mutex<Shared>>,
+    started: Instant,
+) -> Result<Duration, MoqError> {
+    let transport = dial(url, &options.trust).await?;
+    let (origin, driver) = origin::Producer::new(origin::Config::default());
+    let origin_task = tokio::spawn(moq_net::time::run(driver));
+    let _origin_task = AbortOnDrop(origin_task);
+    let client = moq_net::Client::new().with_subscriber(origin.clone());
+    let (session, driver) = client.connect(Instant::now(), transport).await?;
+    let _session_task = AbortOnDrop(tokio::spawn(moq_net::time::run(driver)));
+    lock(shared).stats.connects += 1;
+    let began = Instant::now();
+    tokio::select! {
+        r = follow_broadcast(&origin, url, options, shared, started) => r.map(|()| began.elapsed()),
+        e = session.closed() => Err(MoqError::Moq(e)),
+    }
+}
+
+struct AbortOnDrop<T>(tokio::task::JoinHandle<T>);
+
+impl<T> Drop for AbortOnDrop<T> {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+/// Waits for the broadcast at `url.path` to be announced.
+async fn announced(origin: &origin::Producer, path: &str) -> Result<broadcast::Consumer, MoqError> {
+    let consumer = origin.consume();
+    let mut updates = consumer.announced();
+    loop {
+        let Some(update) = updates.next().await else {
+            return Err(MoqError::Timeout("the relay's announcements ended"));
+        };
+        if update.kind.is_active() && update.prefix.as_str() == path {
+            return Ok(consumer.request_broadcast(path).await?);
+        }
+    }
+}
+
+async fn follow_broadcast(
+    origin: &origin::Producer,
+    url: &RelayUrl,
+    options: &SubscribeOptions,
+    shared: &Arc<Mutex<Shared>>,
+    started: Instant,
+) -> Result<(), MoqError> {
+    let broadcast = announced(origin, &url.path).await?;
+    // The catalog first (spec/moq.md 3).
+    let mut catalog = broadcast.track(names::CATALOG)?.subscribe(None).await?;
+    let mut g = catalog.recv_group().await?.ok_or(MoqError::Timeout(
+        "the catalog track ended before its group",
+    ))?;
+    let frame = g.read_frame().await?.ok_or(MoqError::Timeout(
+        "the catalog group ended before its frame",
+    ))?;
+    let digest_track = {
+        let mut s = lock(shared);
+        let w = s.follower.on_catalog(&frame.payload)?;
+        w.digest && options.digests
+    };
+    let mut frames = broadcast.track(names::FRAMES)?.subscribe(None).await?;
+    let mut digests = match digest_track {
+        true => Some(broadcast.track(names::DIGEST)?.subscribe(None).await?),
+        false => None,
+    };
+    let mut current: Option<group::Consumer> = None;
+    let mut digest_group: Option<group::Consumer> = None;
+    loop {
+        tokio::select! {
+            g = frames.recv_group() => match g? {
+                None => return Ok(()),
+                Some(g) => {
+                    if current.as_ref().is_none_or(|c| g.sequence > c.sequence) {
+                        current = Some(g);
+                    }
+                }
+            },
+            f = next_frame(&mut current) => match f? {
+                Some((id, index, payload)) => {
+                    let mut s = lock(shared);
+                    let applied = matches!(
+                        s.follower.on_frame(id, index, &payload),
+                        crate::Followed::Applied { keyframe: true, .. }
+                    );
+                    if applied && s.stats.join_time.is_none() {
+                        s.stats.join_time = Some(started.elapsed());
+                    }
+                }
+                None => current = None,
+            },
+            g = next_digest_group(&mut digests) => match g? {
+                Some(g) => digest_group = Some(g),
+                None => digests = None,
+            },
+            f = next_frame(&mut digest_group) => match f? {
+                Some((_, _, payload)) => {
+                    let mut s = lock(shared);
+                    if let Err(e) = s.follower.on_digest(&payload) {
+                        warn!("a digest frame: {e}");
+                    }
+                }
+                None => digest_group = None,
+            },
+        }
+    }
+}
+
+/// The next frame of the group being read (id, index, payload); never
+/// resolves without one.
+async fn next_frame(
+    group: &mut Option<group::Consumer>,
+) -> Result<Option<(u64, u64, bytes::Bytes)>, MoqError> {
+    let Some(g) = group.as_mut() else {
+        return std::future::pending().await;
+    };
+    let index = g.index();
+    let id = g.sequence;
+    Ok(g.read_frame().await?.map(|f| (id, index, f.payload)))
+}
+
+async fn next_digest_group(
+    track: &mut Option<moq_net::track::Subscriber>,
+) -> Result<Option<group::Consumer>, MoqError> {
+    let Some(t) = track.as_mut() else {
+        return std::future::pending().await;
+    };
+    Ok(t.recv_group().await?)
+}

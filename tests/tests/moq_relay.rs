@@ -1,0 +1,229 @@
+//! PSAO through the real `moq-relay` (spec/moq.md): a publisher on one
+//! relay, a second relay clustered with it, subscribers on both (one
+//! joining late) whose mirrors end equal to the publisher's state, and
+//! subscribers that fail over to the other relay when theirs is killed.
+//!
+//! The relay is a process (psao_tests::moq_relay); without one these
+//! tests say they skip, unless PSAO_REQUIRE_RELAY is set (CI sets it).
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use psao_codec::{Decoder, Limits};
+use psao_moq::GroupPolicy;
+use psao_moq::net::{
+    Link, PublishOptions, Publishing, RelayUrl, SubscribeOptions, Subscription, publish_alongside,
+    subscribe,
+};
+use psao_proto::FrameSource;
+use psao_proto::tls::Trust;
+use psao_scene::Pipeline;
+use psao_tests::moq_relay::{MoqRelay, RelayCert};
+use psao_tests::scenes::{pipeline, sliding_box};
+
+const BROADCAST: &str = "psao/test";
+
+fn policy() -> GroupPolicy {
+    GroupPolicy {
+        max_age: Duration::from_millis(500),
+        digest_every: 10,
+        ..GroupPolicy::default()
+    }
+}
+
+/// Steps a publication at 60 Hz on a thread until `stop`.
+fn step_at_60(
+    mut p: Publishing<Pipeline>,
+    stop: Arc<AtomicBool>,
+) -> std::thread::JoinHandle<Publishing<Pipeline>> {
+    std::thread::spawn(move || {
+        let period = Duration::from_secs_f64(1.0 / 60.0);
+        while !stop.load(Ordering::SeqCst) {
+            let t = Instant::now();
+            p.step(1.0 / 60.0).expect("a step");
+            if let Some(rest) = period.checked_sub(t.elapsed()) {
+                std::thread::sleep(rest);
+            }
+        }
+        p
+    })
+}
+
+async fn publisher(relay: &MoqRelay) -> (Publishing<Pipeline>, Link) {
+    let options = PublishOptions {
+        relay: relay.url("").parse().unwrap(),
+        trust: Trust::Fingerprint(relay.fingerprint),
+        broadcast: Some(BROADCAST.into()),
+        scene: "sliding box".into(),
+        frame_rate: 60,
+        policy: policy(),
+    };
+    publish_alongside(pipeline(&sliding_box(), 64.0, 8), &options)
+        .await
+        .expect("publishing to the relay")
+}
+
+/// A subscriber through `relays`, in turn (they share one certificate).
+fn subscriber(relays: &[&MoqRelay]) -> Subscription {
+    subscribe(SubscribeOptions {
+        relays: relays
+            .iter()
+            .map(|r| r.url(BROADCAST).parse::<RelayUrl>().unwrap())
+            .collect(),
+        trust: Trust::Fingerprint(relays[0].fingerprint),
+        limits: Limits::default(),
+        digests: true,
+    })
+    .expect("subscribing")
+}
+
+/// Waits until `ok` holds, up to `wait`; whether it did.
+async fn until(wait: Duration, mut ok: impl FnMut() -> bool) -> bool {
+    let t = Instant::now();
+    while t.elapsed() < wait {
+        if ok() {
+            return true;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    ok()
+}
+
+/// The digest and sequence of the publisher's current state (a keyframe of
+/// it, decoded).
+fn state_of(p: &mut Publishing<Pipeline>) -> (u32, u32) {
+    let kf = FrameSource::keyframe(p).unwrap();
+    let mut d = Decoder::new(Limits::default());
+    d.receive(&kf.bytes).unwrap();
+    (kf.sequence, d.mirror().digest().unwrap())
+}
+
+fn relay_logs(relays: &[&MoqRelay]) -> String {
+    relays
+        .iter()
+        .map(|r| r.log_text())
+        .collect::<Vec<_>>()
+        .join("\n---\n")
+}
+
+/// Stops the stepping thread and returns the publication.
+async fn stop_stepping(
+    stop: &AtomicBool,
+    stepper: std::thread::JoinHandle<Publishing<Pipeline>>,
+) -> Publishing<Pipeline> {
+    stop.store(true, Ordering::SeqCst);
+    tokio::task::spawn_blocking(move || stepper.join().unwrap())
+        .await
+        .unwrap()
+}
+
+/// Waits until every subscriber's mirror holds the publisher's current
+/// state, and checks its digest.
+async fn all_reach(subs: &[Subscription], p: &mut Publishing<Pipeline>) {
+    let (sequence, digest) = state_of(p);
+    let reached = until(Duration::from_secs(10), || {
+        subs.iter()
+            .all(|s| s.with_follower(|f| f.mirror().sequence()) == Some(sequence))
+    })
+    .await;
+    assert!(
+        reached,
+        "every mirror reaches sequence {sequence}: {:#?}",
+        subs.iter().map(|s| s.stats()).collect::<Vec<_>>()
+    );
+    for (i, s) in subs.iter().enumerate() {
+        assert_eq!(
+            s.with_follower(|f| f.mirror().digest()),
+            Some(digest),
+            "subscriber {i}"
+        );
+        let st = s.stats();
+        assert_eq!(st.follow.digest_mismatches, 0, "subscriber {i}: {st:?}");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn subscribers_on_two_relays_one_late_end_equal_to_the_publisher() {
+    let cert = RelayCert::generate();
+    let Some(a) = MoqRelay::start("a", &cert, None) else {
+        return;
+    };
+    let Some(b) = MoqRelay::start("b", &cert, Some(&a)) else {
+        return;
+    };
+    let (publishing, link) = publisher(&a).await;
+    let stop = Arc::new(AtomicBool::new(false));
+    let stepper = step_at_60(publishing, stop.clone());
+    let mut subs = vec![
+        subscriber(&[&a]),
+        subscriber(&[&a]),
+        subscriber(&[&b]),
+        subscriber(&[&b]),
+    ];
+    // One joins 1.5 s in, mid-group.
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    subs.push(subscriber(&[&b]));
+    let synced = until(Duration::from_secs(20), || {
+        subs.iter()
+            .all(|s| s.in_sync() && s.stats().follow.digests_matched > 0)
+    })
+    .await;
+    assert!(
+        synced,
+        "every subscriber in sync with a digest matched: {:#?}\n{}",
+        subs.iter().map(|s| s.stats()).collect::<Vec<_>>(),
+        relay_logs(&[&a, &b])
+    );
+    // Stop stepping; the last frames reach everyone.
+    let mut publishing = stop_stepping(&stop, stepper).await;
+    all_reach(&subs, &mut publishing).await;
+    for s in &subs {
+        assert!(s.stats().join_time.is_some());
+        assert_eq!(s.stats().connects, 1);
+    }
+    let st = link.stats();
+    assert!(st.broadcast.groups >= 4 && st.connected, "{st:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn subscribers_of_a_killed_relay_follow_again_through_the_other() {
+    let cert = RelayCert::generate();
+    let Some(a) = MoqRelay::start("a", &cert, None) else {
+        return;
+    };
+    let Some(mut b) = MoqRelay::start("b", &cert, Some(&a)) else {
+        return;
+    };
+    let (publishing, _link) = publisher(&a).await;
+    let stop = Arc::new(AtomicBool::new(false));
+    let stepper = step_at_60(publishing, stop.clone());
+    let subs: Vec<_> = (0..3).map(|_| subscriber(&[&b, &a])).collect();
+    let synced = until(Duration::from_secs(20), || subs.iter().all(|s| s.in_sync())).await;
+    assert!(
+        synced,
+        "in sync through b: {:#?}",
+        subs.iter().map(|s| s.stats()).collect::<Vec<_>>()
+    );
+    assert!(subs.iter().all(|s| s.stats().relay == 0));
+    b.kill();
+    let moved = until(Duration::from_secs(30), || {
+        subs.iter()
+            .all(|s| s.in_sync() && s.stats().relay == 1 && s.stats().connects >= 2)
+    })
+    .await;
+    assert!(
+        moved,
+        "in sync again through a: {:#?}\n{}",
+        subs.iter().map(|s| s.stats()).collect::<Vec<_>>(),
+        a.log_text()
+    );
+    let mut publishing = stop_stepping(&stop, stepper).await;
+    all_reach(&subs, &mut publishing).await;
+    for s in &subs {
+        assert!(
+            s.stats().restarts >= 1,
+            "the mirror was discarded and rebuilt"
+        );
+    }
+}
