@@ -74,6 +74,7 @@ fn subscriber(relays: &[&MoqRelay]) -> Subscription {
         trust: Trust::Fingerprint(relays[0].fingerprint),
         limits: Limits::default(),
         digests: true,
+        capture: false,
     })
     .expect("subscribing")
 }

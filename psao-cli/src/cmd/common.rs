@@ -120,11 +120,13 @@ fn parse_eye_target(s: &str) -> Result<[f32; 6], String> {
 /// Where a client connects and how it trusts the server.
 #[derive(clap::Args)]
 pub struct ServerArgs {
-    /// The server's address, IP:port (required).
+    /// The server's address, IP:port (required, unless the command
+    /// subscribes through a relay instead).
     #[arg(long)]
-    pub connect: SocketAddr,
+    pub connect: Option<SocketAddr>,
     /// SHA-256 fingerprint of the server's certificate (as `psao serve`
-    /// prints it); this or --ca is needed.
+    /// prints it), or of the relay's with --subscribe; this or --ca is
+    /// needed.
     #[arg(long, conflicts_with = "ca")]
     pub fingerprint: Option<String>,
     /// PEM file of certificates to trust instead of --fingerprint.
@@ -139,6 +141,12 @@ pub struct ServerArgs {
 }
 
 impl ServerArgs {
+    /// The server's address (--connect).
+    pub fn addr(&self) -> anyhow::Result<SocketAddr> {
+        self.connect
+            .context("give --connect IP:PORT (the address `psao serve` prints)")
+    }
+
     /// How the client trusts the server: a pinned fingerprint, or roots
     /// from a PEM file.
     pub fn trust(&self) -> anyhow::Result<Trust> {
@@ -352,7 +360,7 @@ pub fn load_scene(path: Option<&Path>) -> anyhow::Result<(Scene, String)> {
 }
 
 /// The certificates in a PEM file.
-fn read_roots(path: &Path) -> anyhow::Result<Vec<rustls::pki_types::CertificateDer<'static>>> {
+pub fn read_roots(path: &Path) -> anyhow::Result<Vec<rustls::pki_types::CertificateDer<'static>>> {
     use rustls::pki_types::pem::PemObject;
     rustls::pki_types::CertificateDer::pem_file_iter(path)
         .and_then(|it| it.collect::<Result<Vec<_>, _>>())

@@ -105,7 +105,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         return Ok(());
     }
     let target = Target {
-        addr: a.server.connect,
+        addr: a.server.addr()?,
         trust: a.server.trust()?,
         server_name: a.server.name.clone(),
     };

@@ -6,5 +6,6 @@ pub mod conformance;
 pub mod demo;
 pub mod inspect;
 pub mod record;
+pub mod relay;
 pub mod serve;
 pub mod view;

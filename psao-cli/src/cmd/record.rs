@@ -15,6 +15,12 @@ use super::common::{ServerArgs, seconds_of};
 pub struct Args {
     #[command(flatten)]
     server: ServerArgs,
+    /// Follow a MoQ broadcast through a relay instead of connecting to a
+    /// server: `https://HOST:PORT/BROADCAST` (spec/moq.md). Repeat it to
+    /// name relays to fall back on, tried in order (they must share the
+    /// certificate --fingerprint or --ca checks).
+    #[arg(long, value_name = "URL", conflicts_with = "connect")]
+    subscribe: Vec<String>,
     /// The capture file to write.
     #[arg(long)]
     out: PathBuf,
@@ -23,6 +29,9 @@ pub struct Args {
 /// Connects, records until the server closes or `--seconds` pass, and
 /// says what it wrote.
 pub async fn run(args: Args) -> anyhow::Result<()> {
+    if !args.subscribe.is_empty() {
+        return super::relay::record(&args.subscribe, &args.server, &args.out).await;
+    }
     let trust = args.server.trust()?;
     let out = &args.out;
     let file = std::fs::File::create(out).with_context(|| out.display().to_string())?;
@@ -31,7 +40,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         capture: true,
         ..ClientConfig::default()
     };
-    let h = connect(args.server.connect, &trust, config, Duration::from_secs(10)).await?;
+    let h = connect(args.server.addr()?, &trust, config, Duration::from_secs(10)).await?;
     let start = Instant::now();
     let until = args.server.seconds.map(|s| start + seconds_of(s));
     let (mut frames, mut bytes, mut dropped) = (0u64, 0u64, 0u64);

@@ -5,8 +5,9 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+use psao_moq::net::{Link, RelayUrl};
 use psao_proto::tls::fingerprint_hex;
-use psao_proto::{Identity, ServerConfig, serve};
+use psao_proto::{FrameSource, Identity, ServerConfig, serve};
 use psao_scene::{Pipeline, PipelineConfig, ViewerCull};
 
 use super::common::{load_scene, pipeline_config, pipeline_with_progress, seconds_of, status};
@@ -72,6 +73,8 @@ pub struct Args {
     budget: super::common::BudgetArgs,
     #[command(flatten)]
     lead: super::common::LeadArgs,
+    #[command(flatten)]
+    publish: super::relay::PublishArgs,
 }
 
 /// What the server holds for the scene, in a line: triangles, instances
@@ -143,8 +146,40 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         "{}",
         scene_summary(&mut pipeline, started.elapsed().as_secs_f64())?
     );
+    let publish = args.publish.options(
+        &config.scene_name,
+        config.frame_rate,
+        config.digest_interval,
+    )?;
+    match publish {
+        None => serve_until(pipeline, config, &identity, None, args.seconds).await,
+        Some(options) => {
+            let (publishing, link) = psao_moq::net::publish_alongside(pipeline, &options).await?;
+            println!(
+                "publishing broadcast {} to {}; follow it with: psao view --subscribe {} --fingerprint HEX (the relay's)",
+                link.broadcast(),
+                options.relay,
+                RelayUrl {
+                    path: link.broadcast().to_string(),
+                    ..options.relay.clone()
+                }
+            );
+            serve_until(publishing, config, &identity, Some(&link), args.seconds).await
+        }
+    }
+}
+
+/// Serves `source` until Ctrl-C or `seconds`, a status line a second (with
+/// the broadcast's figures when it also publishes).
+async fn serve_until<S: FrameSource>(
+    source: S,
+    config: ServerConfig,
+    identity: &Identity,
+    link: Option<&Link>,
+    seconds: Option<f32>,
+) -> anyhow::Result<()> {
     let rate = config.frame_rate;
-    let server = serve(pipeline, config, &identity).await?;
+    let server = serve(source, config, identity).await?;
     println!("listening on {}", server.local_addr());
     println!(
         "certificate SHA-256 {}",
@@ -155,8 +190,9 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         server.local_addr(),
         fingerprint_hex(&server.fingerprint())
     );
-    let until = args.seconds.map(|s| Instant::now() + seconds_of(s));
+    let until = seconds.map(|s| Instant::now() + seconds_of(s));
     let mut prev = (server.stats(), Instant::now());
+    let mut prev_link = link.map(|l| l.stats());
     loop {
         tokio::select! {
             _ = tokio::signal::ctrl_c() => break,
@@ -173,6 +209,16 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
                         (s.step_time - prev.0.step_time).as_secs_f64() * 1e3
                             / (s.frames - prev.0.frames).max(1) as f64
                     );
+                }
+                if let (Some(l), Some(p)) = (link, &prev_link) {
+                    let now = l.stats();
+                    line.push_str(&format!(
+                        " | relay: {}, {:.3} Mbit/s, group {}",
+                        if now.connected { "up" } else { "DOWN" },
+                        (now.broadcast.frame_bytes - p.broadcast.frame_bytes) as f64 * 8.0 / dt / 1e6,
+                        now.broadcast.groups.saturating_sub(1),
+                    ));
+                    prev_link = Some(now);
                 }
                 println!("{line}");
                 prev = (s, Instant::now());

@@ -13,13 +13,22 @@ use super::common::{ServerArgs, human_bytes, seconds_of};
 pub struct Args {
     #[command(flatten)]
     server: ServerArgs,
+    /// Follow a MoQ broadcast through a relay instead of connecting to a
+    /// server: `https://HOST:PORT/BROADCAST` (spec/moq.md). Repeat it to
+    /// name relays to fall back on, tried in order (they must share the
+    /// certificate --fingerprint or --ca checks).
+    #[arg(long, value_name = "URL", conflicts_with = "connect")]
+    subscribe: Vec<String>,
 }
 
 /// Connects and prints a line a second until the session ends or
 /// `--seconds` pass.
 pub async fn run(args: Args) -> anyhow::Result<()> {
+    if !args.subscribe.is_empty() {
+        return super::relay::view(&args.subscribe, &args.server).await;
+    }
     let trust = args.server.trust()?;
-    let addr = args.server.connect;
+    let addr = args.server.addr()?;
     let h = connect(
         addr,
         &trust,

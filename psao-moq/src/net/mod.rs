@@ -17,4 +17,4 @@ pub use dial::{MoqError, RelayUrl};
 pub use publish::{
     Link, PublishOptions, PublishStats, Publisher, Publishing, publish, publish_alongside,
 };
-pub use subscribe::{SubscribeOptions, SubscribeStats, Subscription, subscribe};
+pub use subscribe::{MAX_CAPTURED, SubscribeOptions, SubscribeStats, Subscription, subscribe};

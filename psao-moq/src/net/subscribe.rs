@@ -29,7 +29,14 @@ pub struct SubscribeOptions {
     pub limits: Limits,
     /// Whether to follow the `digest` track (when the catalog has one).
     pub digests: bool,
+    /// Keep every `frames` frame received, with when it arrived, for
+    /// [`Subscription::take_captured`] (at most [`MAX_CAPTURED`] waiting).
+    pub capture: bool,
 }
+
+/// Most captured frames waiting for [`Subscription::take_captured`]; older
+/// ones are dropped (and counted).
+pub const MAX_CAPTURED: usize = 4096;
 
 /// What a subscription has seen.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -53,6 +60,8 @@ struct Shared {
     follower: Follower,
     stats: SubscribeStats,
     fatal: Option<String>,
+    captured: std::collections::VecDeque<(Instant, bytes::Bytes)>,
+    dropped: u64,
 }
 
 /// A running subscription.
@@ -84,6 +93,8 @@ pub fn subscribe(options: SubscribeOptions) -> Result<Subscription, MoqError> {
         follower: Follower::new(options.limits),
         stats: SubscribeStats::default(),
         fatal: None,
+        captured: Default::default(),
+        dropped: 0,
     }));
     let task = tokio::spawn(run(options, shared.clone(), Instant::now()));
     Ok(Subscription { shared, task })
@@ -107,6 +118,15 @@ impl Subscription {
     /// Why it stopped for good (a broadcast it cannot follow), if it did.
     pub fn failed(&self) -> Option<String> {
         lock(&self.shared).fatal.clone()
+    }
+
+    /// The frames captured since the last call (with `capture` set), in
+    /// the order they arrived, and how many were dropped because more than
+    /// [`MAX_CAPTURED`] waited.
+    pub fn take_captured(&self) -> (Vec<(Instant, bytes::Bytes)>, u64) {
+        let mut s = lock(&self.shared);
+        let dropped = std::mem::take(&mut s.dropped);
+        (s.captured.drain(..).collect(), dropped)
     }
 
     /// Whether its mirror follows the broadcast now.
@@ -262,6 +282,13 @@ async fn follow_broadcast(
             f = next_frame(&mut current) => match f? {
                 Some((id, index, payload)) => {
                     let mut s = lock(shared);
+                    if options.capture {
+                        if s.captured.len() == MAX_CAPTURED {
+                            s.captured.pop_front();
+                            s.dropped += 1;
+                        }
+                        s.captured.push_back((Instant::now(), payload.clone()));
+                    }
                     let applied = matches!(
                         s.follower.on_frame(id, index, &payload),
                         crate::Followed::Applied { keyframe: true, .. }

@@ -1,0 +1,250 @@
+//! PSAO through a Media over QUIC relay (spec/moq.md): `--publish` for
+//! `psao serve`, and `--subscribe` for `psao view` and `psao record`.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context as _, bail};
+use psao_codec::Limits;
+use psao_moq::GroupPolicy;
+use psao_moq::net::{PublishOptions, RelayUrl, SubscribeOptions, Subscription, subscribe};
+use psao_proto::Trust;
+use psao_proto::capture::CaptureWriter;
+use psao_proto::tls::parse_fingerprint;
+
+use super::common::{ServerArgs, human_bytes, read_roots, seconds_of};
+
+/// Publishing to a relay, for `psao serve`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct PublishArgs {
+    /// Also publish the scene as a MoQ broadcast to this relay
+    /// (`https://HOST:PORT/`, a moq-relay), for any number of viewers
+    /// (spec/moq.md); direct clients are served as well.
+    #[arg(long, value_name = "URL")]
+    pub publish: Option<String>,
+    /// The broadcast's name [default: psao/SCENE].
+    #[arg(long, requires = "publish")]
+    pub broadcast: Option<String>,
+    /// SHA-256 fingerprint of the relay's certificate (moq-relay serves it
+    /// at http://HOST:PORT/certificate.sha256); this or --relay-ca.
+    #[arg(long, requires = "publish", conflicts_with = "relay_ca")]
+    pub relay_fingerprint: Option<String>,
+    /// PEM file of roots the relay's certificate must chain to (for the
+    /// URL's host).
+    #[arg(long, requires = "publish")]
+    pub relay_ca: Option<PathBuf>,
+    /// A new group, opening with a keyframe, at least this often, seconds
+    /// (the longest a late joiner waits; spec/moq.md 4, `T`).
+    #[arg(long, default_value_t = 2.0)]
+    pub group_seconds: f32,
+    /// A new group once the deltas of one pass this many times its
+    /// keyframe's bytes (spec/moq.md 4, `R`).
+    #[arg(long, default_value_t = 1.0)]
+    pub group_ratio: f64,
+}
+
+/// How to trust a relay: a pinned fingerprint or PEM roots for `host`.
+pub fn relay_trust(
+    fingerprint: Option<&str>,
+    ca: Option<&Path>,
+    host: &str,
+) -> anyhow::Result<Trust> {
+    match (fingerprint, ca) {
+        (Some(f), _) => Ok(Trust::Fingerprint(parse_fingerprint(f)?)),
+        (None, Some(ca)) => Ok(Trust::Roots {
+            roots: read_roots(ca)?,
+            name: host.to_string(),
+        }),
+        (None, None) => bail!(
+            "give the relay's certificate fingerprint (moq-relay serves it at http://HOST:PORT/certificate.sha256) or a PEM file of roots"
+        ),
+    }
+}
+
+impl PublishArgs {
+    /// The publication `--publish` asks for (`None` without it).
+    pub fn options(
+        &self,
+        scene: &str,
+        rate: u16,
+        digest_every: u16,
+    ) -> anyhow::Result<Option<PublishOptions>> {
+        let Some(url) = &self.publish else {
+            return Ok(None);
+        };
+        let relay: RelayUrl = url.parse()?;
+        if !(self.group_seconds.is_finite() && self.group_seconds > 0.0) {
+            bail!("--group-seconds must be above 0");
+        }
+        if !(self.group_ratio.is_finite() && self.group_ratio > 0.0) {
+            bail!("--group-ratio must be above 0");
+        }
+        let trust = relay_trust(
+            self.relay_fingerprint.as_deref(),
+            self.relay_ca.as_deref(),
+            &relay.host,
+        )
+        .context("--publish: --relay-fingerprint or --relay-ca")?;
+        Ok(Some(PublishOptions {
+            relay,
+            trust,
+            broadcast: self.broadcast.clone(),
+            scene: scene.to_string(),
+            frame_rate: rate,
+            policy: GroupPolicy {
+                delta_ratio: self.group_ratio,
+                max_age: seconds_of(self.group_seconds),
+                digest_every: digest_every.into(),
+            },
+        }))
+    }
+}
+
+/// The subscription `--subscribe URL...` asks for, trusting the relays as
+/// --fingerprint or --ca say.
+fn subscription(
+    urls: &[String],
+    server: &ServerArgs,
+    capture: bool,
+) -> anyhow::Result<Subscription> {
+    let relays = urls
+        .iter()
+        .map(|u| u.parse::<RelayUrl>())
+        .collect::<Result<Vec<_>, _>>()?;
+    let trust = relay_trust(
+        server.fingerprint.as_deref(),
+        server.ca.as_deref(),
+        &relays[0].host,
+    )
+    .context("--subscribe: --fingerprint or --ca")?;
+    Ok(subscribe(SubscribeOptions {
+        relays,
+        trust,
+        limits: Limits::default(),
+        digests: true,
+        capture,
+    })?)
+}
+
+/// `psao view --subscribe`: follows the broadcast, a line a second.
+pub async fn view(urls: &[String], server: &ServerArgs) -> anyhow::Result<()> {
+    let sub = subscription(urls, server, false)?;
+    println!(
+        "subscribing to {} (then {} more relays on failure)",
+        urls[0],
+        urls.len() - 1
+    );
+    let started = Instant::now();
+    let until = server.seconds.map(|s| Instant::now() + seconds_of(s));
+    let mut printed_catalog = false;
+    let mut prev = (sub.stats(), Instant::now());
+    loop {
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        if let Some(why) = sub.failed() {
+            bail!("cannot follow the broadcast: {why}");
+        }
+        if !printed_catalog && let Some(w) = sub.with_follower(|f| f.catalog().cloned()) {
+            println!(
+                "broadcast of scene `{}`: {} Hz, compression {}, frames up to {}, digests {}",
+                w.scene,
+                w.frame_rate,
+                w.compression,
+                human_bytes(w.max_frame_bytes.into()),
+                if w.digest { "on" } else { "off" }
+            );
+            printed_catalog = true;
+        }
+        let s = sub.stats();
+        let dt = prev.1.elapsed().as_secs_f64();
+        let (seq, in_sync) = sub.with_follower(|f| (f.mirror().sequence(), f.in_sync()));
+        println!(
+            "{:5.1} frames/s | {:6.3} Mbit/s | mirror at frame {} | {} | groups {} ({} missed) | digests {} ok, {} wrong | relay {} ({} sessions){}",
+            s.follow.applied.saturating_sub(prev.0.follow.applied) as f64 / dt,
+            s.follow.bytes.saturating_sub(prev.0.follow.bytes) as f64 * 8.0 / dt / 1e6,
+            seq.map_or("none".to_string(), |q| q.to_string()),
+            if in_sync { "in sync" } else { "NOT in sync" },
+            s.follow.groups,
+            s.follow.groups_missed,
+            s.follow.digests_matched,
+            s.follow.digest_mismatches,
+            s.relay,
+            s.connects,
+            s.last_error
+                .as_ref()
+                .map_or(String::new(), |e| format!(" | last: {e}")),
+        );
+        prev = (s, Instant::now());
+        if until.is_some_and(|u| Instant::now() >= u) {
+            break;
+        }
+    }
+    let s = sub.stats();
+    let secs = started.elapsed().as_secs_f64();
+    println!("summary over {secs:.1} s:");
+    println!(
+        "  frames     {} applied ({} keyframes), {} ignored, {} broken",
+        s.follow.applied, s.follow.keyframes, s.follow.ignored, s.follow.broken
+    );
+    println!(
+        "  received   {} ({:.3} Mbit/s)",
+        human_bytes(s.follow.bytes),
+        s.follow.bytes as f64 * 8.0 / secs.max(1e-9) / 1e6
+    );
+    println!(
+        "  joined     {}",
+        s.join_time
+            .map_or("never (no keyframe applied)".to_string(), |t| format!(
+                "{:.0} ms after subscribing",
+                t.as_secs_f64() * 1e3
+            ))
+    );
+    println!(
+        "  digests    {} matched, {} did not; {} restarts, {} sessions",
+        s.follow.digests_matched, s.follow.digest_mismatches, s.restarts, s.connects
+    );
+    Ok(())
+}
+
+/// `psao record --subscribe`: writes every frame received to a capture
+/// file until `--seconds`.
+pub async fn record(urls: &[String], server: &ServerArgs, out: &Path) -> anyhow::Result<()> {
+    let Some(seconds) = server.seconds else {
+        bail!(
+            "--subscribe needs --seconds with record (a broadcast has no end of its own to wait for)"
+        );
+    };
+    let file = std::fs::File::create(out).with_context(|| out.display().to_string())?;
+    let mut writer = CaptureWriter::new(std::io::BufWriter::new(file))?;
+    let sub = subscription(urls, server, true)?;
+    let start = Instant::now();
+    let until = start + seconds_of(seconds);
+    let (mut frames, mut bytes, mut dropped) = (0u64, 0u64, 0u64);
+    loop {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        if let Some(why) = sub.failed() {
+            bail!("cannot follow the broadcast: {why}");
+        }
+        let (got, lost) = sub.take_captured();
+        dropped += lost;
+        for (at, f) in got {
+            writer.write(at.saturating_duration_since(start).as_micros() as u64, &f)?;
+            frames += 1;
+            bytes += f.len() as u64;
+        }
+        if Instant::now() >= until {
+            break;
+        }
+    }
+    writer.finish()?;
+    println!(
+        "recorded {frames} frames ({bytes} bytes) in {:.1} s to {}{}",
+        start.elapsed().as_secs_f64(),
+        out.display(),
+        if dropped > 0 {
+            format!("; {dropped} frames dropped (the writer fell behind)")
+        } else {
+            String::new()
+        }
+    );
+    Ok(())
+}
