@@ -21,6 +21,10 @@ use crate::catalog::{decode_catalog, decode_digest};
 /// Digests held until the mirror reaches their sequence (spec/moq.md 5).
 pub const HELD_DIGESTS: usize = 8;
 
+/// Groups in a row whose keyframe may fail to decode before the subscriber
+/// leaves (as a direct client's keyframes, spec/session.md 3.5).
+pub const MAX_FAILED_KEYFRAMES: u32 = psao_proto::MAX_FAILED_KEYFRAMES;
+
 /// Why a subscriber cannot follow a broadcast (spec/moq.md 3).
 #[derive(Debug, thiserror::Error)]
 pub enum FollowError {
@@ -40,6 +44,16 @@ pub enum FollowError {
     /// A frame or digest arrived before the catalog.
     #[error("a {0} arrived before the catalog")]
     BeforeCatalog(&'static str),
+    /// The keyframes of this many groups in a row failed to decode
+    /// (spec/moq.md 4: the subscriber leaves, as a direct client does,
+    /// spec/session.md 3.5).
+    #[error("the keyframes of {groups} groups in a row failed to decode; the last: {last}")]
+    Undecodable {
+        /// Groups whose keyframe failed, in a row.
+        groups: u32,
+        /// The last decode error.
+        last: String,
+    },
 }
 
 /// What one `frames` frame did.
@@ -121,6 +135,8 @@ pub struct Follower {
     digests: VecDeque<(u32, u32)>,
     out_of_sync: bool,
     stats: FollowStats,
+    /// Groups in a row whose keyframe failed to decode, and the last error.
+    failed_keyframes: (u32, String),
 }
 
 impl Follower {
@@ -134,6 +150,7 @@ impl Follower {
             digests: VecDeque::new(),
             out_of_sync: false,
             stats: FollowStats::default(),
+            failed_keyframes: (0, String::new()),
         }
     }
 
@@ -227,6 +244,7 @@ impl Follower {
                 if keyframe {
                     self.stats.keyframes += 1;
                     self.out_of_sync = false;
+                    self.failed_keyframes.0 = 0;
                 }
                 self.check_held();
                 Followed::Applied { sequence, keyframe }
@@ -246,6 +264,9 @@ impl Follower {
             Err(e) => {
                 g.following = false;
                 self.stats.broken += 1;
+                if index == 0 {
+                    self.failed_keyframes = (self.failed_keyframes.0 + 1, e.to_string());
+                }
                 Followed::Failed(e)
             }
             // An outcome a later codec adds: not applied.
@@ -325,6 +346,17 @@ impl Follower {
             && self.group.as_ref().is_some_and(|g| g.following)
     }
 
+    /// Whether to leave the broadcast: the keyframes of
+    /// [`MAX_FAILED_KEYFRAMES`] groups in a row failed to decode (a
+    /// broadcast this subscriber cannot follow, whatever it waits for).
+    pub fn gave_up(&self) -> Option<FollowError> {
+        let (groups, last) = &self.failed_keyframes;
+        (*groups >= MAX_FAILED_KEYFRAMES).then(|| FollowError::Undecodable {
+            groups: *groups,
+            last: last.clone(),
+        })
+    }
+
     /// What it has seen.
     pub fn stats(&self) -> FollowStats {
         self.stats
@@ -338,5 +370,6 @@ impl Follower {
         self.group = None;
         self.digests.clear();
         self.out_of_sync = false;
+        self.failed_keyframes = (0, String::new());
     }
 }

@@ -29,4 +29,6 @@ pub mod follower;
 pub mod net;
 
 pub use broadcaster::{BroadcastStats, Broadcaster, GroupPolicy, Write};
-pub use follower::{DigestCheck, FollowError, FollowStats, Followed, Follower, HELD_DIGESTS};
+pub use follower::{
+    DigestCheck, FollowError, FollowStats, Followed, Follower, HELD_DIGESTS, MAX_FAILED_KEYFRAMES,
+};

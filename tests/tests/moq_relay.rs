@@ -228,3 +228,70 @@ async fn subscribers_of_a_killed_relay_follow_again_through_the_other() {
         );
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stalled_or_vanished_subscriber_does_not_slow_the_others() {
+    use psao_tests::relay::{Impairment, Relay};
+    let cert = RelayCert::generate();
+    let Some(a) = MoqRelay::start("a", &cert, None) else {
+        return;
+    };
+    let (publishing, link) = publisher(&a).await;
+    let stop = Arc::new(AtomicBool::new(false));
+    let stepper = step_at_60(publishing, stop.clone());
+    let relay_addr: std::net::SocketAddr = format!("127.0.0.1:{}", a.port).parse().unwrap();
+    // One subscriber on a link that loses half its datagrams 150 ms late,
+    // one whose link is cut once it follows (it vanishes without a close).
+    let slow_link = Relay::start(
+        relay_addr,
+        Impairment {
+            drop: 0.5,
+            delay: Duration::from_millis(150),
+            ..Impairment::default()
+        },
+    )
+    .await
+    .unwrap();
+    let cut_link = Relay::start(relay_addr, Impairment::default())
+        .await
+        .unwrap();
+    let through = |addr: std::net::SocketAddr| {
+        subscribe(SubscribeOptions {
+            relays: vec![format!("https://{addr}/{BROADCAST}").parse().unwrap()],
+            trust: Trust::Fingerprint(a.fingerprint),
+            limits: Limits::default(),
+            digests: true,
+            capture: false,
+        })
+        .unwrap()
+    };
+    let _slow = through(slow_link.addr());
+    let vanishing = through(cut_link.addr());
+    let subs: Vec<_> = (0..3).map(|_| subscriber(&[&a])).collect();
+    assert!(
+        until(Duration::from_secs(20), || subs.iter().all(|s| s.in_sync())
+            && vanishing.in_sync())
+        .await,
+        "in sync: {:#?}",
+        subs.iter().map(|s| s.stats()).collect::<Vec<_>>()
+    );
+    cut_link.cut(true);
+    let before: Vec<u64> = subs.iter().map(|s| s.stats().follow.applied).collect();
+    let published_before = link.stats().broadcast;
+    tokio::time::sleep(Duration::from_secs(4)).await;
+    let published = link.stats().broadcast;
+    let sent = (published.deltas + published.keyframes)
+        - (published_before.deltas + published_before.keyframes);
+    for (i, s) in subs.iter().enumerate() {
+        let got = s.stats().follow.applied - before[i];
+        // Every frame the publisher wrote in those 4 s, but for the few in
+        // flight at either end.
+        assert!(
+            got + 10 >= sent,
+            "subscriber {i} applied {got} of the {sent} frames published while one stalled and one vanished"
+        );
+        assert!(s.in_sync(), "subscriber {i}: {:?}", s.stats());
+    }
+    let mut publishing = stop_stepping(&stop, stepper).await;
+    all_reach(&subs, &mut publishing).await;
+}

@@ -296,6 +296,9 @@ async fn follow_broadcast(
                     if applied && s.stats.join_time.is_none() {
                         s.stats.join_time = Some(started.elapsed());
                     }
+                    if let Some(e) = s.follower.gave_up() {
+                        return Err(MoqError::Follow(e));
+                    }
                 }
                 None => current = None,
             },
