@@ -64,7 +64,9 @@ fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+                // moq-net warns of every subscription a relay ends as a
+                // broadcast closes: only its errors by default.
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,moq_net=error")),
         )
         .with_writer(std::io::stderr)
         .init();

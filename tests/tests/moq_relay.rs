@@ -19,7 +19,7 @@ use psao_moq::net::{
 use psao_proto::FrameSource;
 use psao_proto::tls::Trust;
 use psao_scene::Pipeline;
-use psao_tests::moq_relay::{MoqRelay, RelayCert};
+use psao_tests::moq_relay::{LocalRelay, cert, scratch_dir, start};
 use psao_tests::scenes::{pipeline, sliding_box};
 
 const BROADCAST: &str = "psao/test";
@@ -50,7 +50,7 @@ fn step_at_60(
     })
 }
 
-async fn publisher(relay: &MoqRelay) -> (Publishing<Pipeline>, Link) {
+async fn publisher(relay: &LocalRelay) -> (Publishing<Pipeline>, Link) {
     let options = PublishOptions {
         relay: relay.url("").parse().unwrap(),
         trust: Trust::Fingerprint(relay.fingerprint),
@@ -65,7 +65,7 @@ async fn publisher(relay: &MoqRelay) -> (Publishing<Pipeline>, Link) {
 }
 
 /// A subscriber through `relays`, in turn (they share one certificate).
-fn subscriber(relays: &[&MoqRelay]) -> Subscription {
+fn subscriber(relays: &[&LocalRelay]) -> Subscription {
     subscribe(SubscribeOptions {
         relays: relays
             .iter()
@@ -100,7 +100,7 @@ fn state_of(p: &mut Publishing<Pipeline>) -> (u32, u32) {
     (kf.sequence, d.mirror().digest().unwrap())
 }
 
-fn relay_logs(relays: &[&MoqRelay]) -> String {
+fn relay_logs(relays: &[&LocalRelay]) -> String {
     relays
         .iter()
         .map(|r| r.log_text())
@@ -146,11 +146,12 @@ async fn all_reach(subs: &[Subscription], p: &mut Publishing<Pipeline>) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn subscribers_on_two_relays_one_late_end_equal_to_the_publisher() {
-    let cert = RelayCert::generate();
-    let Some(a) = MoqRelay::start("a", &cert, None) else {
+    let dir = scratch_dir("two-relays");
+    let cert = cert(&dir);
+    let Some(a) = start("a", &dir, &cert, None) else {
         return;
     };
-    let Some(b) = MoqRelay::start("b", &cert, Some(&a)) else {
+    let Some(b) = start("b", &dir, &cert, Some(&a)) else {
         return;
     };
     let (publishing, link) = publisher(&a).await;
@@ -189,11 +190,12 @@ async fn subscribers_on_two_relays_one_late_end_equal_to_the_publisher() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn subscribers_of_a_killed_relay_follow_again_through_the_other() {
-    let cert = RelayCert::generate();
-    let Some(a) = MoqRelay::start("a", &cert, None) else {
+    let dir = scratch_dir("killed-relay");
+    let cert = cert(&dir);
+    let Some(a) = start("a", &dir, &cert, None) else {
         return;
     };
-    let Some(mut b) = MoqRelay::start("b", &cert, Some(&a)) else {
+    let Some(mut b) = start("b", &dir, &cert, Some(&a)) else {
         return;
     };
     let (publishing, _link) = publisher(&a).await;
@@ -232,8 +234,9 @@ async fn subscribers_of_a_killed_relay_follow_again_through_the_other() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stalled_or_vanished_subscriber_does_not_slow_the_others() {
     use psao_tests::relay::{Impairment, Relay};
-    let cert = RelayCert::generate();
-    let Some(a) = MoqRelay::start("a", &cert, None) else {
+    let dir = scratch_dir("stalled");
+    let cert = cert(&dir);
+    let Some(a) = start("a", &dir, &cert, None) else {
         return;
     };
     let (publishing, link) = publisher(&a).await;

@@ -65,6 +65,15 @@ pub struct Args {
     /// each client, which checks it (0: no digests).
     #[arg(long, default_value_t = psao_proto::server::DIGEST_INTERVAL)]
     digest_interval: u16,
+    /// Fan out through Media over QUIC relays instead: start two clustered
+    /// moq-relay processes on loopback, publish the broadcast to the first
+    /// and subscribe the clients through both (spec/moq.md).
+    #[arg(long, conflicts_with = "cull")]
+    relay: bool,
+    /// The moq-relay binary for --relay [default: $PSAO_MOQ_RELAY, or
+    /// moq-relay on the PATH].
+    #[arg(long, requires = "relay")]
+    relay_bin: Option<PathBuf>,
 }
 
 /// Runs the demo: streams, prints, writes images, checks the mirrors.
@@ -83,6 +92,8 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         budget,
         lead,
         digest_interval,
+        relay,
+        relay_bin,
     } = args;
     if !(seconds > 0.0 && seconds <= 3600.0) {
         bail!("--seconds must be in (0, 3600]");
@@ -109,6 +120,18 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     println!("psao demo: preparing the default scene (points, grids, first trace)...");
     let t = Instant::now();
     let pipeline = pipeline_with_progress(scene, pipeline)?;
+    if relay {
+        let demo = super::demo_relay::RelayDemo {
+            seconds,
+            rate,
+            clients,
+            digest_interval,
+            shots,
+            lead,
+            relay_bin,
+        };
+        return super::demo_relay::run(demo, pipeline).await;
+    }
     let server = serve(pipeline, config, &identity).await?;
     println!(
         "server on {} (self-signed certificate, SHA-256 {}), ready in {:.2} s",
@@ -207,7 +230,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
 /// moments of the camera path, reconstructed from its mirror on a
 /// G-buffer of the scene at that moment (the client renders the scene
 /// itself and takes AO from the mirror, as a split renderer does).
-struct Shots {
+pub struct Shots {
     count: u32,
     taken: u32,
     out: PathBuf,
@@ -235,13 +258,13 @@ impl Shots {
 
     /// Whether the next image is due after `frames` of `total`: images
     /// fall at the ends of `count` equal parts of the run.
-    fn due(&self, frames: u64, total: u64) -> bool {
+    pub fn due(&self, frames: u64, total: u64) -> bool {
         self.taken < self.count && frames * self.count as u64 >= total * (self.taken as u64 + 1)
     }
 
     /// Renders and writes the image at scene time `t` from `mirror`;
     /// returns a line saying where it went.
-    async fn take(&mut self, mirror: psao_codec::Mirror, t: f32) -> anyhow::Result<String> {
+    pub async fn take(&mut self, mirror: psao_codec::Mirror, t: f32) -> anyhow::Result<String> {
         self.taken += 1;
         let (scene, out, k) = (self.scene.clone(), self.out.clone(), self.taken);
         tokio::task::spawn_blocking(move || -> anyhow::Result<String> {

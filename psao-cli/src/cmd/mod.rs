@@ -4,6 +4,7 @@
 pub mod common;
 pub mod conformance;
 pub mod demo;
+pub mod demo_relay;
 pub mod inspect;
 pub mod record;
 pub mod relay;

@@ -95,6 +95,7 @@ impl Link {
 impl Drop for Link {
     /// Ends the broadcast and the session with the relay.
     fn drop(&mut self) {
+        let _ = self._catalog.finish();
         self.task.abort();
         self.broadcast.close();
     }
@@ -129,11 +130,8 @@ impl<S> Publishing<S> {
         &self.inner
     }
 
-    /// The wrapped source, after the last step (the open group finished).
-    pub fn into_inner(mut self) -> S {
-        if let Some(g) = self.tracks.open.take() {
-            let _ = g.finish();
-        }
+    /// The wrapped source, after the last step (the tracks finished).
+    pub fn into_inner(self) -> S {
         self.inner
     }
 }
@@ -318,6 +316,18 @@ struct Tracks {
     frames: track::Producer,
     digests: track::Producer,
     open: Option<group::Producer>,
+}
+
+impl Drop for Tracks {
+    /// The broadcast's frames and digests end here: the open group and
+    /// both tracks are finished (subscribers see them end, not fail).
+    fn drop(&mut self) {
+        if let Some(g) = self.open.take() {
+            let _ = g.finish();
+        }
+        let _ = self.frames.finish();
+        let _ = self.digests.finish();
+    }
 }
 
 impl Tracks {

@@ -2,8 +2,9 @@
 //! [`Follower`] (spec/moq.md 3-5). It reads the catalog, then the
 //! `frames` track group by group (a newer group replaces the one being
 //! read) and the `digest` track; when the session or the broadcast ends
-//! it discards its mirror and subscribes again, through the next relay
-//! of its list when the one it used failed.
+//! it subscribes again, through the next relay of its list when the one it
+//! used failed, keeping its mirror (for a viewer to draw) until the new
+//! subscription starts from no state.
 
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -47,7 +48,8 @@ pub struct SubscribeStats {
     pub connects: u64,
     /// Index in the relay list of the relay in use (or last tried).
     pub relay: usize,
-    /// Mirror discarded to subscribe again (spec/moq.md 4, restarts).
+    /// Mirrors discarded as a new subscription started (spec/moq.md 4,
+    /// restarts).
     pub restarts: u64,
     /// From [`subscribe`] to the first keyframe applied.
     pub join_time: Option<Duration>,
@@ -173,8 +175,6 @@ async fn run(options: SubscribeOptions, shared: Arc<Mutex<Shared>>, started: Ins
                     let _ = since;
                 }
             }
-            s.follower.restart();
-            s.stats.restarts += 1;
             healthy_for = match &result {
                 Ok(since) => *since,
                 Err(_) => Duration::ZERO,
@@ -263,6 +263,16 @@ async fn follow_broadcast(
         w.digest && options.digests
     };
     let mut frames = broadcast.track(names::FRAMES)?.subscribe(None).await?;
+    {
+        // A new subscription starts from no state (spec/moq.md 4,
+        // restarts); until now the mirror of the last one was kept, for a
+        // viewer to go on drawing.
+        let mut s = lock(shared);
+        if s.follower.mirror().sequence().is_some() {
+            s.follower.restart();
+            s.stats.restarts += 1;
+        }
+    }
     let mut digests = match digest_track {
         true => Some(broadcast.track(names::DIGEST)?.subscribe(None).await?),
         false => None,
