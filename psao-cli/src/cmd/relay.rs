@@ -101,16 +101,21 @@ impl PublishArgs {
 }
 
 /// The subscription `--subscribe URL...` asks for, trusting the relays as
-/// --fingerprint or --ca say.
+/// --fingerprint or --ca say; subscriber `k` of several starts at relay
+/// `k` of the list (modulo its length) and falls back on the others in
+/// turn.
 fn subscription(
     urls: &[String],
     server: &ServerArgs,
     capture: bool,
+    k: usize,
 ) -> anyhow::Result<Subscription> {
-    let relays = urls
+    let mut relays = urls
         .iter()
         .map(|u| u.parse::<RelayUrl>())
         .collect::<Result<Vec<_>, _>>()?;
+    let n = relays.len();
+    relays.rotate_left(k % n);
     let trust = relay_trust(
         server.fingerprint.as_deref(),
         server.ca.as_deref(),
@@ -126,24 +131,47 @@ fn subscription(
     })?)
 }
 
-/// `psao view --subscribe`: follows the broadcast, a line a second.
-pub async fn view(urls: &[String], server: &ServerArgs) -> anyhow::Result<()> {
-    let sub = subscription(urls, server, false)?;
+/// `spread` of durations: median, lowest and highest, in ms.
+fn spread_ms(v: &mut [f64]) -> String {
+    if v.is_empty() {
+        return "none".into();
+    }
+    v.sort_by(f64::total_cmp);
+    format!(
+        "{:.0} ms median, {:.0}-{:.0} ms",
+        v[v.len() / 2] * 1e3,
+        v[0] * 1e3,
+        v[v.len() - 1] * 1e3
+    )
+}
+
+/// `psao view --subscribe`: follows the broadcast with `count` subscribers
+/// (a load generator past 1), a line a second, and a summary.
+pub async fn view(urls: &[String], server: &ServerArgs, count: usize) -> anyhow::Result<()> {
+    let subs = (0..count)
+        .map(|k| subscription(urls, server, false, k))
+        .collect::<anyhow::Result<Vec<_>>>()?;
     println!(
-        "subscribing to {} (then {} more relays on failure)",
+        "{count} subscriber(s) to {} ({} relay(s), tried in turn)",
         urls[0],
-        urls.len() - 1
+        urls.len()
     );
     let started = Instant::now();
     let until = server.seconds.map(|s| Instant::now() + seconds_of(s));
     let mut printed_catalog = false;
-    let mut prev = (sub.stats(), Instant::now());
+    let sum = |subs: &[Subscription]| {
+        subs.iter().fold((0u64, 0u64), |(a, b), s| {
+            let st = s.stats();
+            (a + st.follow.applied, b + st.follow.bytes)
+        })
+    };
+    let mut prev = (sum(&subs), Instant::now());
     loop {
         tokio::time::sleep(Duration::from_secs(1)).await;
-        if let Some(why) = sub.failed() {
+        if let Some(why) = subs.iter().find_map(|s| s.failed()) {
             bail!("cannot follow the broadcast: {why}");
         }
-        if !printed_catalog && let Some(w) = sub.with_follower(|f| f.catalog().cloned()) {
+        if !printed_catalog && let Some(w) = subs[0].with_follower(|f| f.catalog().cloned()) {
             println!(
                 "broadcast of scene `{}`: {} Hz, compression {}, frames up to {}, digests {}",
                 w.scene,
@@ -154,53 +182,71 @@ pub async fn view(urls: &[String], server: &ServerArgs) -> anyhow::Result<()> {
             );
             printed_catalog = true;
         }
-        let s = sub.stats();
+        let now = sum(&subs);
         let dt = prev.1.elapsed().as_secs_f64();
-        let (seq, in_sync) = sub.with_follower(|f| (f.mirror().sequence(), f.in_sync()));
+        let n = count as f64;
+        let s = subs[0].stats();
+        let seq = subs[0].with_follower(|f| f.mirror().sequence());
+        let in_sync = subs.iter().filter(|s| s.in_sync()).count();
+        let missed: u64 = subs.iter().map(|s| s.stats().follow.groups_missed).sum();
+        let wrong: u64 = subs
+            .iter()
+            .map(|s| s.stats().follow.digest_mismatches)
+            .sum();
         println!(
-            "{:5.1} frames/s | {:6.3} Mbit/s | mirror at frame {} | {} | groups {} ({} missed) | digests {} ok, {} wrong | relay {} ({} sessions){}",
-            s.follow.applied.saturating_sub(prev.0.follow.applied) as f64 / dt,
-            s.follow.bytes.saturating_sub(prev.0.follow.bytes) as f64 * 8.0 / dt / 1e6,
+            "{:5.1} frames/s | {:6.3} Mbit/s | mirror at frame {} | {in_sync}/{count} in sync | groups {} ({missed} missed) | digests {} ok, {wrong} wrong | relay {} ({} sessions){}",
+            (now.0 - prev.0.0) as f64 / dt / n,
+            (now.1 - prev.0.1) as f64 * 8.0 / dt / 1e6 / n,
             seq.map_or("none".to_string(), |q| q.to_string()),
-            if in_sync { "in sync" } else { "NOT in sync" },
             s.follow.groups,
-            s.follow.groups_missed,
             s.follow.digests_matched,
-            s.follow.digest_mismatches,
             s.relay,
             s.connects,
             s.last_error
                 .as_ref()
                 .map_or(String::new(), |e| format!(" | last: {e}")),
         );
-        prev = (s, Instant::now());
+        prev = (now, Instant::now());
         if until.is_some_and(|u| Instant::now() >= u) {
             break;
         }
     }
-    let s = sub.stats();
     let secs = started.elapsed().as_secs_f64();
-    println!("summary over {secs:.1} s:");
+    let stats: Vec<_> = subs.iter().map(|s| s.stats()).collect();
+    let total = |f: fn(&psao_moq::net::SubscribeStats) -> u64| stats.iter().map(f).sum::<u64>();
+    let mut joins: Vec<f64> = stats
+        .iter()
+        .filter_map(|s| s.join_time.map(|t| t.as_secs_f64()))
+        .collect();
+    let n = count as f64;
+    println!("summary over {secs:.1} s ({count} subscriber(s); per subscriber where it says so):");
     println!(
-        "  frames     {} applied ({} keyframes), {} ignored, {} broken",
-        s.follow.applied, s.follow.keyframes, s.follow.ignored, s.follow.broken
+        "  frames     {:.0} applied ({:.1} keyframes), {:.1} ignored, {:.1} broken per subscriber",
+        total(|s| s.follow.applied) as f64 / n,
+        total(|s| s.follow.keyframes) as f64 / n,
+        total(|s| s.follow.ignored) as f64 / n,
+        total(|s| s.follow.broken) as f64 / n
     );
     println!(
-        "  received   {} ({:.3} Mbit/s)",
-        human_bytes(s.follow.bytes),
-        s.follow.bytes as f64 * 8.0 / secs.max(1e-9) / 1e6
+        "  received   {} per subscriber ({:.3} Mbit/s)",
+        human_bytes(total(|s| s.follow.bytes) / count as u64),
+        total(|s| s.follow.bytes) as f64 * 8.0 / secs.max(1e-9) / 1e6 / n
     );
     println!(
-        "  joined     {}",
-        s.join_time
-            .map_or("never (no keyframe applied)".to_string(), |t| format!(
-                "{:.0} ms after subscribing",
-                t.as_secs_f64() * 1e3
-            ))
+        "  joined     {} of {count}: {} after subscribing",
+        joins.len(),
+        spread_ms(&mut joins)
+    );
+    println!(
+        "  in sync    {} of {count} at the end",
+        subs.iter().filter(|s| s.in_sync()).count()
     );
     println!(
         "  digests    {} matched, {} did not; {} restarts, {} sessions",
-        s.follow.digests_matched, s.follow.digest_mismatches, s.restarts, s.connects
+        total(|s| s.follow.digests_matched),
+        total(|s| s.follow.digest_mismatches),
+        total(|s| s.restarts),
+        total(|s| s.connects)
     );
     Ok(())
 }
@@ -215,7 +261,7 @@ pub async fn record(urls: &[String], server: &ServerArgs, out: &Path) -> anyhow:
     };
     let file = std::fs::File::create(out).with_context(|| out.display().to_string())?;
     let mut writer = CaptureWriter::new(std::io::BufWriter::new(file))?;
-    let sub = subscription(urls, server, true)?;
+    let sub = subscription(urls, server, true, 0)?;
     let start = Instant::now();
     let until = start + seconds_of(seconds);
     let (mut frames, mut bytes, mut dropped) = (0u64, 0u64, 0u64);

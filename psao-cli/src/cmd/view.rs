@@ -19,16 +19,21 @@ pub struct Args {
     /// certificate --fingerprint or --ca checks).
     #[arg(long, value_name = "URL", conflicts_with = "connect")]
     subscribe: Vec<String>,
+    /// With --subscribe: this many subscribers in one process (a load
+    /// generator), subscriber k starting at relay k of the list.
+    #[arg(long, default_value_t = 1, requires = "subscribe", value_parser = clap::value_parser!(u16).range(1..=10000))]
+    subscribers: u16,
 }
 
 /// Connects and prints a line a second until the session ends or
 /// `--seconds` pass.
 pub async fn run(args: Args) -> anyhow::Result<()> {
     if !args.subscribe.is_empty() {
-        return super::relay::view(&args.subscribe, &args.server).await;
+        return super::relay::view(&args.subscribe, &args.server, args.subscribers.into()).await;
     }
     let trust = args.server.trust()?;
     let addr = args.server.addr()?;
+    let connecting = Instant::now();
     let h = connect(
         addr,
         &trust,
@@ -50,6 +55,11 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
             human_bytes(w.max_frame_bytes as u64)
         );
     }
+    // Connect to the first keyframe applied (as `--subscribe` reports it).
+    let joined = h
+        .wait_for(Duration::from_secs(10), |s| s.mirror().sequence().is_some())
+        .await
+        .then(|| connecting.elapsed());
     let started = Instant::now();
     let until = args.server.seconds.map(|s| Instant::now() + seconds_of(s));
     let mut prev = (h.with_session(|s| s.stats()), Instant::now());
@@ -117,6 +127,13 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         "  received   {} ({:.3} Mbit/s)",
         human_bytes(s.bytes),
         s.bytes as f64 * 8.0 / secs.max(1e-9) / 1e6
+    );
+    println!(
+        "  joined     {}",
+        joined.map_or("no keyframe within 10 s".to_string(), |t| format!(
+            "{:.0} ms after connecting",
+            t.as_secs_f64() * 1e3
+        ))
     );
     println!(
         "  mirror     {instances} instances, {}, at frame {}",

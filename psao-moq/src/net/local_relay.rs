@@ -65,8 +65,12 @@ pub struct RelayCert {
 
 impl RelayCert {
     /// A fresh self-signed certificate for localhost and 127.0.0.1,
-    /// written to `dir` (created if missing).
+    /// written to `dir/cert/` (created if missing). The directory holds
+    /// nothing else: moq-relay watches the directory of its certificate
+    /// and reloads it at every change there (a log file written beside it
+    /// would have it reload in a loop).
     pub fn generate(dir: &Path) -> Result<RelayCert, LocalRelayError> {
+        let dir = &dir.join("cert");
         let file_err = |path: &Path, e: &dyn std::fmt::Display| LocalRelayError::File {
             path: path.to_path_buf(),
             why: e.to_string(),
