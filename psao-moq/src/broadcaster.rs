@@ -99,6 +99,8 @@ pub struct BroadcastStats {
     pub rolled_by_gap: u64,
     /// Digests written.
     pub digests: u64,
+    /// Groups ended early because a write failed ([`Broadcaster::interrupt`]).
+    pub interrupted: u64,
 }
 
 #[derive(Debug)]
@@ -148,6 +150,15 @@ impl Broadcaster {
     /// What it has written so far.
     pub fn stats(&self) -> BroadcastStats {
         self.stats
+    }
+
+    /// Ends the open group: a frame of it could not be written, so its
+    /// later deltas would not apply for anyone. The next step starts a new
+    /// group with a keyframe (spec/moq.md 4).
+    pub fn interrupt(&mut self) {
+        if self.open.take().is_some() {
+            self.stats.interrupted += 1;
+        }
     }
 
     /// The id of the open `frames` group.

@@ -18,7 +18,8 @@ use psao_proto::control::Welcome;
 
 use crate::catalog::{decode_catalog, decode_digest};
 
-/// Digests held until the mirror reaches their sequence (spec/moq.md 5).
+/// Digests held until the mirror reaches their sequence, the last to
+/// arrive (spec/moq.md 5).
 pub const HELD_DIGESTS: usize = 8;
 
 /// Groups in a row whose keyframe may fail to decode before the subscriber
@@ -41,7 +42,7 @@ pub enum FollowError {
         /// This subscriber's.
         accepted: u64,
     },
-    /// A frame or digest arrived before the catalog.
+    /// A digest arrived before the catalog (it is ignored).
     #[error("a {0} arrived before the catalog")]
     BeforeCatalog(&'static str),
     /// The keyframes of this many groups in a row failed to decode
@@ -189,19 +190,27 @@ impl Follower {
         check("point_format", w.point_format.into(), 1)?;
         if w.compression > 7 || decodable_compressions() & (1 << w.compression) == 0 {
             return Err(FollowError::AboveLimits {
-                what: "a compression this build decodes, id",
+                what: "compression",
                 needed: w.compression.into(),
                 accepted: decodable_compressions().into(),
             });
         }
-        if let Some(old) = &self.catalog
-            && *old != w
-        {
-            return Err(FollowError::Catalog(SessionError::malformed(
-                "catalog",
-                "it changed within the broadcast",
-            )));
+        if let Some(old) = &self.catalog {
+            if *old != w {
+                return Err(FollowError::Catalog(SessionError::malformed(
+                    "catalog",
+                    "it changed within the subscription",
+                )));
+            }
+            return Ok(self.catalog.insert(w));
         }
+        // Frames above the catalog's limits break its promise: they fail to
+        // decode, as any frame above the subscriber's own would (the
+        // decoder holds no state yet: a catalog comes first).
+        let mut limits = self.limits;
+        limits.max_frame_bytes = w.max_frame_bytes;
+        limits.max_payload_bytes = w.max_payload_bytes;
+        self.decoder = Decoder::new(limits);
         Ok(self.catalog.insert(w))
     }
 
@@ -231,13 +240,20 @@ impl Follower {
                 });
             }
         }
+        let compression = self.catalog.as_ref().map_or(0, |w| w.compression);
         let g = self.group.as_mut().expect("set above");
         if !g.following && index != 0 {
             // Joined inside this group, or it broke: wait for the next.
             self.stats.ignored += 1;
             return Followed::Ignored;
         }
-        match self.decoder.receive(frame) {
+        // A compression other than the catalog's (or none) breaks its
+        // promise: a failed frame (spec/session.md 3.2, spec/moq.md 4).
+        let result = match frame.get(6) {
+            Some(&c) if c != 0 && c != compression => Err(DecodeError::HeaderField("compression")),
+            _ => self.decoder.receive(frame),
+        };
+        match result {
             Ok(Event::Applied { sequence, keyframe }) => {
                 g.following = true;
                 self.stats.applied += 1;
@@ -250,9 +266,13 @@ impl Follower {
                 Followed::Applied { sequence, keyframe }
             }
             Ok(Event::Stale { .. }) => {
-                // A keyframe of the state the mirror already holds (a
-                // subscriber that followed the last group): in sync.
-                g.following = index == 0 || g.following;
+                // A frame older than the mirror: a duplicate delta leaves a
+                // group followed as it was; a stale keyframe opening a group
+                // (a publisher that restarted without a new announcement)
+                // is not followed, and the mirror is not in sync.
+                if index == 0 {
+                    g.following = false;
+                }
                 self.stats.ignored += 1;
                 Followed::Ignored
             }
@@ -362,11 +382,12 @@ impl Follower {
         self.stats
     }
 
-    /// Discards the mirror and every group and digest seen, keeping the
-    /// catalog (spec/moq.md 4, restarts: a new subscription, or the
-    /// broadcast announced anew).
+    /// Starts from no state for a new subscription (spec/moq.md 4,
+    /// restarts): no catalog, no mirror, no group seen, no digest held, no
+    /// keyframe failure counted. Its counts ([`Follower::stats`]) go on.
     pub fn restart(&mut self) {
         self.decoder = Decoder::new(self.limits);
+        self.catalog = None;
         self.group = None;
         self.digests.clear();
         self.out_of_sync = false;

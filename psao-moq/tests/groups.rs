@@ -354,6 +354,10 @@ fn a_catalog_above_the_limits_or_one_that_changes_is_refused() {
         ..w.clone()
     };
     assert!(f.on_catalog(&encode_catalog(&changed)).is_err());
+    // A new subscription may find another catalog (a publisher restarted).
+    f.restart();
+    assert!(f.on_catalog(&encode_catalog(&changed)).is_ok());
+    f.restart();
     assert!(
         f.on_catalog(&encode_catalog(&w)).is_ok(),
         "the same catalog again"
@@ -387,11 +391,37 @@ fn a_restart_discards_the_mirror_and_the_next_keyframe_rebuilds_it() {
     f.restart();
     assert_eq!(f.mirror().sequence(), None);
     assert!(!f.in_sync());
+    assert!(
+        f.catalog().is_none(),
+        "a new subscription reads the catalog anew"
+    );
+    f.on_catalog(&encode_catalog(&welcome(&info))).unwrap();
     // The relay hands the latest group again, from its keyframe.
     let last = r.frames.last().unwrap().group;
     for g in r.frames.iter().filter(|g| g.group == last) {
         f.on_frame(g.group, g.index, &g.bytes);
     }
     assert_eq!(f.mirror().digest(), want);
+    assert!(f.in_sync());
+}
+
+#[test]
+fn an_interrupted_group_is_followed_by_a_new_one_that_repairs_everyone() {
+    let mut s = source();
+    let info = FrameSource::info(&s);
+    let mut b = Broadcaster::new(&info, GroupPolicy::default());
+    let first = run(&mut s, &mut b, 10, &[]);
+    assert_eq!(b.open_group(), Some(0));
+    // A write of group 0 failed: the next step opens group 1.
+    b.interrupt();
+    assert_eq!(b.stats().interrupted, 1);
+    let next = run(&mut s, &mut b, 5, &[]);
+    assert_eq!(next.frames[0].group, 1);
+    assert_eq!(next.frames[0].index, 0);
+    // A subscriber that missed the end of group 0 follows from group 1.
+    let mut f = follower(&info);
+    for g in first.frames.iter().take(3).chain(&next.frames) {
+        f.on_frame(g.group, g.index, &g.bytes);
+    }
     assert!(f.in_sync());
 }

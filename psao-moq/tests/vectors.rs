@@ -64,6 +64,7 @@ fn replay(path: &PathBuf) -> usize {
                         Ok(DigestCheck::Mismatch) => "mismatch",
                         Ok(DigestCheck::Held) => "held",
                         Ok(DigestCheck::Passed) => "passed",
+                        Err(FollowError::BeforeCatalog(_)) => "ignored",
                         Err(_) => "error",
                     }
                 )

@@ -128,6 +128,17 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         scene_name: name,
         ..ServerConfig::default()
     };
+    // Checked before the scene is prepared, so a bad option fails at once.
+    let publish = args.publish.options(
+        &config.scene_name,
+        config.frame_rate,
+        config.digest_interval,
+    )?;
+    if publish.is_some() && args.cull {
+        anyhow::bail!(
+            "--publish with --cull: a broadcast carries the whole scene to every viewer (spec/moq.md 6)"
+        );
+    }
     let mut pipeline = PipelineConfig {
         cull: args.cull.then(ViewerCull::default),
         bind_space: !args.posed_deforming,
@@ -146,11 +157,6 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         "{}",
         scene_summary(&mut pipeline, started.elapsed().as_secs_f64())?
     );
-    let publish = args.publish.options(
-        &config.scene_name,
-        config.frame_rate,
-        config.digest_interval,
-    )?;
     match publish {
         None => serve_until(pipeline, config, &identity, None, args.seconds).await,
         Some(options) => {

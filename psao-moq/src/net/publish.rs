@@ -158,9 +158,16 @@ impl<S: FrameSource> FrameSource for Publishing<S> {
         };
         let mut errors = 0;
         for w in writes {
+            let frames = !matches!(w, Write::Digest { .. });
             if let Err(e) = self.tracks.write(w) {
                 warn!("writing the broadcast: {e}");
                 errors += 1;
+                if frames {
+                    // The group's later deltas would not apply for anyone:
+                    // the next step opens a new one.
+                    self.broadcaster.interrupt();
+                    self.tracks.open = None;
+                }
             }
         }
         let mut s = lock(&self.stats);
@@ -228,7 +235,11 @@ pub async fn publish_alongside<S: FrameSource>(
     let broadcast = origin.create_broadcast(name.as_str())?;
     let catalog = broadcast.create_track(names::CATALOG, None)?;
     let frames = broadcast.create_track(names::FRAMES, None)?;
-    let digests = broadcast.create_track(names::DIGEST, None)?;
+    // The digest track only when the catalog says it is published.
+    let digests = match options.policy.digest_every {
+        0 => None,
+        _ => Some(broadcast.create_track(names::DIGEST, None)?),
+    };
     let welcome = Welcome {
         version: VERSION,
         compression: info.compression,
@@ -314,7 +325,7 @@ async fn keep_linked(
 /// The track producers a publication writes, and the open group.
 struct Tracks {
     frames: track::Producer,
-    digests: track::Producer,
+    digests: Option<track::Producer>,
     open: Option<group::Producer>,
 }
 
@@ -326,7 +337,9 @@ impl Drop for Tracks {
             let _ = g.finish();
         }
         let _ = self.frames.finish();
-        let _ = self.digests.finish();
+        if let Some(d) = &self.digests {
+            let _ = d.finish();
+        }
     }
 }
 
@@ -347,9 +360,11 @@ impl Tracks {
                 }
             }
             Write::Digest { group, body } => {
-                let mut g = self.digests.create_group(group::Info { sequence: group })?;
-                g.write_frame(Timestamp::now(), body)?;
-                g.finish()?;
+                if let Some(d) = &self.digests {
+                    let mut g = d.create_group(group::Info { sequence: group })?;
+                    g.write_frame(Timestamp::now(), body)?;
+                    g.finish()?;
+                }
             }
         }
         Ok(())

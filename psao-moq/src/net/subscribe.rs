@@ -249,7 +249,17 @@ async fn follow_broadcast(
     started: Instant,
 ) -> Result<(), MoqError> {
     let broadcast = announced(origin, &url.path).await?;
-    // The catalog first (spec/moq.md 3).
+    {
+        // A new subscription starts from no state (spec/moq.md 4,
+        // restarts); until now the mirror of the last one was kept, for a
+        // viewer to go on drawing.
+        let mut s = lock(shared);
+        if s.follower.mirror().sequence().is_some() {
+            s.stats.restarts += 1;
+        }
+        s.follower.restart();
+    }
+    // The catalog first (spec/moq.md 3), read anew for each subscription.
     let mut catalog = broadcast.track(names::CATALOG)?.subscribe(None).await?;
     let mut g = catalog.recv_group().await?.ok_or(MoqError::Timeout(
         "the catalog track ended before its group",
@@ -263,16 +273,6 @@ async fn follow_broadcast(
         w.digest && options.digests
     };
     let mut frames = broadcast.track(names::FRAMES)?.subscribe(None).await?;
-    {
-        // A new subscription starts from no state (spec/moq.md 4,
-        // restarts); until now the mirror of the last one was kept, for a
-        // viewer to go on drawing.
-        let mut s = lock(shared);
-        if s.follower.mirror().sequence().is_some() {
-            s.follower.restart();
-            s.stats.restarts += 1;
-        }
-    }
     let mut digests = match digest_track {
         true => Some(broadcast.track(names::DIGEST)?.subscribe(None).await?),
         false => None,
@@ -319,8 +319,9 @@ async fn follow_broadcast(
             f = next_frame(&mut digest_group) => match f? {
                 Some((_, _, payload)) => {
                     let mut s = lock(shared);
+                    // A malformed digest is ignored (spec/moq.md 5).
                     if let Err(e) = s.follower.on_digest(&payload) {
-                        warn!("a digest frame: {e}");
+                        warn!("a digest frame ignored: {e}");
                     }
                 }
                 None => digest_group = None,
