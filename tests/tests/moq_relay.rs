@@ -278,7 +278,10 @@ async fn a_stalled_or_vanished_subscriber_does_not_slow_the_others() {
         "in sync: {:#?}",
         subs.iter().map(|s| s.stats()).collect::<Vec<_>>()
     );
+    // The origin's cache in steady state: past its 5 s of retention.
+    tokio::time::sleep(Duration::from_secs(5)).await;
     cut_link.cut(true);
+    let cached_before = link.cached_bytes();
     let before: Vec<u64> = subs.iter().map(|s| s.stats().follow.applied).collect();
     let published_before = link.stats().broadcast;
     tokio::time::sleep(Duration::from_secs(4)).await;
@@ -295,6 +298,14 @@ async fn a_stalled_or_vanished_subscriber_does_not_slow_the_others() {
         );
         assert!(s.in_sync(), "subscriber {i}: {:?}", s.stats());
     }
+    // The origin holds what it held before the stall began (its groups of
+    // the last seconds), however long the stalled subscribers stall.
+    let cached = link.cached_bytes();
+    assert!(cached_before > 0);
+    assert!(
+        cached <= cached_before * 3 / 2 + 65_536,
+        "the origin's cache grew from {cached_before} to {cached} bytes while subscribers stalled"
+    );
     let mut publishing = stop_stepping(&stop, stepper).await;
     all_reach(&subs, &mut publishing).await;
 }

@@ -65,6 +65,7 @@ pub struct PublishStats {
 /// session kept up with the relay. Dropping it ends the broadcast.
 pub struct Link {
     name: String,
+    pool: moq_net::cache::Pool,
     stats: Arc<Mutex<PublishStats>>,
     task: tokio::task::JoinHandle<()>,
     broadcast: broadcast::Producer,
@@ -89,6 +90,12 @@ impl Link {
     /// What the publication has done so far.
     pub fn stats(&self) -> PublishStats {
         *lock(&self.stats)
+    }
+
+    /// Bytes of groups the origin holds now (its cache: the groups of the
+    /// last few seconds, for the relay to fetch).
+    pub fn cached_bytes(&self) -> u64 {
+        self.pool.used()
     }
 }
 
@@ -230,7 +237,12 @@ pub async fn publish_alongside<S: FrameSource>(
         .broadcast
         .clone()
         .unwrap_or_else(|| broadcast_name(&options.scene));
-    let (origin, driver) = origin::Producer::new(origin::Config::default());
+    let config = origin::Config::default();
+    // The origin's groups are kept for the tracks' max age (5 s of media
+    // time by default) whoever reads them: a slow subscriber at a relay
+    // pins nothing here.
+    let pool = config.pool.clone();
+    let (origin, driver) = origin::Producer::new(config);
     tokio::spawn(moq_net::time::run(driver));
     let broadcast = origin.create_broadcast(name.as_str())?;
     let catalog = broadcast.create_track(names::CATALOG, None)?;
@@ -283,6 +295,7 @@ pub async fn publish_alongside<S: FrameSource>(
     };
     let link = Link {
         name,
+        pool,
         stats,
         task,
         broadcast,
