@@ -25,6 +25,11 @@ const W1: u32 = 0x8C21_77C8;
 /// and one more at each later sequence, as the deltas of [`step`] leave it
 /// (a group's keyframe holds the state its publisher reached).
 fn keyframe(seq: u32) -> Vec<u8> {
+    keyframe_compressed(seq, 0)
+}
+
+/// [`keyframe`] with the payload compressed as `compression` says.
+fn keyframe_compressed(seq: u32, compression: u8) -> Vec<u8> {
     let word = (W1 & !0xff) | (200 + seq - 5);
     let mut f = key(
         seq,
@@ -37,6 +42,7 @@ fn keyframe(seq: u32) -> Vec<u8> {
         ],
     );
     f.checksum = true;
+    f.compression = compression;
     f.bytes()
 }
 
@@ -340,19 +346,7 @@ fn vectors() -> Vec<Vector> {
 
 /// [`keyframe`] compressed with LZ4 (compression 1).
 fn lz4_keyframe(seq: u32) -> Vec<u8> {
-    let word = (W1 & !0xff) | (200 + seq - 5);
-    let mut f = key(
-        seq,
-        vec![
-            define(1, &DEF),
-            transform(1, 1, 3.0),
-            buckets(1, &[(1, &[(1, 0)])]),
-            cells_full(1, &[(0, &[word])]),
-            END.to_vec(),
-        ],
-    );
-    f.compression = 1;
-    f.bytes()
+    keyframe_compressed(seq, 1)
 }
 
 /// A keyframe at `seq` whose payload is above 4096 bytes (5000 filler

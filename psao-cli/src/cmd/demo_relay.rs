@@ -19,6 +19,7 @@ use psao_scene::Pipeline;
 
 use super::common::{cpu_seconds, human_bytes, status};
 use super::demo::Shots;
+use super::relay::spread_ms;
 
 /// What `psao demo --relay` runs.
 pub struct RelayDemo {
@@ -36,20 +37,6 @@ pub struct RelayDemo {
     pub lead: f32,
     /// The relay binary (default: found on the PATH).
     pub relay_bin: Option<PathBuf>,
-}
-
-/// Seconds the median, lowest and highest of `v` (sorted here).
-fn spread(v: &mut [f64]) -> String {
-    if v.is_empty() {
-        return "none".into();
-    }
-    v.sort_by(f64::total_cmp);
-    format!(
-        "{:.0} ms median, {:.0}-{:.0} ms",
-        v[v.len() / 2] * 1e3,
-        v[0] * 1e3,
-        v[v.len() - 1] * 1e3
-    )
 }
 
 /// Runs it.
@@ -212,7 +199,7 @@ pub async fn run(d: RelayDemo, pipeline: Pipeline) -> anyhow::Result<()> {
     );
     println!(
         "  join                {} (subscribe to first keyframe applied)",
-        spread(&mut joins)
+        spread_ms(&mut joins)
     );
     println!(
         "  digests             {} matched, {} differed",

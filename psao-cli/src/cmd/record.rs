@@ -1,7 +1,7 @@
 //! `psao record`: a client that writes every frame it receives to a
 //! capture file (spec/capture.md).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
@@ -67,7 +67,13 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     drain(&mut writer)?;
     writer.finish()?;
     h.close().await;
-    println!(
+    println!("{}", recorded(frames, bytes, dropped, start, out));
+    Ok(())
+}
+
+/// What a recording wrote, in a line.
+pub fn recorded(frames: u64, bytes: u64, dropped: u64, start: Instant, out: &Path) -> String {
+    format!(
         "recorded {frames} frames ({bytes} bytes) in {:.1} s to {}{}",
         start.elapsed().as_secs_f64(),
         out.display(),
@@ -76,6 +82,5 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         } else {
             String::new()
         }
-    );
-    Ok(())
+    )
 }

@@ -131,8 +131,9 @@ fn subscription(
     })?)
 }
 
-/// `spread` of durations: median, lowest and highest, in ms.
-fn spread_ms(v: &mut [f64]) -> String {
+/// Durations in seconds as their median, lowest and highest, in ms
+/// (sorts them).
+pub fn spread_ms(v: &mut [f64]) -> String {
     if v.is_empty() {
         return "none".into();
     }
@@ -283,14 +284,8 @@ pub async fn record(urls: &[String], server: &ServerArgs, out: &Path) -> anyhow:
     }
     writer.finish()?;
     println!(
-        "recorded {frames} frames ({bytes} bytes) in {:.1} s to {}{}",
-        start.elapsed().as_secs_f64(),
-        out.display(),
-        if dropped > 0 {
-            format!("; {dropped} frames dropped (the writer fell behind)")
-        } else {
-            String::new()
-        }
+        "{}",
+        super::record::recorded(frames, bytes, dropped, start, out)
     );
     Ok(())
 }
