@@ -411,6 +411,26 @@ pub fn cpu_seconds() -> Option<f64> {
     Some(ticks / 100.0)
 }
 
+/// What a recording wrote, in a line.
+pub fn recorded(
+    frames: u64,
+    bytes: u64,
+    dropped: u64,
+    start: std::time::Instant,
+    out: &Path,
+) -> String {
+    format!(
+        "recorded {frames} frames ({bytes} bytes) in {:.1} s to {}{}",
+        start.elapsed().as_secs_f64(),
+        out.display(),
+        if dropped > 0 {
+            format!("; {dropped} frames dropped (the writer fell behind)")
+        } else {
+            String::new()
+        }
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

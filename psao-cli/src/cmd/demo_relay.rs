@@ -18,8 +18,8 @@ use psao_proto::{Identity, ServerConfig, Trust, serve};
 use psao_scene::Pipeline;
 
 use super::common::{cpu_seconds, human_bytes, status};
-use super::demo::Shots;
 use super::relay::spread_ms;
+use super::shots::Shots;
 
 /// What `psao demo --relay` runs.
 pub struct RelayDemo {

@@ -9,4 +9,5 @@ pub mod inspect;
 pub mod record;
 pub mod relay;
 pub mod serve;
+pub mod shots;
 pub mod view;

@@ -1,14 +1,14 @@
 //! `psao record`: a client that writes every frame it receives to a
 //! capture file (spec/capture.md).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
 use psao_proto::capture::CaptureWriter;
 use psao_proto::{ClientConfig, Ended, connect};
 
-use super::common::{ServerArgs, seconds_of};
+use super::common::{ServerArgs, recorded, seconds_of};
 
 /// Arguments of `psao record`.
 #[derive(clap::Args)]
@@ -69,18 +69,4 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     h.close().await;
     println!("{}", recorded(frames, bytes, dropped, start, out));
     Ok(())
-}
-
-/// What a recording wrote, in a line.
-pub fn recorded(frames: u64, bytes: u64, dropped: u64, start: Instant, out: &Path) -> String {
-    format!(
-        "recorded {frames} frames ({bytes} bytes) in {:.1} s to {}{}",
-        start.elapsed().as_secs_f64(),
-        out.display(),
-        if dropped > 0 {
-            format!("; {dropped} frames dropped (the writer fell behind)")
-        } else {
-            String::new()
-        }
-    )
 }

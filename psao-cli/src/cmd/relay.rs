@@ -285,7 +285,7 @@ pub async fn record(urls: &[String], server: &ServerArgs, out: &Path) -> anyhow:
     writer.finish()?;
     println!(
         "{}",
-        super::record::recorded(frames, bytes, dropped, start, out)
+        super::common::recorded(frames, bytes, dropped, start, out)
     );
     Ok(())
 }
