@@ -185,7 +185,7 @@ pub const MAX_FAILED_KEYFRAMES: u32 = 2;
 pub fn decodable_compressions() -> u8 {
     [Compression::None, Compression::Lz4, Compression::Zstd]
         .into_iter()
-        .filter(|c| c.available())
+        .filter(|c| c.decodable())
         .fold(0, |m, c| m | 1 << c.id())
 }
 

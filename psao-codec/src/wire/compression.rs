@@ -22,12 +22,18 @@ impl Compression {
         }
     }
 
-    /// Whether this build can (de)compress it.
+    /// Whether this build can compress and decompress it.
     pub fn available(self) -> bool {
         match self {
             Compression::None => true,
             Compression::Lz4 => cfg!(feature = "lz4"),
             Compression::Zstd => cfg!(feature = "zstd"),
         }
+    }
+
+    /// Whether this build can decompress it: as [`Compression::available`],
+    /// and zstd also with feature `zstd-pure` (ruzstd, decoding only).
+    pub fn decodable(self) -> bool {
+        self.available() || (self == Compression::Zstd && cfg!(feature = "zstd-pure"))
     }
 }

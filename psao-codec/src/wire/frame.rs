@@ -150,7 +150,7 @@ pub fn decode_frame<'a>(
             });
         }
     }
-    if !header.compression.available() {
+    if !header.compression.decodable() {
         return Err(DecodeError::CompressionUnavailable(header.compression));
     }
     let payload: &'a [u8] = match header.compression {

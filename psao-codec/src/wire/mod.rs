@@ -14,7 +14,7 @@ pub(crate) mod lz4_block;
 pub(crate) mod message;
 pub mod point;
 pub mod sequence;
-#[cfg(feature = "zstd")]
+#[cfg(any(feature = "zstd", feature = "zstd-pure"))]
 pub(crate) mod zstd_frames;
 
 pub use frame::{FrameView, Located, Messages, Scratch, decode_frame};

@@ -59,6 +59,60 @@ fn window_of(frame: &[u8], offset: u32) -> Result<u64, DecompressFault> {
     Ok(window)
 }
 
+/// The bytes of the zstd frame at the start of `frame`, from its header and
+/// block headers (RFC 8878 3.1.1: header, blocks up to the one marked
+/// last, the checksum if the header says so); a reserved block type or a
+/// frame cut short is corrupt. With the C library, its own walk.
+#[cfg(feature = "zstd")]
+fn frame_size(frame: &[u8]) -> Result<usize, DecompressFault> {
+    zstd::zstd_safe::find_frame_compressed_size(frame).map_err(|_| DecompressFault::Corrupt)
+}
+
+/// The bytes of the zstd frame at the start of `frame` (see above), walked
+/// here where there is no C library (feature `zstd-pure`).
+#[cfg(not(feature = "zstd"))]
+fn frame_size(frame: &[u8]) -> Result<usize, DecompressFault> {
+    frame_size_walked(frame)
+}
+
+/// The frame walk of RFC 8878 3.1.1, checked against the C library's in
+/// the tests.
+#[cfg_attr(feature = "zstd", allow(dead_code))]
+fn frame_size_walked(frame: &[u8]) -> Result<usize, DecompressFault> {
+    let cut = DecompressFault::Corrupt;
+    let descriptor = *frame.get(4).ok_or(cut)?;
+    let single_segment = descriptor & 0x20 != 0;
+    let fcs_len = match descriptor >> 6 {
+        0 => usize::from(single_segment),
+        f => [0, 2, 4, 8][usize::from(f)],
+    };
+    let dict_len = [0, 1, 2, 4][usize::from(descriptor & 3)];
+    let mut at = 5 + usize::from(!single_segment) + dict_len + fcs_len;
+    loop {
+        let header = le(frame, at, 3).ok_or(cut)?;
+        at += 3;
+        let size = (header >> 3) as usize;
+        at += match (header >> 1) & 3 {
+            0 | 2 => size,
+            1 => 1,
+            _ => return Err(cut),
+        };
+        if at > frame.len() {
+            return Err(cut);
+        }
+        if header & 1 == 1 {
+            break;
+        }
+    }
+    if descriptor & 0x04 != 0 {
+        at += 4;
+    }
+    if at > frame.len() {
+        return Err(cut);
+    }
+    Ok(at)
+}
+
 /// Checks a zstd payload's frame structure (see the module docs).
 pub(crate) fn check_zstd_frames(src: &[u8]) -> Result<(), DecompressFault> {
     let mut at = 0usize;
@@ -77,8 +131,7 @@ pub(crate) fn check_zstd_frames(src: &[u8]) -> Result<(), DecompressFault> {
         } else if magic == ZSTD_MAGIC {
             window_of(rest, offset)?;
             zstd_frames += 1;
-            zstd::zstd_safe::find_frame_compressed_size(rest)
-                .map_err(|_| DecompressFault::Corrupt)?
+            frame_size(rest)?
         } else {
             return Err(DecompressFault::NotAFrame { offset });
         };
@@ -93,6 +146,62 @@ pub(crate) fn check_zstd_frames(src: &[u8]) -> Result<(), DecompressFault> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The walk finds the frame sizes the C library finds, on frames it
+    /// writes (levels, sizes, checksums on and off) and on every prefix
+    /// and a few corruptions of them (both corrupt, or the same size).
+    #[cfg(feature = "zstd")]
+    #[test]
+    fn the_walk_agrees_with_the_c_library() {
+        let mut state = 0x2545_f491_u32;
+        for size in [0usize, 1, 300, 5000, 200_000] {
+            let src: Vec<u8> = (0..size)
+                .map(|i| {
+                    state ^= state << 13;
+                    state ^= state >> 17;
+                    state ^= state << 5;
+                    if i % 50 < 30 {
+                        (i / 50) as u8
+                    } else {
+                        state as u8
+                    }
+                })
+                .collect();
+            for (level, checksum) in [(1, false), (3, true), (19, false)] {
+                let mut c = zstd::bulk::Compressor::new(level).unwrap();
+                c.include_checksum(checksum).unwrap();
+                let mut frame = c.compress(&src).unwrap();
+                frame.extend([1, 2, 3]); // what follows the frame
+                let whole = zstd::zstd_safe::find_frame_compressed_size(&frame).unwrap();
+                assert_eq!(
+                    frame_size_walked(&frame),
+                    Ok(whole),
+                    "size {size} level {level}"
+                );
+                for cut in [whole - 1, whole / 2, 6] {
+                    let c_says = zstd::zstd_safe::find_frame_compressed_size(&frame[..cut]).ok();
+                    assert_eq!(
+                        frame_size_walked(&frame[..cut]).ok(),
+                        c_says,
+                        "cut at {cut}"
+                    );
+                }
+                // A reserved block type in the first block header (the
+                // writer puts no dictionary id: window, then content size).
+                let mut bad = frame.clone();
+                let single = bad[4] & 0x20 != 0;
+                let fcs_len = match bad[4] >> 6 {
+                    0 => usize::from(single),
+                    f => [0, 2, 4, 8][usize::from(f)],
+                };
+                bad[5 + usize::from(!single) + fcs_len] |= 0b110;
+                assert_eq!(
+                    frame_size_walked(&bad).ok(),
+                    zstd::zstd_safe::find_frame_compressed_size(&bad).ok()
+                );
+            }
+        }
+    }
 
     /// A zstd frame by hand (RFC 8878): no content size, no checksum, the
     /// window descriptor `wd`, one raw block holding `data`.
