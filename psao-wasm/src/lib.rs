@@ -1,0 +1,185 @@
+//! # psao-wasm
+//!
+//! psao-codec's [`Decoder`] and mirror for a browser page, through
+//! wasm-bindgen: hand it every frame received ([`WasmDecoder::receive`]),
+//! read what happened ([`Received`]), the ranges of the mirror that changed
+//! since the last look ([`WasmDecoder::take_changes`]), the mirror's
+//! digest (spec/wire-format.md 7.5) and an instance's words and buckets to
+//! upload. Nothing is reimplemented: the codec's own decoder runs, with
+//! zstd decoded in pure Rust (psao-codec's `zstd-pure`), so it builds for
+//! `wasm32-unknown-unknown` with no C compiler.
+//!
+//! Build: `cargo build -p psao-wasm --release --target
+//! wasm32-unknown-unknown`, then `wasm-bindgen --target web` (or
+//! `nodejs`) on `psao_wasm.wasm`. The same API runs natively (the tests).
+
+use psao_codec::{Change, Decoder, Event, Limits};
+use wasm_bindgen::prelude::*;
+
+/// What one frame did, as [`WasmDecoder::receive`] reports it.
+#[wasm_bindgen]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Received {
+    /// 0: applied; 1: stale (ignored); 2: needs a keyframe (ignored: ask
+    /// the server for one).
+    pub kind: u8,
+    /// Applied: the mirror's new sequence; otherwise the frame's.
+    pub sequence: u32,
+    /// Whether it was a keyframe (applied frames).
+    pub keyframe: bool,
+}
+
+/// `Received::kind` of an applied frame.
+pub const APPLIED: u8 = 0;
+/// `Received::kind` of a stale frame.
+pub const STALE: u8 = 1;
+/// `Received::kind` of a frame that needs a keyframe first.
+pub const NEED_KEYFRAME: u8 = 2;
+
+/// Kinds in [`WasmDecoder::take_changes`]'s list.
+pub mod change_kind {
+    /// The instance was defined or redefined: upload all of it.
+    pub const DEFINED: u32 = 0;
+    /// The instance was removed.
+    pub const REMOVED: u32 = 1;
+    /// The instance's transform changed.
+    pub const TRANSFORM: u32 = 2;
+    /// Bucket entries `start..end` changed.
+    pub const BUCKETS: u32 = 3;
+    /// Words `start..end` changed.
+    pub const WORDS: u32 = 4;
+}
+
+/// The decoder and its mirror.
+#[wasm_bindgen]
+#[derive(Debug)]
+pub struct WasmDecoder {
+    inner: Decoder,
+}
+
+#[wasm_bindgen]
+impl WasmDecoder {
+    /// A decoder with the default receiver limits (spec/wire-format.md 9)
+    /// but for these three (a browser tab's memory is the page's to cap).
+    #[wasm_bindgen(constructor)]
+    pub fn new(max_frame_bytes: u32, max_payload_bytes: u32, max_mirror_bytes: f64) -> WasmDecoder {
+        let limits = Limits {
+            max_frame_bytes,
+            max_payload_bytes,
+            max_mirror_bytes: if max_mirror_bytes.is_finite() && max_mirror_bytes > 0.0 {
+                max_mirror_bytes as u64
+            } else {
+                0
+            },
+            ..Limits::default()
+        };
+        WasmDecoder {
+            inner: Decoder::new(limits),
+        }
+    }
+
+    /// A decoder with the default receiver limits of spec/wire-format.md 9.
+    pub fn with_default_limits() -> WasmDecoder {
+        WasmDecoder {
+            inner: Decoder::new(Limits::default()),
+        }
+    }
+
+    /// Sets one receiver limit by its name in spec/wire-format.md 9
+    /// (`max_frame_bytes`, `max_payload_bytes`, `max_messages`,
+    /// `max_instances`, `max_table_log2`, `max_cell_pool`,
+    /// `max_mirror_bytes`), before the first frame; false for an unknown
+    /// name, or once the mirror holds a state.
+    pub fn set_limit(&mut self, name: &str, value: f64) -> bool {
+        if self.inner.mirror().sequence().is_some() || !(value.is_finite() && value >= 0.0) {
+            return false;
+        }
+        let mut limits = *self.inner.limits();
+        if !limits.set(name, value as u64) {
+            return false;
+        }
+        self.inner = Decoder::new(limits);
+        true
+    }
+
+    /// Decodes and applies one frame. A frame that fails (malformed, above
+    /// a limit, corrupt) leaves the mirror as it was and is an error whose
+    /// text starts with the spec's error class (spec/wire-format.md 9),
+    /// e.g. `checksum: ...`.
+    pub fn receive(&mut self, frame: &[u8]) -> Result<Received, String> {
+        match self.inner.receive(frame) {
+            Ok(Event::Applied { sequence, keyframe }) => Ok(Received {
+                kind: APPLIED,
+                sequence,
+                keyframe,
+            }),
+            Ok(Event::Stale { sequence, .. }) => Ok(Received {
+                kind: STALE,
+                sequence,
+                keyframe: false,
+            }),
+            Ok(Event::NeedKeyframe { sequence, .. }) => Ok(Received {
+                kind: NEED_KEYFRAME,
+                sequence,
+                keyframe: false,
+            }),
+            Ok(other) => Err(format!("unknown outcome: {other:?}")),
+            Err(e) => Err(format!("{}: {e}", e.code())),
+        }
+    }
+
+    /// The mirror's sequence (`undefined` before the first keyframe).
+    pub fn sequence(&self) -> Option<u32> {
+        self.inner.mirror().sequence()
+    }
+
+    /// The mirror's digest (spec/wire-format.md 7.5; `undefined` before the
+    /// first keyframe), to compare with a server's `DIGEST`.
+    pub fn digest(&self) -> Option<u32> {
+        self.inner.mirror().digest()
+    }
+
+    /// Bytes the mirror holds.
+    pub fn mirror_bytes(&self) -> f64 {
+        self.inner.mirror().bytes() as f64
+    }
+
+    /// The ids of the instances the mirror holds, ascending.
+    pub fn instances(&self) -> Vec<u32> {
+        self.inner.mirror().instances().map(|(id, _)| id).collect()
+    }
+
+    /// A copy of an instance's words (one point each: spec/wire-format.md
+    /// 6), empty if there is no such instance.
+    pub fn words(&self, instance: u32) -> Vec<u32> {
+        self.inner
+            .mirror()
+            .instance(instance)
+            .map_or_else(Vec::new, |m| m.words().to_vec())
+    }
+
+    /// What changed since the last call, flat: `[all, kind, instance,
+    /// start, end, kind, instance, start, end, ...]`. `all` is 1 when
+    /// everything may have changed (a keyframe): upload every instance. For
+    /// kinds (`change_kind`) without a range, start and end are 0.
+    pub fn take_changes(&mut self) -> Vec<u32> {
+        let changes = self.inner.mirror_mut().take_changes();
+        let mut out = vec![changes.all as u32];
+        for c in changes.items {
+            let (kind, id, range) = match c {
+                Change::Defined(id) => (change_kind::DEFINED, id, 0..0),
+                Change::Removed(id) => (change_kind::REMOVED, id, 0..0),
+                Change::Transform(id) => (change_kind::TRANSFORM, id, 0..0),
+                Change::Buckets(id, r) => (change_kind::BUCKETS, id, r),
+                Change::Words(id, r) => (change_kind::WORDS, id, r),
+                // A change a later codec adds: upload everything.
+                _ => {
+                    out[0] = 1;
+                    continue;
+                }
+            };
+            out.extend([kind, id, range.start, range.end]);
+        }
+        out
+    }
+}
