@@ -231,7 +231,8 @@ impl Follower {
             Some(g) if group == g.id => {}
             prev => {
                 if let Some(g) = prev {
-                    self.stats.groups_missed += group - g.id - 1;
+                    self.stats.groups_missed =
+                        self.stats.groups_missed.saturating_add(group - g.id - 1);
                 }
                 self.stats.groups += 1;
                 self.group = Some(Group {

@@ -15,7 +15,8 @@ fn main() {
     let path = args.next().expect("usage: decode_capture FILE [REPS]");
     let reps: usize = args.next().map_or(20, |r| r.parse().expect("REPS"));
     let file = std::fs::File::open(&path).expect("the capture file");
-    let mut reader = CaptureReader::new(std::io::BufReader::new(file), 64 << 20).expect("a capture");
+    let mut reader =
+        CaptureReader::new(std::io::BufReader::new(file), 64 << 20).expect("a capture");
     let mut frames = Vec::new();
     while let Some(r) = reader.next_record() {
         frames.push(r.expect("a record").frame);

@@ -16,25 +16,32 @@
 use psao_codec::{Change, Decoder, Event, Limits};
 use wasm_bindgen::prelude::*;
 
+/// What a frame did to the mirror.
+#[wasm_bindgen]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Outcome {
+    /// Applied: the mirror is at the frame's sequence.
+    Applied = 0,
+    /// Older than the mirror's state: ignored.
+    Stale = 1,
+    /// Does not apply to the mirror's state (a frame was missed, or no
+    /// keyframe yet): ignored; ask the server for a keyframe.
+    NeedKeyframe = 2,
+    /// An outcome a later codec adds; read the mirror's sequence.
+    Other = 3,
+}
+
 /// What one frame did, as [`WasmDecoder::receive`] reports it.
 #[wasm_bindgen]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Received {
-    /// 0: applied; 1: stale (ignored); 2: needs a keyframe (ignored: ask
-    /// the server for one).
-    pub kind: u8,
+    /// What happened.
+    pub kind: Outcome,
     /// Applied: the mirror's new sequence; otherwise the frame's.
     pub sequence: u32,
     /// Whether it was a keyframe (applied frames).
     pub keyframe: bool,
 }
-
-/// `Received::kind` of an applied frame.
-pub const APPLIED: u8 = 0;
-/// `Received::kind` of a stale frame.
-pub const STALE: u8 = 1;
-/// `Received::kind` of a frame that needs a keyframe first.
-pub const NEED_KEYFRAME: u8 = 2;
 
 /// Kinds in [`WasmDecoder::take_changes`]'s list.
 pub mod change_kind {
@@ -60,22 +67,33 @@ pub struct WasmDecoder {
 #[wasm_bindgen]
 impl WasmDecoder {
     /// A decoder with the default receiver limits (spec/wire-format.md 9)
-    /// but for these three (a browser tab's memory is the page's to cap).
+    /// but for these three (a browser tab's memory is the page's to cap;
+    /// `Infinity` for no cap on the mirror). A mirror cap that is not a
+    /// number above 0 is an error.
     #[wasm_bindgen(constructor)]
-    pub fn new(max_frame_bytes: u32, max_payload_bytes: u32, max_mirror_bytes: f64) -> WasmDecoder {
+    pub fn new(
+        max_frame_bytes: u32,
+        max_payload_bytes: u32,
+        max_mirror_bytes: f64,
+    ) -> Result<WasmDecoder, String> {
+        let max_mirror_bytes = match max_mirror_bytes {
+            f if f == f64::INFINITY => u64::MAX,
+            f if f.is_finite() && f >= 1.0 => f as u64,
+            f => {
+                return Err(format!(
+                    "max_mirror_bytes {f}: not a number above 0 (Infinity for no cap)"
+                ));
+            }
+        };
         let limits = Limits {
             max_frame_bytes,
             max_payload_bytes,
-            max_mirror_bytes: if max_mirror_bytes.is_finite() && max_mirror_bytes > 0.0 {
-                max_mirror_bytes as u64
-            } else {
-                0
-            },
+            max_mirror_bytes,
             ..Limits::default()
         };
-        WasmDecoder {
+        Ok(WasmDecoder {
             inner: Decoder::new(limits),
-        }
+        })
     }
 
     /// A decoder with the default receiver limits of spec/wire-format.md 9.
@@ -109,21 +127,25 @@ impl WasmDecoder {
     pub fn receive(&mut self, frame: &[u8]) -> Result<Received, String> {
         match self.inner.receive(frame) {
             Ok(Event::Applied { sequence, keyframe }) => Ok(Received {
-                kind: APPLIED,
+                kind: Outcome::Applied,
                 sequence,
                 keyframe,
             }),
             Ok(Event::Stale { sequence, .. }) => Ok(Received {
-                kind: STALE,
+                kind: Outcome::Stale,
                 sequence,
                 keyframe: false,
             }),
             Ok(Event::NeedKeyframe { sequence, .. }) => Ok(Received {
-                kind: NEED_KEYFRAME,
+                kind: Outcome::NeedKeyframe,
                 sequence,
                 keyframe: false,
             }),
-            Ok(other) => Err(format!("unknown outcome: {other:?}")),
+            Ok(_) => Ok(Received {
+                kind: Outcome::Other,
+                sequence: self.inner.mirror().sequence().unwrap_or(0),
+                keyframe: false,
+            }),
             Err(e) => Err(format!("{}: {e}", e.code())),
         }
     }

@@ -5,7 +5,7 @@
 
 use std::path::PathBuf;
 
-use psao_wasm::{APPLIED, NEED_KEYFRAME, STALE, WasmDecoder};
+use psao_wasm::{Outcome, WasmDecoder};
 
 fn unhex(s: &str) -> Vec<u8> {
     (0..s.len())
@@ -17,14 +17,14 @@ fn unhex(s: &str) -> Vec<u8> {
 /// The outcome of a frame as a vector's `expect` line writes it.
 fn outcome(r: &Result<psao_wasm::Received, String>) -> String {
     match r {
-        Ok(x) if x.kind == APPLIED => format!(
+        Ok(x) if x.kind == Outcome::Applied => format!(
             "applied {} {}",
             x.sequence,
             if x.keyframe { "keyframe" } else { "delta" }
         ),
-        Ok(x) if x.kind == STALE => "stale".into(),
-        Ok(x) if x.kind == NEED_KEYFRAME => "need_keyframe".into(),
-        Ok(x) => format!("kind {}", x.kind),
+        Ok(x) if x.kind == Outcome::Stale => "stale".into(),
+        Ok(x) if x.kind == Outcome::NeedKeyframe => "need_keyframe".into(),
+        Ok(x) => format!("kind {:?}", x.kind),
         Err(e) => format!("error {}", e.split(':').next().unwrap_or("")),
     }
 }
@@ -77,7 +77,9 @@ fn changes_list_what_a_delta_wrote() {
         .filter_map(|l| l.strip_prefix("frame "))
         .map(unhex)
         .collect();
-    let mut d = WasmDecoder::new(1 << 20, 1 << 22, 1e9);
+    let mut d = WasmDecoder::new(1 << 20, 1 << 22, f64::INFINITY).unwrap();
+    assert!(WasmDecoder::new(1 << 20, 1 << 22, f64::NAN).is_err());
+    assert!(WasmDecoder::new(1 << 20, 1 << 22, 0.0).is_err());
     d.receive(&frames[0]).unwrap();
     assert_eq!(d.take_changes()[0], 1, "a keyframe: upload everything");
     assert_eq!(d.take_changes(), vec![0], "nothing since");

@@ -141,6 +141,7 @@ pub async fn run(d: RelayDemo, pipeline: Pipeline) -> anyhow::Result<()> {
     let (publishing, end) = server.shutdown(Duration::from_secs(2)).await?;
     let link_stats = link.stats();
     let mut pipeline = publishing.into_inner();
+    // The tracks are finished: the broadcast ends cleanly below.
     let last = psao_proto::FrameSource::keyframe(&mut pipeline)
         .map_err(|e| anyhow::anyhow!("{e}"))?
         .sequence;
@@ -213,6 +214,7 @@ pub async fn run(d: RelayDemo, pipeline: Pipeline) -> anyhow::Result<()> {
         "  mirrors             {in_sync} of {clients} equal to the server's tables at sequence {last}"
     );
     drop(subs);
+    link.close().await;
     drop((b, a));
     let _ = std::fs::remove_dir_all(&dir);
     if in_sync == clients {

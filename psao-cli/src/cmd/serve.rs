@@ -170,7 +170,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
                     ..options.relay.clone()
                 }
             );
-            serve_until(publishing, config, &identity, Some(&link), args.seconds).await
+            serve_until(publishing, config, &identity, Some(link), args.seconds).await
         }
     }
 }
@@ -181,7 +181,7 @@ async fn serve_until<S: FrameSource>(
     source: S,
     config: ServerConfig,
     identity: &Identity,
-    link: Option<&Link>,
+    link: Option<Link>,
     seconds: Option<f32>,
 ) -> anyhow::Result<()> {
     let rate = config.frame_rate;
@@ -198,7 +198,7 @@ async fn serve_until<S: FrameSource>(
     );
     let until = seconds.map(|s| Instant::now() + seconds_of(s));
     let mut prev = (server.stats(), Instant::now());
-    let mut prev_link = link.map(|l| l.stats());
+    let mut prev_link = link.as_ref().map(|l| l.stats());
     loop {
         tokio::select! {
             _ = tokio::signal::ctrl_c() => break,
@@ -216,7 +216,7 @@ async fn serve_until<S: FrameSource>(
                             / (s.frames - prev.0.frames).max(1) as f64
                     );
                 }
-                if let (Some(l), Some(p)) = (link, &prev_link) {
+                if let (Some(l), Some(p)) = (&link, &prev_link) {
                     let now = l.stats();
                     line.push_str(&format!(
                         " | relay: {}, {:.3} Mbit/s, group {}",
@@ -235,6 +235,12 @@ async fn serve_until<S: FrameSource>(
         }
     }
     println!("shutting down");
-    server.shutdown(Duration::from_secs(2)).await?;
+    // The source back first: a publishing one finishes its tracks as it
+    // goes, then the broadcast ends cleanly.
+    let (source, _) = server.shutdown(Duration::from_secs(2)).await?;
+    drop(source);
+    if let Some(l) = link {
+        l.close().await;
+    }
     Ok(())
 }

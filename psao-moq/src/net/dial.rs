@@ -75,6 +75,9 @@ impl std::str::FromStr for RelayUrl {
         let rest = url
             .strip_prefix("https://")
             .ok_or_else(|| bad("it does not start with https://"))?;
+        if rest.contains('?') || rest.contains('#') {
+            return Err(bad("a query or fragment (not supported)"));
+        }
         let (authority, path) = rest.split_once('/').unwrap_or((rest, ""));
         let (host, port) = if let Some(v6) = authority.strip_prefix('[') {
             let (host, after) = v6.split_once(']').ok_or_else(|| bad("an unclosed ["))?;
@@ -100,13 +103,10 @@ impl std::str::FromStr for RelayUrl {
                 .parse()
                 .map_err(|_| bad("the port is not a number 0..=65535"))?,
         };
-        if path.contains('?') || path.contains('#') {
-            return Err(bad("a query or fragment (not supported)"));
-        }
         Ok(RelayUrl {
             host: host.to_string(),
             port,
-            path: path.trim_end_matches('/').to_string(),
+            path: path.trim_matches('/').to_string(),
         })
     }
 }
@@ -132,23 +132,31 @@ pub fn alpns() -> Vec<&'static [u8]> {
         .collect()
 }
 
-/// How long the QUIC handshake with a relay may take.
+/// How long resolving the relay's host, and then the QUIC handshake with
+/// it, may each take.
 pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// How long the MoQ setup over an established connection may take.
+pub const SETUP_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// Opens a QUIC connection to the relay, offering the moq-lite ALPNs, and
 /// wraps it as a session for moq-net.
 pub async fn dial(url: &RelayUrl, trust: &Trust) -> Result<web_transport_quinn::Session, MoqError> {
-    let addr = tokio::net::lookup_host((url.host.as_str(), url.port))
-        .await
-        .map_err(|e| MoqError::Resolve {
-            host: url.host.clone(),
-            why: e.to_string(),
-        })?
-        .next()
-        .ok_or_else(|| MoqError::Resolve {
-            host: url.host.clone(),
-            why: "no address".into(),
-        })?;
+    let addr = tokio::time::timeout(
+        CONNECT_TIMEOUT,
+        tokio::net::lookup_host((url.host.as_str(), url.port)),
+    )
+    .await
+    .map_err(|_| MoqError::Timeout("resolving the relay's host"))?
+    .map_err(|e| MoqError::Resolve {
+        host: url.host.clone(),
+        why: e.to_string(),
+    })?
+    .next()
+    .ok_or_else(|| MoqError::Resolve {
+        host: url.host.clone(),
+        why: "no address".into(),
+    })?;
     let connect_err = |why: String| MoqError::Connect { addr, why };
     let crypto = client_crypto(trust, &alpns())?;
     let mut config = quinn::ClientConfig::new(Arc::new(crypto));
@@ -178,7 +186,13 @@ pub async fn dial(url: &RelayUrl, trust: &Trust) -> Result<web_transport_quinn::
         .await
         .map_err(|_| MoqError::Timeout("the QUIC handshake with the relay"))?
         .map_err(|e| connect_err(e.to_string()))?;
-    Ok(web_transport_quinn::Session::raw(conn))
+    let session = web_transport_quinn::Session::raw(conn);
+    if session.protocol().is_none() {
+        // No moq-lite ALPN agreed: moq-net would fall back to a SETUP
+        // exchange this binding does not use (spec/moq.md 2).
+        return Err(connect_err("the relay agreed on no moq-lite ALPN".into()));
+    }
+    Ok(session)
 }
 
 #[cfg(test)]
@@ -201,6 +215,8 @@ mod tests {
         let u: RelayUrl = "https://[::1]:9/x/".parse().unwrap();
         assert_eq!((u.host.as_str(), u.port, u.path.as_str()), ("::1", 9, "x"));
         assert_eq!(u.to_string(), "https://[::1]:9/x");
+        let u: RelayUrl = "https://a//psao/x/".parse().unwrap();
+        assert_eq!(u.path, "psao/x");
     }
 
     #[test]
@@ -211,6 +227,8 @@ mod tests {
             ("https://a:99999/", "port"),
             ("https://[::1/", "unclosed"),
             ("https://a/b?jwt=x", "query"),
+            ("https://a?jwt=x", "query"),
+            ("https://a:443#f", "query"),
         ] {
             let e = url.parse::<RelayUrl>().unwrap_err().to_string();
             assert!(e.contains(why), "{url}: {e}");

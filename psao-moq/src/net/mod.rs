@@ -21,4 +21,7 @@ pub use local_relay::{LocalRelay, LocalRelayError, RelayCert, find_relay_binary}
 pub use publish::{
     Link, PublishOptions, PublishStats, Publisher, Publishing, publish, publish_alongside,
 };
-pub use subscribe::{MAX_CAPTURED, SubscribeOptions, SubscribeStats, Subscription, subscribe};
+pub use subscribe::{
+    ANNOUNCE_TIMEOUT, MAX_CAPTURED, MAX_CAPTURED_BYTES, SubscribeOptions, SubscribeStats,
+    Subscription, subscribe,
+};

@@ -43,7 +43,7 @@ pub struct PublishOptions {
 }
 
 /// What a publisher has done.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct PublishStats {
     /// Groups, frames, bytes and digests written.
     pub broadcast: BroadcastStats,
@@ -59,6 +59,10 @@ pub struct PublishStats {
     pub connected: bool,
     /// Writes the origin refused (logged).
     pub write_errors: u64,
+    /// Steps of the source that failed.
+    pub step_errors: u64,
+    /// Why the last session with the relay ended, or the last dial failed.
+    pub last_error: Option<String>,
 }
 
 /// The relay side of a publication: the origin, the broadcast and the
@@ -68,6 +72,7 @@ pub struct Link {
     pool: moq_net::cache::Pool,
     stats: Arc<Mutex<PublishStats>>,
     task: tokio::task::JoinHandle<()>,
+    close: Option<tokio::sync::oneshot::Sender<()>>,
     broadcast: broadcast::Producer,
     _catalog: track::Producer,
     _origin: origin::Producer,
@@ -89,7 +94,7 @@ impl Link {
 
     /// What the publication has done so far.
     pub fn stats(&self) -> PublishStats {
-        *lock(&self.stats)
+        lock(&self.stats).clone()
     }
 
     /// Bytes of groups the origin holds now (its cache: the groups of the
@@ -97,10 +102,26 @@ impl Link {
     pub fn cached_bytes(&self) -> u64 {
         self.pool.used()
     }
+
+    /// Ends the broadcast cleanly: the catalog finished, the broadcast
+    /// closed, and the session closed once the relay has what was written
+    /// (at most 2 s). Finish the frames first (drop the [`Publishing`]
+    /// source, or stop the [`Publisher`]) so that subscribers see the
+    /// tracks end rather than fail.
+    pub async fn close(mut self) {
+        let _ = self._catalog.finish();
+        self.broadcast.close();
+        if let Some(tx) = self.close.take()
+            && tx.send(()).is_ok()
+        {
+            let _ = tokio::time::timeout(Duration::from_secs(2), &mut self.task).await;
+        }
+    }
 }
 
 impl Drop for Link {
-    /// Ends the broadcast and the session with the relay.
+    /// Ends the broadcast and the session with the relay at once (see
+    /// [`Link::close`] for a clean end).
     fn drop(&mut self) {
         let _ = self._catalog.finish();
         self.task.abort();
@@ -171,9 +192,12 @@ impl<S: FrameSource> FrameSource for Publishing<S> {
                 errors += 1;
                 if frames {
                     // The group's later deltas would not apply for anyone:
-                    // the next step opens a new one.
+                    // it ends with the frames it has, and the next step
+                    // opens a new one.
                     self.broadcaster.interrupt();
-                    self.tracks.open = None;
+                    if let Some(g) = self.tracks.open.take() {
+                        let _ = g.finish();
+                    }
                 }
             }
         }
@@ -207,7 +231,12 @@ async fn connect(
 ) -> Result<moq_net::Session, MoqError> {
     let transport = dial(url, trust).await?;
     let client = moq_net::Client::new().with_publisher(origin);
-    let (session, driver) = client.connect(Instant::now(), transport).await?;
+    let (session, driver) = tokio::time::timeout(
+        super::dial::SETUP_TIMEOUT,
+        client.connect(Instant::now(), transport),
+    )
+    .await
+    .map_err(|_| MoqError::Timeout("the MoQ setup with the relay"))??;
     tokio::spawn(moq_net::time::run(driver));
     Ok(session)
 }
@@ -276,12 +305,14 @@ pub async fn publish_alongside<S: FrameSource>(
         connected: true,
         ..PublishStats::default()
     }));
+    let (close_tx, close_rx) = tokio::sync::oneshot::channel();
     let task = tokio::spawn(keep_linked(
         session,
         options.relay.clone(),
         options.trust.clone(),
         origin.clone(),
         stats.clone(),
+        close_rx,
     ));
     let publishing = Publishing {
         broadcaster: Broadcaster::new(&info, options.policy),
@@ -298,6 +329,7 @@ pub async fn publish_alongside<S: FrameSource>(
         pool,
         stats,
         task,
+        close: Some(close_tx),
         broadcast,
         _catalog: catalog,
         _origin: origin,
@@ -305,26 +337,49 @@ pub async fn publish_alongside<S: FrameSource>(
     Ok((publishing, link))
 }
 
-/// Waits for the session to end, then re-establishes it, until aborted.
+/// Waits for the session to end, then re-establishes it, until aborted or
+/// told to close (then it closes the session cleanly). The delay between
+/// dials doubles from 0.25 s to 2 s, and starts over only after a session
+/// that lasted 5 s (a relay that accepts and closes at once is not dialled
+/// four times a second).
 async fn keep_linked(
     mut session: moq_net::Session,
     relay: RelayUrl,
     trust: Trust,
     origin: origin::Producer,
     stats: Arc<Mutex<PublishStats>>,
+    mut close: tokio::sync::oneshot::Receiver<()>,
 ) {
+    let mut backoff = Duration::from_millis(250);
     loop {
-        let why = session.closed().await;
-        lock(&stats).connected = false;
+        let began = Instant::now();
+        let why = tokio::select! {
+            why = session.closed() => why,
+            _ = &mut close => {
+                let _ = session.close().await;
+                return;
+            }
+        };
+        {
+            let mut s = lock(&stats);
+            s.connected = false;
+            s.last_error = Some(format!("the session with the relay ended: {why}"));
+        }
         warn!(relay = %relay, "the session with the relay ended: {why}");
-        let mut backoff = Duration::from_millis(250);
+        if began.elapsed() >= Duration::from_secs(5) {
+            backoff = Duration::from_millis(250);
+        }
         session = loop {
-            tokio::time::sleep(backoff).await;
+            tokio::select! {
+                _ = tokio::time::sleep(backoff) => {}
+                _ = &mut close => return,
+            }
+            backoff = (backoff * 2).min(Duration::from_secs(2));
             match connect(&relay, &trust, &origin).await {
                 Ok(s) => break s,
                 Err(e) => {
                     warn!(relay = %relay, "reconnecting: {e}");
-                    backoff = (backoff * 2).min(Duration::from_secs(2));
+                    lock(&stats).last_error = Some(format!("reconnecting: {e}"));
                 }
             }
         };
@@ -363,9 +418,12 @@ impl Tracks {
                 if let Some(old) = self.open.take() {
                     old.finish()?;
                 }
-                let mut g = self.frames.create_group(group::Info { sequence: group })?;
-                g.write_frame(Timestamp::now(), keyframe)?;
-                self.open = Some(g);
+                let g = self.frames.create_group(group::Info { sequence: group })?;
+                // Held before it is written to, so a failed write finishes
+                // it (the caller) rather than dropping it mid-stream.
+                self.open
+                    .insert(g)
+                    .write_frame(Timestamp::now(), keyframe)?;
             }
             Write::Append { frame, .. } => {
                 if let Some(g) = self.open.as_mut() {
@@ -375,8 +433,9 @@ impl Tracks {
             Write::Digest { group, body } => {
                 if let Some(d) = &self.digests {
                     let mut g = d.create_group(group::Info { sequence: group })?;
-                    g.write_frame(Timestamp::now(), body)?;
+                    let written = g.write_frame(Timestamp::now(), body);
                     g.finish()?;
+                    written?;
                 }
             }
         }
@@ -388,7 +447,8 @@ impl Tracks {
 pub struct Publisher<S> {
     stop: Arc<AtomicBool>,
     stepper: Option<std::thread::JoinHandle<Publishing<S>>>,
-    link: Link,
+    /// Taken by [`Publisher::stop`].
+    link: Option<Link>,
 }
 
 impl<S> std::fmt::Debug for Publisher<S> {
@@ -417,9 +477,16 @@ pub async fn publish<S: FrameSource>(
             let dt = 1.0 / rate as f32;
             let period = Duration::from_secs_f64(1.0 / rate as f64);
             let mut next = Instant::now() + period;
+            let mut failures = 0u64;
             while !flag.load(Ordering::SeqCst) {
                 if let Err(e) = publishing.step(dt) {
-                    warn!("step failed: {e}");
+                    failures += 1;
+                    lock(&publishing.stats).step_errors = failures;
+                    // The first, then every 2^k-th: a source failing every
+                    // step does not flood the log.
+                    if failures.is_power_of_two() {
+                        warn!("step failed ({failures} so far): {e}");
+                    }
                 }
                 let now = Instant::now();
                 if next > now {
@@ -436,23 +503,24 @@ pub async fn publish<S: FrameSource>(
     Ok(Publisher {
         stop,
         stepper: Some(stepper),
-        link,
+        link: Some(link),
     })
 }
 
 impl<S: FrameSource> Publisher<S> {
     /// The broadcast's name.
     pub fn broadcast(&self) -> &str {
-        self.link.broadcast()
+        self.link.as_ref().map_or("", |l| l.broadcast())
     }
 
     /// What it has done so far.
     pub fn stats(&self) -> PublishStats {
-        self.link.stats()
+        self.link.as_ref().map(|l| l.stats()).unwrap_or_default()
     }
 
-    /// Stops stepping, ends the broadcast and the session, and returns the
-    /// source with the final figures.
+    /// Stops stepping, ends the tracks, the broadcast and the session
+    /// cleanly ([`Link::close`]), and returns the source with the final
+    /// figures.
     pub async fn stop(mut self) -> (S, PublishStats) {
         self.stop.store(true, Ordering::SeqCst);
         let stepper = self.stepper.take().expect("joined only here");
@@ -460,8 +528,11 @@ impl<S: FrameSource> Publisher<S> {
             .await
             .expect("the join task is not cancelled")
             .unwrap_or_else(|p| std::panic::resume_unwind(p));
-        let stats = self.link.stats();
-        (publishing.into_inner(), stats)
+        let source = publishing.into_inner();
+        let link = self.link.take().expect("taken only here");
+        let stats = link.stats();
+        link.close().await;
+        (source, stats)
     }
 }
 

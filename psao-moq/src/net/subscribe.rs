@@ -39,6 +39,13 @@ pub struct SubscribeOptions {
 /// ones are dropped (and counted).
 pub const MAX_CAPTURED: usize = 4096;
 
+/// Most bytes of captured frames waiting (older ones are dropped).
+pub const MAX_CAPTURED_BYTES: usize = 64 << 20;
+
+/// How long a subscriber waits for its broadcast to be announced through a
+/// relay before it tries the next relay of its list.
+pub const ANNOUNCE_TIMEOUT: Duration = Duration::from_secs(10);
+
 /// What a subscription has seen.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SubscribeStats {
@@ -55,6 +62,10 @@ pub struct SubscribeStats {
     pub join_time: Option<Duration>,
     /// The last error that ended a session.
     pub last_error: Option<String>,
+    /// Groups whose stream ended in an error (reset by a relay, expired,
+    /// served from a later frame): each is a lost group, survived
+    /// (spec/moq.md 4).
+    pub groups_failed: u64,
 }
 
 #[derive(Debug)]
@@ -63,6 +74,7 @@ struct Shared {
     stats: SubscribeStats,
     fatal: Option<String>,
     captured: std::collections::VecDeque<(Instant, bytes::Bytes)>,
+    captured_bytes: usize,
     dropped: u64,
 }
 
@@ -81,13 +93,15 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 /// the background: see [`Subscription::stats`] and
 /// [`Subscription::failed`]).
 pub fn subscribe(options: SubscribeOptions) -> Result<Subscription, MoqError> {
-    let first = options.relays.first().ok_or_else(|| MoqError::Url {
-        url: String::new(),
-        why: "no relay given",
-    })?;
-    if first.path.is_empty() {
+    if options.relays.is_empty() {
         return Err(MoqError::Url {
-            url: first.to_string(),
+            url: String::new(),
+            why: "no relay given",
+        });
+    }
+    if let Some(r) = options.relays.iter().find(|r| r.path.is_empty()) {
+        return Err(MoqError::Url {
+            url: r.to_string(),
             why: "its path (the broadcast) is empty",
         });
     }
@@ -96,6 +110,7 @@ pub fn subscribe(options: SubscribeOptions) -> Result<Subscription, MoqError> {
         stats: SubscribeStats::default(),
         fatal: None,
         captured: Default::default(),
+        captured_bytes: 0,
         dropped: 0,
     }));
     let task = tokio::spawn(run(options, shared.clone(), Instant::now()));
@@ -128,6 +143,7 @@ impl Subscription {
     pub fn take_captured(&self) -> (Vec<(Instant, bytes::Bytes)>, u64) {
         let mut s = lock(&self.shared);
         let dropped = std::mem::take(&mut s.dropped);
+        s.captured_bytes = 0;
         (s.captured.drain(..).collect(), dropped)
     }
 
@@ -148,7 +164,10 @@ impl Drop for Subscription {
     }
 }
 
-/// Subscribes, again and again, until a fatal error.
+/// Subscribes, again and again, until a fatal error. A relay that failed
+/// (or never announced the broadcast) is left for the next of the list;
+/// the delay between attempts doubles from 0.1 s to 2 s and starts over
+/// after a session that lasted 5 s.
 async fn run(options: SubscribeOptions, shared: Arc<Mutex<Shared>>, started: Instant) {
     let n = options.relays.len();
     let mut index = 0;
@@ -156,8 +175,8 @@ async fn run(options: SubscribeOptions, shared: Arc<Mutex<Shared>>, started: Ins
     loop {
         let url = &options.relays[index];
         lock(&shared).stats.relay = index;
+        let began = Instant::now();
         let result = follow_once(url, &options, &shared, started).await;
-        let healthy_for;
         {
             let mut s = lock(&shared);
             match &result {
@@ -167,54 +186,49 @@ async fn run(options: SubscribeOptions, shared: Arc<Mutex<Shared>>, started: Ins
                     return;
                 }
                 Err(e) => {
-                    debug!(relay = %url, "subscription ended: {e}");
+                    warn!(relay = %url, "subscription ended: {e}");
                     s.stats.last_error = Some(e.to_string());
                 }
-                Ok(since) => {
-                    s.stats.last_error = Some("the broadcast ended".into());
-                    let _ = since;
-                }
+                Ok(()) => s.stats.last_error = Some("the broadcast ended".into()),
             }
-            healthy_for = match &result {
-                Ok(since) => *since,
-                Err(_) => Duration::ZERO,
-            };
         }
-        // A relay that failed at once: try the next one. One that served
-        // for a while and ended: back to it first, after a short pause.
+        if began.elapsed() >= Duration::from_secs(5) {
+            backoff = Duration::from_millis(100);
+        }
+        // A relay that failed: try the next one. A broadcast that ended
+        // cleanly: the same relay again (it may be announced anew).
         if result.is_err() {
             index = (index + 1) % n;
         }
-        if healthy_for > Duration::from_secs(2) {
-            backoff = Duration::from_millis(100);
-        }
         tokio::time::sleep(backoff).await;
-        if index == 0 || result.is_ok() {
-            backoff = (backoff * 2).min(Duration::from_secs(2));
-        }
+        backoff = (backoff * 2).min(Duration::from_secs(2));
     }
 }
 
 /// One session: connect, wait for the broadcast, read its catalog, then
-/// follow its tracks until something ends. `Ok` (how long it ran) when
-/// the broadcast ended cleanly.
+/// follow its tracks until something ends. `Ok` when the broadcast ended
+/// cleanly.
 async fn follow_once(
     url: &RelayUrl,
     options: &SubscribeOptions,
     shared: &Arc<Mutex<Shared>>,
     started: Instant,
-) -> Result<Duration, MoqError> {
+) -> Result<(), MoqError> {
     let transport = dial(url, &options.trust).await?;
     let (origin, driver) = origin::Producer::new(origin::Config::default());
     let origin_task = tokio::spawn(moq_net::time::run(driver));
     let _origin_task = AbortOnDrop(origin_task);
     let client = moq_net::Client::new().with_subscriber(origin.clone());
-    let (session, driver) = client.connect(Instant::now(), transport).await?;
+    let (session, driver) = tokio::time::timeout(
+        super::dial::SETUP_TIMEOUT,
+        client.connect(Instant::now(), transport),
+    )
+    .await
+    .map_err(|_| MoqError::Timeout("the MoQ setup with the relay"))??;
     let _session_task = AbortOnDrop(tokio::spawn(moq_net::time::run(driver)));
     lock(shared).stats.connects += 1;
-    let began = Instant::now();
     tokio::select! {
-        r = follow_broadcast(&origin, url, options, shared, started) => r.map(|()| began.elapsed()),
+        r = follow_broadcast(&origin, url, options, shared, started) => r,
         e = session.closed() => Err(MoqError::Moq(e)),
     }
 }
@@ -227,18 +241,13 @@ impl<T> Drop for AbortOnDrop<T> {
     }
 }
 
-/// Waits for the broadcast at `url.path` to be announced.
+/// Waits (at most [`ANNOUNCE_TIMEOUT`]) for the broadcast at `path` to be
+/// routed through the relay.
 async fn announced(origin: &origin::Producer, path: &str) -> Result<broadcast::Consumer, MoqError> {
-    let consumer = origin.consume();
-    let mut updates = consumer.announced();
-    loop {
-        let Some(update) = updates.next().await else {
-            return Err(MoqError::Timeout("the relay's announcements ended"));
-        };
-        if update.kind.is_active() && update.prefix.as_str() == path {
-            return Ok(consumer.request_broadcast(path).await?);
-        }
-    }
+    tokio::time::timeout(ANNOUNCE_TIMEOUT, origin.consume().routed_broadcast(path))
+        .await
+        .map_err(|_| MoqError::Timeout("the broadcast to be announced through the relay"))?
+        .map_err(MoqError::Moq)
 }
 
 async fn follow_broadcast(
@@ -273,8 +282,22 @@ async fn follow_broadcast(
         w.digest && options.digests
     };
     let mut frames = broadcast.track(names::FRAMES)?.subscribe(None).await?;
+    // A digest track the catalog announces but the relay cannot serve:
+    // follow the frames without digests.
     let mut digests = match digest_track {
-        true => Some(broadcast.track(names::DIGEST)?.subscribe(None).await?),
+        true => match broadcast.track(names::DIGEST) {
+            Ok(t) => match t.subscribe(None).await {
+                Ok(t) => Some(t),
+                Err(e) => {
+                    warn!("the digest track: {e}; following without digests");
+                    None
+                }
+            },
+            Err(e) => {
+                warn!("the digest track: {e}; following without digests");
+                None
+            }
+        },
         false => None,
     };
     let mut current: Option<group::Consumer> = None;
@@ -289,15 +312,17 @@ async fn follow_broadcast(
                     }
                 }
             },
-            f = next_frame(&mut current) => match f? {
-                Some((id, index, payload)) => {
+            f = next_frame(&mut current) => match f {
+                Ok(Some((id, index, payload))) => {
                     let mut s = lock(shared);
                     if options.capture {
-                        if s.captured.len() == MAX_CAPTURED {
-                            s.captured.pop_front();
+                        s.captured_bytes += payload.len();
+                        s.captured.push_back((Instant::now(), payload.clone()));
+                        while s.captured.len() > MAX_CAPTURED || s.captured_bytes > MAX_CAPTURED_BYTES {
+                            let Some((_, old)) = s.captured.pop_front() else { break };
+                            s.captured_bytes -= old.len();
                             s.dropped += 1;
                         }
-                        s.captured.push_back((Instant::now(), payload.clone()));
                     }
                     let applied = matches!(
                         s.follower.on_frame(id, index, &payload),
@@ -310,21 +335,28 @@ async fn follow_broadcast(
                         return Err(MoqError::Follow(e));
                     }
                 }
-                None => current = None,
+                Ok(None) => current = None,
+                // One group failed (reset, expired, lagged): a lost group,
+                // which the next group's keyframe repairs (spec/moq.md 4).
+                Err(e) => {
+                    debug!("a frames group ended early: {e}");
+                    lock(shared).stats.groups_failed += 1;
+                    current = None;
+                }
             },
             g = next_digest_group(&mut digests) => match g? {
                 Some(g) => digest_group = Some(g),
                 None => digests = None,
             },
-            f = next_frame(&mut digest_group) => match f? {
-                Some((_, _, payload)) => {
+            f = next_frame(&mut digest_group) => match f {
+                Ok(Some((_, _, payload))) => {
                     let mut s = lock(shared);
                     // A malformed digest is ignored (spec/moq.md 5).
                     if let Err(e) = s.follower.on_digest(&payload) {
                         warn!("a digest frame ignored: {e}");
                     }
                 }
-                None => digest_group = None,
+                Ok(None) | Err(_) => digest_group = None,
             },
         }
     }
