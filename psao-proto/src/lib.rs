@@ -28,6 +28,11 @@
 //! - `quic` (default): the reference QUIC server and client. Without it
 //!   (`default-features = false`) only the sans-IO core builds, on
 //!   psao-codec, bytes, glam and thiserror.
+//! - `zstd`, `lz4` (default): the codec's compressions, which a client
+//!   decodes and offers in `HELLO`; `zstd-pure` decodes zstd in pure Rust
+//!   instead, so that the session core builds for `wasm32-unknown-unknown`
+//!   (`--no-default-features --features lz4,zstd-pure`: a browser
+//!   client's core).
 //! - `scene`: psao-scene's `Pipeline` implements [`FrameSource`], so
 //!   `serve(Pipeline::new(scene, config)?, ...)` streams a scene.
 //!
