@@ -207,21 +207,8 @@ mod tests {
     #[test]
     fn ruzstd_decodes_what_zstd_encodes() {
         let mut d = ruzstd::decoding::FrameDecoder::new();
-        let mut state = 0x9e37_79b9_u32;
         for size in [0usize, 1, 100, 4096, 100_000, 700_000] {
-            let src: Vec<u8> = (0..size)
-                .map(|i| {
-                    state ^= state << 13;
-                    state ^= state >> 17;
-                    state ^= state << 5;
-                    // Runs and noise: both literal and match paths.
-                    if i % 64 < 40 {
-                        (i / 64) as u8
-                    } else {
-                        state as u8
-                    }
-                })
-                .collect();
+            let src = crate::wire::runs_and_noise(size, 0x9e37_79b9);
             for level in [1, 3, 19] {
                 let mut wire = Vec::new();
                 Compressor::default()

@@ -20,3 +20,21 @@ pub(crate) mod zstd_frames;
 pub use frame::{FrameView, Located, Messages, Scratch, decode_frame};
 pub use header::{FLAG_CHECKSUM, FLAG_KEYFRAME, FrameHeader, HEADER_LEN, MAGIC, VERSION};
 pub use message::{BucketsMsg, CellsMsg, IndexIter, IndexList, Message, PlanarU32, kind};
+
+/// `size` bytes of runs and noise (both a compressor's literal and match
+/// paths), deterministic for a seed: test payloads for the compressions.
+#[cfg(test)]
+pub(crate) fn runs_and_noise(size: usize, mut state: u32) -> Vec<u8> {
+    (0..size)
+        .map(|i| {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            if i % 64 < 40 {
+                (i / 64) as u8
+            } else {
+                state as u8
+            }
+        })
+        .collect()
+}

@@ -43,6 +43,15 @@ pub enum MoqError {
     /// The broadcast cannot be followed (its catalog).
     #[error(transparent)]
     Follow(#[from] crate::FollowError),
+    /// A frame of the broadcast declared more bytes than the catalog allows
+    /// (it is not read).
+    #[error("a frame of {size} bytes, above the catalog's {max}")]
+    FrameTooLarge {
+        /// Its declared size.
+        size: u64,
+        /// The catalog's limit.
+        max: u64,
+    },
     /// The frame source failed.
     #[error("frame source: {0}")]
     Source(psao_proto::SourceError),

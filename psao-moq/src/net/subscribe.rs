@@ -118,7 +118,9 @@ pub fn subscribe(options: SubscribeOptions) -> Result<Subscription, MoqError> {
 }
 
 impl Subscription {
-    /// Runs `f` on the follower (its mirror, decoder and catalog).
+    /// Runs `f` on the follower (its mirror, decoder and catalog). The
+    /// subscription waits meanwhile: keep `f` short, and call no other
+    /// method of this subscription inside it (they take the same lock).
     pub fn with_follower<R>(&self, f: impl FnOnce(&mut Follower) -> R) -> R {
         f(&mut lock(&self.shared).follower)
     }
@@ -270,16 +272,21 @@ async fn follow_broadcast(
     }
     // The catalog first (spec/moq.md 3), read anew for each subscription.
     let mut catalog = broadcast.track(names::CATALOG)?.subscribe(None).await?;
-    let mut g = catalog.recv_group().await?.ok_or(MoqError::Timeout(
+    let g = catalog.recv_group().await?.ok_or(MoqError::Timeout(
         "the catalog track ended before its group",
     ))?;
-    let frame = g.read_frame().await?.ok_or(MoqError::Timeout(
-        "the catalog group ended before its frame",
-    ))?;
-    let digest_track = {
+    let mut one = Some(g);
+    // A WELCOME body is at most 16 + 200 bytes: a larger catalog frame is
+    // not read (malformed).
+    let (_, _, frame) = next_frame(&mut one, psao_proto::control::MAX_CONTROL_LEN as u64)
+        .await?
+        .ok_or(MoqError::Timeout(
+            "the catalog group ended before its frame",
+        ))?;
+    let (digest_track, max_frame) = {
         let mut s = lock(shared);
-        let w = s.follower.on_catalog(&frame.payload)?;
-        w.digest && options.digests
+        let w = s.follower.on_catalog(&frame)?;
+        (w.digest && options.digests, u64::from(w.max_frame_bytes))
     };
     let mut frames = broadcast.track(names::FRAMES)?.subscribe(None).await?;
     // A digest track the catalog announces but the relay cannot serve:
@@ -312,7 +319,7 @@ async fn follow_broadcast(
                     }
                 }
             },
-            f = next_frame(&mut current) => match f {
+            f = next_frame(&mut current, max_frame) => match f {
                 Ok(Some((id, index, payload))) => {
                     let mut s = lock(shared);
                     if options.capture {
@@ -348,7 +355,7 @@ async fn follow_broadcast(
                 Some(g) => digest_group = Some(g),
                 None => digests = None,
             },
-            f = next_frame(&mut digest_group) => match f {
+            f = next_frame(&mut digest_group, DIGEST_FRAME_MAX) => match f {
                 Ok(Some((_, _, payload))) => {
                     let mut s = lock(shared);
                     // A malformed digest is ignored (spec/moq.md 5).
@@ -362,17 +369,29 @@ async fn follow_broadcast(
     }
 }
 
+/// The largest `digest` frame read (a `DIGEST` body is 8 bytes).
+const DIGEST_FRAME_MAX: u64 = 64;
+
 /// The next frame of the group being read (id, index, payload); never
-/// resolves without one.
+/// resolves without one. A frame whose declared size is above `max` (the
+/// catalog's `max_frame_bytes`) is not read: an error, which ends that
+/// group as a lost one (spec/moq.md 4), before its bytes are gathered.
 async fn next_frame(
     group: &mut Option<group::Consumer>,
+    max: u64,
 ) -> Result<Option<(u64, u64, bytes::Bytes)>, MoqError> {
     let Some(g) = group.as_mut() else {
         return std::future::pending().await;
     };
     let index = g.index();
     let id = g.sequence;
-    Ok(g.read_frame().await?.map(|f| (id, index, f.payload)))
+    let Some(mut f) = g.next_frame().await? else {
+        return Ok(None);
+    };
+    if f.size > max {
+        return Err(MoqError::FrameTooLarge { size: f.size, max });
+    }
+    Ok(Some((id, index, f.read_all().await?)))
 }
 
 async fn next_digest_group(
