@@ -23,7 +23,7 @@ pub use message::{BucketsMsg, CellsMsg, IndexIter, IndexList, Message, PlanarU32
 
 /// `size` bytes of runs and noise (both a compressor's literal and match
 /// paths), deterministic for a seed: test payloads for the compressions.
-#[cfg(test)]
+#[cfg(all(test, feature = "zstd"))]
 pub(crate) fn runs_and_noise(size: usize, mut state: u32) -> Vec<u8> {
     (0..size)
         .map(|i| {
