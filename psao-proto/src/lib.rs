@@ -45,6 +45,8 @@ pub mod codes;
 pub mod connect;
 pub mod control;
 pub mod fanout;
+#[cfg(feature = "quic")]
+mod link;
 pub mod outbox;
 pub mod own_mirror;
 pub mod rate;
@@ -57,6 +59,8 @@ pub mod server_conn;
 pub mod source;
 #[cfg(feature = "quic")]
 pub mod tls;
+#[cfg(feature = "web")]
+pub mod web;
 
 pub use client::{
     CLOSE_AFTER_FRAMES, ClientConfig, ClientEvent, ClientSession, ClientStats,

@@ -25,6 +25,7 @@ use tracing::{debug, info, warn};
 use crate::codes::{Close, CloseCode, SessionError};
 use crate::control::NoticeCode;
 use crate::fanout::{ClientId, Fanout, Keyframes, Transmit};
+use crate::link::{Link, LinkRecv, LinkSend, Read};
 use crate::own_mirror::OwnMirror;
 use crate::records::record_prefix;
 use crate::server_conn::{Offer, ServerConn, ServerEvent};
@@ -185,7 +186,7 @@ impl HubState {
     }
 }
 
-struct Hub {
+pub(crate) struct Hub {
     state: Mutex<HubState>,
     /// The stepping thread stops.
     stop: AtomicBool,
@@ -214,6 +215,9 @@ pub struct ServerHandle<S> {
     fingerprint: [u8; 32],
     stepper: Option<std::thread::JoinHandle<S>>,
     acceptor: tokio::task::JoinHandle<()>,
+    /// The WebTransport endpoint and its acceptor, once listening
+    /// (feature `web`).
+    web: Option<(quinn::Endpoint, tokio::task::JoinHandle<()>)>,
 }
 
 impl<S> std::fmt::Debug for ServerHandle<S> {
@@ -233,6 +237,35 @@ impl<S: FrameSource> ServerHandle<S> {
     /// SHA-256 of its certificate, for clients to pin.
     pub fn fingerprint(&self) -> [u8; 32] {
         self.fingerprint
+    }
+
+    /// Where its WebTransport endpoint listens, if it does (feature
+    /// `web`: `listen_web`).
+    pub fn web_addr(&self) -> Option<SocketAddr> {
+        self.web_endpoint().and_then(|e| e.local_addr().ok())
+    }
+
+    pub(crate) fn web_endpoint(&self) -> Option<&quinn::Endpoint> {
+        self.web.as_ref().map(|w| &w.0)
+    }
+
+    #[cfg_attr(not(feature = "web"), allow(dead_code))]
+    pub(crate) fn set_web(
+        &mut self,
+        endpoint: quinn::Endpoint,
+        acceptor: tokio::task::JoinHandle<()>,
+    ) {
+        self.web = Some((endpoint, acceptor));
+    }
+
+    #[cfg_attr(not(feature = "web"), allow(dead_code))]
+    pub(crate) fn hub(&self) -> Arc<Hub> {
+        self.hub.clone()
+    }
+
+    #[cfg_attr(not(feature = "web"), allow(dead_code))]
+    pub(crate) fn config(&self) -> &ServerConfig {
+        &self.hub.config
     }
 
     /// Counters now.
@@ -255,6 +288,9 @@ impl<S: FrameSource> ServerHandle<S> {
     /// the final counters.
     pub async fn shutdown(mut self, grace: Duration) -> Result<(S, ServerStats), ServeError> {
         self.acceptor.abort();
+        if let Some((_, acceptor)) = &self.web {
+            acceptor.abort();
+        }
         self.hub.stop.store(true, Ordering::SeqCst);
         let stepper = self.stepper.take();
         let source = tokio::task::spawn_blocking(move || stepper.map(|h| h.join()))
@@ -272,11 +308,11 @@ impl<S: FrameSource> ServerHandle<S> {
             tokio::time::sleep(Duration::from_millis(5)).await;
         }
         let stats = self.stats();
-        self.endpoint.close(
-            quinn::VarInt::from_u32(CloseCode::ServerShutdown.code()),
-            b"server shutdown",
-        );
+        self.close_endpoints();
         self.endpoint.wait_idle().await;
+        if let Some((web, _)) = &self.web {
+            web.wait_idle().await;
+        }
         let source = source.ok_or(ServeError::Stopped("the stepping thread panicked".into()))?;
         Ok((source, stats))
     }
@@ -290,10 +326,29 @@ impl<S> Drop for ServerHandle<S> {
         self.hub.stop.store(true, Ordering::SeqCst);
         self.hub.closing.store(true, Ordering::SeqCst);
         self.acceptor.abort();
-        self.endpoint.close(
-            quinn::VarInt::from_u32(CloseCode::ServerShutdown.code()),
-            b"server shutdown",
-        );
+        if let Some((_, acceptor)) = &self.web {
+            acceptor.abort();
+        }
+        self.close_endpoints();
+    }
+}
+
+impl<S> ServerHandle<S> {
+    /// Closes every connection of both endpoints with `server_shutdown`
+    /// (a WebTransport one in HTTP/3's space of application codes,
+    /// spec/session.md 9.3).
+    fn close_endpoints(&self) {
+        let code = CloseCode::ServerShutdown.code();
+        self.endpoint
+            .close(quinn::VarInt::from_u32(code), b"server shutdown");
+        if let Some((web, _)) = &self.web {
+            #[cfg(feature = "web")]
+            let code = web_transport_quinn::proto::error_to_http3(code);
+            web.close(
+                quinn::VarInt::from_u64(code as u64).unwrap_or(quinn::VarInt::MAX),
+                b"server shutdown",
+            );
+        }
     }
 }
 
@@ -384,6 +439,7 @@ pub async fn serve<S: FrameSource>(
         fingerprint: identity.fingerprint(),
         stepper: Some(stepper),
         acceptor,
+        web: None,
     })
 }
 
@@ -514,22 +570,19 @@ fn digest_after(
     if wanted { m.digest() } else { None }
 }
 
-async fn serve_connection(hub: Arc<Hub>, conn: quinn::Connection) {
+pub(crate) async fn serve_connection<L: Link>(hub: Arc<Hub>, conn: L) {
     let remote = conn.remote_address();
     let result = run_connection(&hub, &conn).await;
     if let Err(e) = result {
         let close = Close::from(e);
         debug!(%remote, "closing: {close}");
-        conn.close(
-            quinn::VarInt::from_u32(close.code.code()),
-            close.reason.as_bytes(),
-        );
+        conn.close(close.code.code(), close.reason.as_bytes());
     }
 }
 
 /// Reads the control stream; registers the client after `HELLO`; the
 /// writer task sends frames and notices.
-async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), SessionError> {
+async fn run_connection<L: Link>(hub: &Arc<Hub>, conn: &L) -> Result<(), SessionError> {
     let full = hub.lock().clients.len() >= hub.config.max_clients;
     if full {
         return Err(SessionError::ServerFull);
@@ -552,10 +605,7 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
     let extra = {
         let (conn, ended) = (conn.clone(), ended.clone());
         tokio::spawn(async move {
-            tokio::select! {
-                _ = conn.accept_uni() => {}
-                _ = conn.accept_bi() => {}
-            }
+            conn.any_stream().await;
             let _ = ended
                 .send(SessionError::StreamMisused("a client opens one stream"))
                 .await;
@@ -579,18 +629,18 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
             }
         };
         let n = match read {
-            Ok(Some(n)) => n,
-            Ok(None) => {
+            Read::Data(n) => n,
+            Read::Finished => {
                 break Err(SessionError::StreamMisused(
                     "the client finished its control stream",
                 ));
             }
-            Err(quinn::ReadError::Reset(_)) => {
+            Read::Reset => {
                 break Err(SessionError::StreamMisused(
                     "the client reset its control stream",
                 ));
             }
-            Err(_) => break Ok(()),
+            Read::Lost => break Ok(()),
         };
         if session.hello().is_none() {
             let (frame, payload) = hub.lock().fanout.largest();
@@ -748,7 +798,7 @@ async fn run_connection(hub: &Arc<Hub>, conn: &quinn::Connection) -> Result<(), 
 }
 
 /// How a client's writer ended.
-enum WriterEnd {
+enum WriterEnd<S> {
     /// The client left (the reader removed it and closes the connection
     /// with its own reason).
     Left,
@@ -756,7 +806,7 @@ enum WriterEnd {
     Stopped,
     /// The server shuts down: the streams, the frame stream finished, to
     /// be held until the connection closes.
-    Shutdown((quinn::SendStream, quinn::SendStream)),
+    Shutdown((S, S)),
     /// The keyframe the client needs is above its limits: close with
     /// `capability_mismatch` and this reason.
     Refused(String),
@@ -764,13 +814,13 @@ enum WriterEnd {
 
 /// Writes a client's notices and frames until it leaves, a write fails or
 /// the server shuts down.
-async fn write_loop(
+async fn write_loop<S: LinkSend>(
     hub: &Hub,
     client: ClientId,
     wake: Arc<Notify>,
-    mut control: quinn::SendStream,
-    mut frames: quinn::SendStream,
-) -> WriterEnd {
+    mut control: S,
+    mut frames: S,
+) -> WriterEnd<S> {
     loop {
         let Some(Transmit {
             notices,
@@ -799,7 +849,7 @@ async fn write_loop(
             None if hub.closing.load(Ordering::SeqCst) => {
                 // Shutting down and drained: end the frame stream after the
                 // last whole record, and let the client acknowledge it.
-                let _ = frames.finish();
+                frames.finish();
                 let _ = tokio::time::timeout(Duration::from_secs(1), frames.stopped()).await;
                 return WriterEnd::Shutdown((control, frames));
             }

@@ -121,7 +121,7 @@ pub fn parse_fingerprint(s: &str) -> Result<[u8; 32], TlsError> {
     Ok(out)
 }
 
-fn provider() -> Arc<CryptoProvider> {
+pub(crate) fn provider() -> Arc<CryptoProvider> {
     Arc::new(rustls::crypto::ring::default_provider())
 }
 
