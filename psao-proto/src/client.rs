@@ -249,6 +249,11 @@ impl ClientSession {
         }
     }
 
+    /// Whether a keyframe was asked for and has not come yet.
+    pub fn awaiting_keyframe(&self) -> bool {
+        self.requested
+    }
+
     /// The server's `WELCOME`, once it came.
     pub fn welcome(&self) -> Option<&Welcome> {
         self.welcome.as_ref()

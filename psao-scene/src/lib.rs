@@ -54,6 +54,7 @@
 //! hit in a scene millimetres across.
 
 mod error;
+pub mod export;
 mod import;
 mod model;
 mod morton;

@@ -9,12 +9,34 @@
 //! zstd decoded in pure Rust (psao-codec's `zstd-pure`), so it builds for
 //! `wasm32-unknown-unknown` with no C compiler.
 //!
+//! [`WasmSession`] is a whole client session (psao-proto's sans-IO
+//! `ClientSession`: HELLO, frame records, ACKs, keyframe requests,
+//! digests) for a page that carries its streams over WebTransport
+//! (spec/session.md 9), with the mirror's GPU buffers for psao-gpu's
+//! `reconstruct.wgsl` and AO per pixel on the CPU where WebGPU is missing.
+//!
 //! Build: `cargo build -p psao-wasm --release --target
 //! wasm32-unknown-unknown`, then `wasm-bindgen --target web` (or
 //! `nodejs`) on `psao_wasm.wasm`. The same API runs natively (the tests).
 
-use psao_codec::{Change, Decoder, Event, Limits};
+use psao_codec::{Decoder, Event, Limits};
 use wasm_bindgen::prelude::*;
+
+mod mirror_view;
+mod session;
+
+pub use mirror_view::MAX_GPU_INSTANCE_ID;
+pub use session::{SessionClose, SessionStats, WasmSession};
+
+/// The 256 decoded octahedral normals of spec/wire-format.md 6, 4 floats
+/// each (w unused): `reconstruct.wgsl`'s binding 3.
+#[wasm_bindgen]
+pub fn normal_table() -> Vec<f32> {
+    psao_codec::normal_table()
+        .iter()
+        .flat_map(|n| n.extend(0.0).to_array())
+        .collect()
+}
 
 /// What a frame did to the mirror.
 #[wasm_bindgen]
@@ -185,23 +207,6 @@ impl WasmDecoder {
     /// everything may have changed (a keyframe): upload every instance. For
     /// kinds (`change_kind`) without a range, start and end are 0.
     pub fn take_changes(&mut self) -> Vec<u32> {
-        let changes = self.inner.mirror_mut().take_changes();
-        let mut out = vec![changes.all as u32];
-        for c in changes.items {
-            let (kind, id, range) = match c {
-                Change::Defined(id) => (change_kind::DEFINED, id, 0..0),
-                Change::Removed(id) => (change_kind::REMOVED, id, 0..0),
-                Change::Transform(id) => (change_kind::TRANSFORM, id, 0..0),
-                Change::Buckets(id, r) => (change_kind::BUCKETS, id, r),
-                Change::Words(id, r) => (change_kind::WORDS, id, r),
-                // A change a later codec adds: upload everything.
-                _ => {
-                    out[0] = 1;
-                    continue;
-                }
-            };
-            out.extend([kind, id, range.start, range.end]);
-        }
-        out
+        mirror_view::take_changes_flat(self.inner.mirror_mut())
     }
 }

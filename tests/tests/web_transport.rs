@@ -292,3 +292,65 @@ async fn another_path_is_refused_and_a_new_certificate_serves_new_sessions() {
     follow(&old, 1).await;
     drop(server);
 }
+
+/// The `wt` examples of spec/session.md 9.5, and section 8's `HELLO`.
+fn spec_examples() -> Vec<(String, Vec<u8>)> {
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../spec/session.md"))
+        .unwrap();
+    let mut out = Vec::new();
+    let mut lines = text.lines();
+    while let Some(line) = lines.next() {
+        let Some(name) = line
+            .strip_prefix("```wt ")
+            .or_else(|| line.strip_prefix("```hex ").filter(|n| *n == "HELLO"))
+        else {
+            continue;
+        };
+        let bytes = lines
+            .by_ref()
+            .take_while(|l| !l.starts_with("```"))
+            .flat_map(|l| l.split_whitespace())
+            .map(|b| u8::from_str_radix(b, 16).unwrap())
+            .collect();
+        out.push((name.to_string(), bytes));
+    }
+    out
+}
+
+#[test]
+fn the_web_transport_examples_match_the_library() {
+    use bytes::BufMut;
+    use wt::proto::{Capsule, Frame, StreamUni, VarInt, error_to_http3};
+    let examples = spec_examples();
+    let get = |name: &str| {
+        examples
+            .iter()
+            .find(|e| e.0 == name)
+            .unwrap_or_else(|| panic!("example {name}"))
+            .1
+            .clone()
+    };
+    let mut control = Vec::new();
+    Frame::WEBTRANSPORT.encode(&mut control);
+    VarInt::from_u32(0).encode(&mut control);
+    control.extend_from_slice(&get("HELLO"));
+    assert_eq!(control, get("CONTROL-STREAM"));
+    let mut frames = Vec::new();
+    StreamUni::WEBTRANSPORT.encode(&mut frames);
+    VarInt::from_u32(0).encode(&mut frames);
+    frames.put_u32_le(40);
+    assert_eq!(frames, get("FRAME-STREAM"));
+    let mut close = Vec::new();
+    Capsule::CloseWebTransportSession {
+        code: CloseCode::ProtocolViolation.code(),
+        reason: "unknown type".into(),
+    }
+    .encode(&mut close);
+    assert_eq!(close, get("CLOSE-PROTOCOL-VIOLATION"));
+    let mut shutdown = Vec::new();
+    VarInt::from_u64(error_to_http3(CloseCode::ServerShutdown.code()))
+        .unwrap()
+        .encode(&mut shutdown);
+    assert_eq!(shutdown, get("SERVER-SHUTDOWN-HTTP3"));
+    assert_eq!(examples.len(), 5, "the four examples of 9.5 and HELLO");
+}
