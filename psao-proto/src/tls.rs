@@ -189,6 +189,13 @@ pub fn client_crypto(
     trust: &Trust,
     alpns: &[&[u8]],
 ) -> Result<quinn::crypto::rustls::QuicClientConfig, TlsError> {
+    quinn::crypto::rustls::QuicClientConfig::try_from(client_tls(trust, alpns)?)
+        .map_err(|e| TlsError::Config(e.to_string()))
+}
+
+/// The TLS 1.3 client configuration of [`client_crypto`], for a client
+/// over TCP too (the page's HTTPS server in psao-web's tests).
+pub fn client_tls(trust: &Trust, alpns: &[&[u8]]) -> Result<rustls::ClientConfig, TlsError> {
     let builder = rustls::ClientConfig::builder_with_provider(provider())
         .with_protocol_versions(&[&rustls::version::TLS13])
         .map_err(|e| TlsError::Config(e.to_string()))?;
@@ -211,8 +218,7 @@ pub fn client_crypto(
         }
     };
     tls.alpn_protocols = alpns.iter().map(|a| a.to_vec()).collect();
-    quinn::crypto::rustls::QuicClientConfig::try_from(tls)
-        .map_err(|e| TlsError::Config(e.to_string()))
+    Ok(tls)
 }
 
 /// The client's QUIC configuration.

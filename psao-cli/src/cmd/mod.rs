@@ -11,3 +11,4 @@ pub mod relay;
 pub mod serve;
 pub mod shots;
 pub mod view;
+pub mod web;

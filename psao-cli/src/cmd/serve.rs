@@ -11,6 +11,7 @@ use psao_proto::{FrameSource, Identity, ServerConfig, serve};
 use psao_scene::{Pipeline, PipelineConfig, ViewerCull};
 
 use super::common::{load_scene, pipeline_config, pipeline_with_progress, seconds_of, status};
+use super::web::{WebPlan, WebRunning};
 
 /// Arguments of `psao serve`.
 #[derive(clap::Args)]
@@ -75,6 +76,8 @@ pub struct Args {
     lead: super::common::LeadArgs,
     #[command(flatten)]
     publish: super::relay::PublishArgs,
+    #[command(flatten)]
+    web: super::web::WebArgs,
 }
 
 /// What the server holds for the scene, in a line: triangles, instances
@@ -157,8 +160,9 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
         "{}",
         scene_summary(&mut pipeline, started.elapsed().as_secs_f64())?
     );
+    let web = args.web.plan(&pipeline, &config.scene_name)?;
     match publish {
-        None => serve_until(pipeline, config, &identity, None, args.seconds).await,
+        None => serve_until(pipeline, config, &identity, None, web, args.seconds).await,
         Some(options) => {
             let (publishing, link) = psao_moq::net::publish_alongside(pipeline, &options).await?;
             println!(
@@ -170,8 +174,20 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
                     ..options.relay.clone()
                 }
             );
-            serve_until(publishing, config, &identity, Some(link), args.seconds).await
+            serve_until(publishing, config, &identity, Some(link), web, args.seconds).await
         }
+    }
+}
+
+/// The next certificate of the browser side, installed (never, without
+/// one).
+async fn next_certificate<S: FrameSource>(
+    web: &mut Option<WebRunning>,
+    server: &psao_proto::ServerHandle<S>,
+) -> anyhow::Result<()> {
+    match web {
+        Some(w) => w.next_certificate(server).await,
+        None => std::future::pending().await,
     }
 }
 
@@ -182,10 +198,11 @@ async fn serve_until<S: FrameSource>(
     config: ServerConfig,
     identity: &Identity,
     link: Option<Link>,
+    web: Option<WebPlan>,
     seconds: Option<f32>,
 ) -> anyhow::Result<()> {
     let rate = config.frame_rate;
-    let server = serve(source, config, identity).await?;
+    let mut server = serve(source, config, identity).await?;
     println!("listening on {}", server.local_addr());
     println!(
         "certificate SHA-256 {}",
@@ -196,12 +213,17 @@ async fn serve_until<S: FrameSource>(
         server.local_addr(),
         fingerprint_hex(&server.fingerprint())
     );
+    let mut web = match web {
+        Some(plan) => Some(plan.start(&mut server, rate).await?),
+        None => None,
+    };
     let until = seconds.map(|s| Instant::now() + seconds_of(s));
     let mut prev = (server.stats(), Instant::now());
     let mut prev_link = link.as_ref().map(|l| l.stats());
     loop {
         tokio::select! {
             _ = tokio::signal::ctrl_c() => break,
+            r = next_certificate(&mut web, &server) => r?,
             _ = tokio::time::sleep(Duration::from_secs(1)) => {
                 let s = server.stats();
                 let dt = prev.1.elapsed().as_secs_f64();
@@ -235,6 +257,7 @@ async fn serve_until<S: FrameSource>(
         }
     }
     println!("shutting down");
+    drop(web);
     // The source back first: a publishing one finishes its tracks as it
     // goes, then the broadcast ends cleanly.
     let (source, _) = server.shutdown(Duration::from_secs(2)).await?;
