@@ -73,7 +73,9 @@ pub use fanout::{ClientId, Fanout, Keyframes, Transmit};
 pub use outbox::{Outbox, Pushed};
 pub use own_mirror::{OwnFrameRefused, OwnMirror};
 #[cfg(feature = "quic")]
-pub use server::{ServeError, ServerConfig, ServerHandle, ServerStats, serve};
+pub use server::{
+    Binding, ClientFigures, ServeError, ServerConfig, ServerHandle, ServerStats, serve,
+};
 pub use server_conn::{Offer, ServerConn, ServerEvent, negotiate};
 pub use source::{ClientViews, FrameSource, SourceError, SourceInfo, StepReport};
 #[cfg(feature = "quic")]

@@ -56,6 +56,10 @@ pub(crate) trait Link: Clone + Send + Sync + 'static {
     fn closed(&self) -> impl Future<Output = ()> + Send;
     /// The client's address.
     fn remote_address(&self) -> SocketAddr;
+    /// UDP bytes the connection sent so far.
+    fn udp_sent(&self) -> u64;
+    /// Which binding this is.
+    const BINDING: crate::server::Binding;
 }
 
 impl LinkSend for quinn::SendStream {
@@ -109,6 +113,10 @@ impl Link for quinn::Connection {
     fn remote_address(&self) -> SocketAddr {
         quinn::Connection::remote_address(self)
     }
+    fn udp_sent(&self) -> u64 {
+        self.stats().udp_tx.bytes
+    }
+    const BINDING: crate::server::Binding = crate::server::Binding::Native;
 }
 
 #[cfg(feature = "web")]
@@ -168,5 +176,9 @@ mod web {
         fn remote_address(&self) -> SocketAddr {
             quinn::Connection::remote_address(self)
         }
+        fn udp_sent(&self) -> u64 {
+            quinn::Connection::stats(self).udp_tx.bytes
+        }
+        const BINDING: crate::server::Binding = crate::server::Binding::WebTransport;
     }
 }

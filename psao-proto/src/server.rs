@@ -143,11 +143,45 @@ pub struct ServerStats {
     pub rate_notices: u64,
 }
 
-/// The I/O side of a client: its writer's wake-up and its frame age.
+/// The I/O side of a client: its writer's wake-up, its frame age and
+/// what its connection has sent.
 struct Slot {
     wake: Arc<Notify>,
     /// Seconds from a frame's broadcast to the client's `ACK` of it.
     frame_age: f64,
+    /// Its binding (spec/session.md 2 or 9).
+    binding: Binding,
+    /// Frame records and their bytes written to it.
+    frames: u64,
+    record_bytes: u64,
+    /// UDP bytes its connection sent so far (QUIC's own count).
+    udp_sent: Arc<dyn Fn() -> u64 + Send + Sync>,
+}
+
+/// How a client is connected.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Binding {
+    /// QUIC with ALPN `psao/1` (spec/session.md 2).
+    Native,
+    /// A WebTransport session (spec/session.md 9).
+    WebTransport,
+}
+
+/// One client's figures now.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ClientFigures {
+    /// Its binding.
+    pub binding: Binding,
+    /// Frame records written to it.
+    pub frames: u64,
+    /// Their bytes (prefixes included).
+    pub record_bytes: u64,
+    /// UDP bytes its connection sent (QUIC and, for WebTransport, HTTP/3
+    /// framing included; handshake, acknowledgements and pings too).
+    pub udp_sent: u64,
+    /// Seconds from the broadcast of the last frame it acknowledged to its
+    /// `ACK`.
+    pub frame_age: f64,
 }
 
 struct HubState {
@@ -237,6 +271,21 @@ impl<S: FrameSource> ServerHandle<S> {
     /// SHA-256 of its certificate, for clients to pin.
     pub fn fingerprint(&self) -> [u8; 32] {
         self.fingerprint
+    }
+
+    /// Every connected client's figures, by binding.
+    pub fn client_figures(&self) -> Vec<ClientFigures> {
+        let s = self.hub.lock();
+        s.clients
+            .values()
+            .map(|c| ClientFigures {
+                binding: c.binding,
+                frames: c.frames,
+                record_bytes: c.record_bytes,
+                udp_sent: (c.udp_sent)(),
+                frame_age: c.frame_age,
+            })
+            .collect()
     }
 
     /// Where its WebTransport endpoint listens, if it does (feature
@@ -692,11 +741,16 @@ async fn run_connection<L: Link>(hub: &Arc<Hub>, conn: &L) -> Result<(), Session
                             }
                         }
                         s.stats.accepted += 1;
+                        let udp = conn.clone();
                         s.clients.insert(
                             client,
                             Slot {
                                 wake: wake.clone(),
                                 frame_age: 0.0,
+                                binding: L::BINDING,
+                                frames: 0,
+                                record_bytes: 0,
+                                udp_sent: Arc::new(move || udp.udp_sent()),
                             },
                         );
                         client
@@ -844,7 +898,12 @@ async fn write_loop<S: LinkSend>(
                 if frames.write_all(&prefix).await.is_err() || frames.write_all(&f).await.is_err() {
                     return WriterEnd::Stopped;
                 }
-                hub.lock().stats.written_bytes += 4 + f.len() as u64;
+                let mut s = hub.lock();
+                s.stats.written_bytes += 4 + f.len() as u64;
+                if let Some(slot) = s.clients.get_mut(&client) {
+                    slot.frames += 1;
+                    slot.record_bytes += 4 + f.len() as u64;
+                }
             }
             None if hub.closing.load(Ordering::SeqCst) => {
                 // Shutting down and drained: end the frame stream after the

@@ -218,6 +218,7 @@ async fn serve_until<S: FrameSource>(
         None => None,
     };
     let until = seconds.map(|s| Instant::now() + seconds_of(s));
+    let mut ticks = 0u64;
     let mut prev = (server.stats(), Instant::now());
     let mut prev_link = link.as_ref().map(|l| l.stats());
     loop {
@@ -249,12 +250,22 @@ async fn serve_until<S: FrameSource>(
                     prev_link = Some(now);
                 }
                 println!("{line}");
+                ticks += 1;
+                if web.is_some() && ticks % 5 == 0 {
+                    println!("clients by binding: {}", super::web::binding_summary(&server.client_figures()));
+                }
                 prev = (s, Instant::now());
                 if until.is_some_and(|u| Instant::now() >= u) {
                     break;
                 }
             }
         }
+    }
+    if web.is_some() {
+        println!(
+            "clients by binding: {}",
+            super::web::binding_summary(&server.client_figures())
+        );
     }
     println!("shutting down");
     drop(web);

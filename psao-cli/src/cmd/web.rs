@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use psao_proto::web::WEB_PATH;
-use psao_proto::{FrameSource, ServerHandle};
+use psao_proto::{Binding, ClientFigures, FrameSource, ServerHandle};
 use psao_scene::Pipeline;
 use psao_web::{HttpsServer, PageConfig, Rotation, Site, WebCertificate};
 
@@ -215,4 +215,30 @@ impl WebRunning {
         print_certificate(&cert);
         Ok(())
     }
+}
+
+/// Native against WebTransport clients, side by side: clients, frame
+/// records written, record bytes and UDP bytes per frame, mean frame age
+/// (from a frame's broadcast to its ACK).
+pub fn binding_summary(figures: &[ClientFigures]) -> String {
+    let mut parts = Vec::new();
+    for (binding, name) in [
+        (Binding::Native, "native"),
+        (Binding::WebTransport, "WebTransport"),
+    ] {
+        let c: Vec<&ClientFigures> = figures.iter().filter(|f| f.binding == binding).collect();
+        if c.is_empty() {
+            continue;
+        }
+        let frames: u64 = c.iter().map(|f| f.frames).sum();
+        let per = |x: u64| x as f64 / frames.max(1) as f64;
+        parts.push(format!(
+            "{name}: {} clients, {frames} frames, {:.0} record bytes/frame, {:.0} UDP bytes/frame, frame age {:.1} ms",
+            c.len(),
+            per(c.iter().map(|f| f.record_bytes).sum()),
+            per(c.iter().map(|f| f.udp_sent).sum()),
+            1e3 * c.iter().map(|f| f.frame_age).sum::<f64>() / c.len() as f64,
+        ));
+    }
+    parts.join(" | ")
 }

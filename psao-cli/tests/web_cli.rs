@@ -1,0 +1,151 @@
+//! `psao serve --web` as a user runs it: bad options fail before the scene
+//! is prepared, naming what is wrong; and a real Chromium, driven headless
+//! by `tests/browser/drive.mjs` (puppeteer-core), joins the page: mirrors
+//! in sync with digests matched, a late join, a lost frame answered by a
+//! keyframe, bad control bytes closed with the native codes, and the
+//! page's AO against the CPU reconstruction of the same mirror.
+//!
+//! The browser test needs Chromium (`$PSAO_CHROMIUM`, or
+//! /usr/bin/chromium), Node with `tests/browser/node_modules` (`npm ci`
+//! there) and the wasm module (`scripts/build-web.sh`); without them it
+//! says it skips, unless `PSAO_REQUIRE_BROWSER` is set.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+const PSAO: &str = env!("CARGO_BIN_EXE_psao");
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn fails_with(args: &[&str], needle: &str) {
+    let out = Command::new(PSAO).args(args).output().unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(!out.status.success(), "{args:?} succeeded: {text}");
+    assert!(text.contains(needle), "{args:?}: {text}");
+}
+
+#[test]
+fn bad_web_options_name_what_is_wrong() {
+    fails_with(
+        &["serve", "--web", "--web-cert-hours", "400", "--seconds", "1"],
+        "14 days",
+    );
+    fails_with(&["serve", "--web-port", "4443"], "--web");
+    fails_with(
+        &[
+            "serve",
+            "--bind",
+            "127.0.0.1:0",
+            "--web",
+            "--web-port",
+            "0",
+            "--web-pkg",
+            "/nonexistent/pkg",
+            "--seconds",
+            "1",
+        ],
+        "scripts/build-web.sh",
+    );
+}
+
+/// What the browser test needs, or why it cannot run.
+fn browser_setup() -> Result<(PathBuf, PathBuf), String> {
+    let chromium = std::env::var_os("PSAO_CHROMIUM")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("/usr/bin/chromium"));
+    if !chromium.is_file() {
+        return Err(format!("no Chromium at {}", chromium.display()));
+    }
+    let modules = root().join("tests/browser/node_modules/puppeteer-core");
+    if !modules.is_dir() {
+        return Err("no tests/browser/node_modules (run npm ci there)".into());
+    }
+    let pkg = root().join("target/psao-web/pkg");
+    if !pkg.join("psao_wasm_bg.wasm").is_file() {
+        return Err("no wasm module (run scripts/build-web.sh)".into());
+    }
+    Ok((chromium, pkg))
+}
+
+#[test]
+fn a_real_chromium_follows_the_stream() {
+    let (chromium, pkg) = match browser_setup() {
+        Ok(s) => s,
+        Err(why) => {
+            assert!(
+                std::env::var_os("PSAO_REQUIRE_BROWSER").is_none(),
+                "PSAO_REQUIRE_BROWSER is set: {why}"
+            );
+            eprintln!("skipped: {why}");
+            return;
+        }
+    };
+    let mut server = Command::new(PSAO)
+        .args(["serve", "--bind", "127.0.0.1:0", "--web", "--web-port", "0"])
+        .arg("--web-pkg")
+        .arg(&pkg)
+        .args(["--seconds", "240"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap();
+    let mut out = BufReader::new(server.stdout.take().unwrap());
+    let (mut page, mut spki) = (None, None);
+    let started = Instant::now();
+    let mut line = String::new();
+    while (page.is_none() || spki.is_none()) && started.elapsed() < Duration::from_secs(120) {
+        line.clear();
+        if out.read_line(&mut line).unwrap() == 0 {
+            break;
+        }
+        eprint!("server: {line}");
+        if let Some(rest) = line.split("the page on ").nth(1) {
+            page = rest.split_whitespace().next().map(str::to_string);
+        }
+        if let Some(rest) = line.split("--ignore-certificate-errors-spki-list=").nth(1) {
+            spki = rest.trim().trim_end_matches(')').split(')').next().map(str::to_string);
+        }
+    }
+    let (Some(page), Some(spki)) = (page, spki) else {
+        let _ = server.kill();
+        panic!("the server did not print its page and certificate");
+    };
+    // The server's output keeps flowing (a full pipe would stall it).
+    let drain = std::thread::spawn(move || {
+        let mut rest = String::new();
+        for l in out.lines().map_while(Result::ok) {
+            rest.push_str(&l);
+            rest.push('\n');
+        }
+        rest
+    });
+    let shot = std::env::var_os("PSAO_SCREENSHOT")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_TARGET_TMPDIR")).join("browser-client.png"));
+    let driver = Command::new("node")
+        .arg(root().join("tests/browser/drive.mjs"))
+        .args(["--url", &format!("https://{page}/"), "--spki", &spki])
+        .arg("--chromium")
+        .arg(&chromium)
+        .arg("--screenshot")
+        .arg(&shot)
+        .stderr(Stdio::inherit())
+        .output()
+        .unwrap();
+    let _ = server.kill();
+    let _ = server.wait();
+    let _ = drain.join();
+    let report = String::from_utf8_lossy(&driver.stdout).to_string();
+    eprintln!("driver: {report}");
+    assert!(driver.status.success(), "the browser checks failed: {report}");
+    assert!(report.contains("\"ok\":true"), "{report}");
+    assert!(shot.is_file(), "no screenshot at {}", shot.display());
+}
