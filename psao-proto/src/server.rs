@@ -626,8 +626,16 @@ pub(crate) async fn serve_connection<L: Link>(hub: Arc<Hub>, conn: L) {
         let close = Close::from(e);
         debug!(%remote, "closing: {close}");
         conn.close(close.code.code(), close.reason.as_bytes());
+        // The session stays alive until the close went out: a WebTransport
+        // one writes its close capsule from a task of its own, and dropping
+        // it would stop its HTTP/3 streams first (a browser then sees a
+        // lost connection, not the code).
+        let _ = tokio::time::timeout(CLOSE_LINGER, conn.closed()).await;
     }
 }
+
+/// How long a closed session is kept for its close to go out.
+const CLOSE_LINGER: Duration = Duration::from_secs(2);
 
 /// Reads the control stream; registers the client after `HELLO`; the
 /// writer task sends frames and notices.
