@@ -127,25 +127,37 @@ fn a_real_chromium_follows_the_stream() {
         }
         rest
     });
-    let shot = std::env::var_os("PSAO_SCREENSHOT")
+    let shots = std::env::var_os("PSAO_SCREENSHOT_DIR")
         .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_TARGET_TMPDIR")).join("browser-client.png"));
-    let driver = Command::new("node")
-        .arg(root().join("tests/browser/drive.mjs"))
-        .args(["--url", &format!("https://{page}/"), "--spki", &spki])
-        .arg("--chromium")
-        .arg(&chromium)
-        .arg("--screenshot")
-        .arg(&shot)
-        .stderr(Stdio::inherit())
-        .output()
-        .unwrap();
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_TARGET_TMPDIR")));
+    // WebGPU (SwiftShader in headless Chromium), then the CPU fallback.
+    let mut reports = Vec::new();
+    for (mode, flag) in [("webgpu", None), ("cpu", Some("--cpu"))] {
+        let shot = shots.join(format!("browser-client-{mode}.png"));
+        let driver = Command::new("node")
+            .arg(root().join("tests/browser/drive.mjs"))
+            .args(["--url", &format!("https://{page}/"), "--spki", &spki])
+            .arg("--chromium")
+            .arg(&chromium)
+            .arg("--screenshot")
+            .arg(&shot)
+            .args(flag)
+            .stderr(Stdio::inherit())
+            .output()
+            .unwrap();
+        let report = String::from_utf8_lossy(&driver.stdout).to_string();
+        eprintln!("driver ({mode}): {report}");
+        reports.push((mode, driver.status.success(), report, shot));
+    }
     let _ = server.kill();
     let _ = server.wait();
     let _ = drain.join();
-    let report = String::from_utf8_lossy(&driver.stdout).to_string();
-    eprintln!("driver: {report}");
-    assert!(driver.status.success(), "the browser checks failed: {report}");
-    assert!(report.contains("\"ok\":true"), "{report}");
-    assert!(shot.is_file(), "no screenshot at {}", shot.display());
+    for (mode, success, report, shot) in reports {
+        assert!(success, "the browser checks failed ({mode}): {report}");
+        let compact: String = report.split_whitespace().collect();
+        assert!(compact.starts_with("{\"ok\":true"), "{mode}: {report}");
+        let expected = if mode == "cpu" { "CPU" } else { "WebGPU" };
+        assert!(compact.contains(&format!("\"mode\":\"{expected}")), "{mode}: {report}");
+        assert!(shot.is_file(), "no screenshot at {}", shot.display());
+    }
 }

@@ -14,6 +14,10 @@ export const INTERNAL_ERROR = 0x09;
 // The counters of WasmSession.stats().
 export const STAT_NAMES = ["applied", "keyframes", "failed", "stale", "requests", "bytes", "digests_matched", "digest_mismatches", "digests_dropped"];
 
+// How long a client waits for the server's close after the server's
+// control stream ended (spec/session.md 9.3).
+const CLOSE_GRACE_MS = 1000;
+
 // How often the mirror asks for digests (DIGEST_REQUEST.every).
 const DIGEST_EVERY = 30;
 
@@ -133,11 +137,18 @@ export class SessionLink {
         }
       }
       // spec/session.md 2.1: finishing the control stream ends the session.
-      this.close(PROTOCOL_VIOLATION, "the server finished the control stream");
+      this.closeUnlessClosing(PROTOCOL_VIOLATION, "the server finished the control stream");
     } catch (e) {
-      if (e?.source === "stream") this.close(PROTOCOL_VIOLATION, "the server reset the control stream");
+      if (e?.source === "stream") this.closeUnlessClosing(PROTOCOL_VIOLATION, "the server reset the control stream");
       // Otherwise the session closed: `closed` says how.
     }
+  }
+
+  // A server that closes the session may end its streams before its close
+  // arrives (spec/session.md 9.3): wait for it a moment, and close with
+  // `code` only if it does not come.
+  closeUnlessClosing(code, reason) {
+    setTimeout(() => this.close(code, reason), CLOSE_GRACE_MS);
   }
 
   // Takes the server's first unidirectional stream as the frame stream;
