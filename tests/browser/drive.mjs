@@ -8,25 +8,12 @@
 
 import { mkdirSync } from "node:fs";
 import { dirname } from "node:path";
-import puppeteer from "puppeteer-core";
+import { launch } from "./chromium.mjs";
 
 // spec/session.md section 7.
 const PROTOCOL_VIOLATION = 0x01;
 const MESSAGE_TOO_LARGE = 0x04;
 
-// What makes WebGPU work in headless Chromium (156, Linux) without a GPU or
-// a display: Dawn's Vulkan backend on SwiftShader, Chromium's own CPU
-// Vulkan (Mesa's lavapipe is not offered as an adapter). Without Vulkan or
-// the SwiftShader Vulkan requestAdapter() fails; --disable-vulkan-surface
-// would keep the adapter but leave the WebGPU canvas out of screenshots
-// (white).
-const WEBGPU_FLAGS = [
-  "--enable-unsafe-webgpu",
-  "--enable-features=Vulkan",
-  "--use-vulkan=swiftshader",
-  "--use-webgpu-adapter=swiftshader",
-  "--use-angle=swiftshader",
-];
 
 const JOIN_TIMEOUT_MS = 60_000;
 const STEP_TIMEOUT_MS = 30_000;
@@ -51,11 +38,9 @@ process.stdout.write(JSON.stringify(result, null, 2) + "\n");
 process.exit(result.ok ? 0 : 1);
 
 async function run() {
-  const flags = [`--ignore-certificate-errors-spki-list=${args.spki}`, ...WEBGPU_FLAGS];
-  if (process.getuid?.() === 0) flags.push("--no-sandbox"); // Chromium refuses root with its sandbox
+  let flags;
+  ({ browser, flags } = await launch(args.chromium, args.spki));
   result.flags = flags;
-  // (A copy: puppeteer takes --enable-features out of the array it is given.)
-  browser = await puppeteer.launch({ executablePath: args.chromium, headless: true, args: [...flags] });
   result.chromium = await browser.version();
   log(`${result.chromium} with ${flags.join(" ")}`);
   const pageUrl = new URL(args.url);
