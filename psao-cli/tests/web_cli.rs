@@ -35,7 +35,14 @@ fn fails_with(args: &[&str], needle: &str) {
 #[test]
 fn bad_web_options_name_what_is_wrong() {
     fails_with(
-        &["serve", "--web", "--web-cert-hours", "400", "--seconds", "1"],
+        &[
+            "serve",
+            "--web",
+            "--web-cert-hours",
+            "400",
+            "--seconds",
+            "1",
+        ],
         "14 days",
     );
     fails_with(&["serve", "--web-port", "4443"], "--web");
@@ -111,7 +118,12 @@ fn a_real_chromium_follows_the_stream() {
             page = rest.split_whitespace().next().map(str::to_string);
         }
         if let Some(rest) = line.split("--ignore-certificate-errors-spki-list=").nth(1) {
-            spki = rest.trim().trim_end_matches(')').split(')').next().map(str::to_string);
+            spki = rest
+                .trim()
+                .trim_end_matches(')')
+                .split(')')
+                .next()
+                .map(str::to_string);
         }
     }
     let (Some(page), Some(spki)) = (page, spki) else {
@@ -157,7 +169,10 @@ fn a_real_chromium_follows_the_stream() {
         let compact: String = report.split_whitespace().collect();
         assert!(compact.starts_with("{\"ok\":true"), "{mode}: {report}");
         let expected = if mode == "cpu" { "CPU" } else { "WebGPU" };
-        assert!(compact.contains(&format!("\"mode\":\"{expected}")), "{mode}: {report}");
+        assert!(
+            compact.contains(&format!("\"mode\":\"{expected}")),
+            "{mode}: {report}"
+        );
         assert!(shot.is_file(), "no screenshot at {}", shot.display());
     }
 }

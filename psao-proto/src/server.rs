@@ -273,6 +273,13 @@ impl<S: FrameSource> ServerHandle<S> {
         self.fingerprint
     }
 
+    /// A counter of the frames stepped so far, for another task (the
+    /// scene time is that over the frame rate).
+    pub fn frames_stepped(&self) -> impl Fn() -> u64 + Send + Sync + 'static {
+        let hub = self.hub.clone();
+        move || hub.lock().stats.frames
+    }
+
     /// Every connected client's figures, by binding.
     pub fn client_figures(&self) -> Vec<ClientFigures> {
         let s = self.hub.lock();

@@ -32,14 +32,23 @@ struct Varyings {
     @location(4) @interpolate(flat) draw: u32,
 }
 
+// `position` and `normal` are the mesh's own (bind pose); `posed` and
+// `posed_normal` where the draw puts them (the same, but for a skinned
+// mesh: instance-local, skinned by skin.js).
 @vertex
-fn vs(@location(0) position: vec3<f32>, @location(1) normal: vec3<f32>, @builtin(instance_index) draw: u32) -> Varyings {
+fn vs(
+    @location(0) position: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) posed: vec3<f32>,
+    @location(3) posed_normal: vec3<f32>,
+    @builtin(instance_index) draw: u32,
+) -> Varyings {
     let d = draws[draw];
-    let world = d.model * vec4<f32>(position, 1.0);
+    let world = d.model * vec4<f32>(posed, 1.0);
     var out: Varyings;
     out.clip = camera.view_proj * world;
     out.world = world.xyz;
-    out.world_normal = (d.normal * vec4<f32>(normal, 0.0)).xyz;
+    out.world_normal = (d.normal * vec4<f32>(posed_normal, 0.0)).xyz;
     out.local = position;
     out.local_normal = normal;
     out.draw = draw;

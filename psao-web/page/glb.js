@@ -1,18 +1,24 @@
 // A reader for the glTF 2.0 binary (GLB) that `psao serve --web` writes as
 // /scene.glb, and for nothing more general: one buffer (the BIN chunk);
 // meshes of one triangle primitive with POSITION and NORMAL (VEC3 float)
-// and u32 indices; a flat list of nodes, each with `mesh`, an optional
-// column-major `matrix` (the instance's rest world transform) and
-// `extras: {psao_instance, bind_space}`. Anything else is refused with an
-// error that says what, rather than drawn wrongly.
+// and u32 indices, and for a skinned mesh JOINTS_0 (VEC4 u16) and
+// WEIGHTS_0 (VEC4 float); a flat list of nodes, each with `mesh`, an
+// optional column-major `matrix` (the instance's rest world transform) and
+// `extras: {psao_instance, bind_space}`, and for a skinned instance
+// `extras.psao_skin: {joints, fps, frames, duration, matrices}` (its joint
+// matrices sampled over the animation loop: an accessor of frames * joints
+// * 12 floats, see skin.js). Anything else is refused with an error that
+// says what, rather than drawn wrongly.
 
 const MAGIC_GLTF = 0x46546c67; // "glTF", little-endian
 const CHUNK_JSON = 0x4e4f534a; // "JSON"
 const CHUNK_BIN = 0x004e4942; // "BIN\0"
 const FLOAT = 5126;
 const UNSIGNED_INT = 5125;
+const UNSIGNED_SHORT = 5123;
 const TRIANGLES = 4;
-const COMPONENTS = { SCALAR: 1, VEC3: 3 };
+const COMPONENTS = { SCALAR: 1, VEC3: 3, VEC4: 4 };
+const COMPONENT_BYTES = { [FLOAT]: 4, [UNSIGNED_INT]: 4, [UNSIGNED_SHORT]: 2 };
 
 // Parses a GLB. Returns
 //   { meshes: [{ positions: Float32Array, normals: Float32Array, indices: Uint32Array }],
@@ -61,7 +67,17 @@ export function parseGlb(arrayBuffer) {
     for (const i of indices) {
       if (i >= vertices) throw new Error(`scene.glb: mesh ${m} indexes vertex ${i} of ${vertices}`);
     }
-    return { positions, normals, indices };
+    const out = { positions, normals, indices };
+    const { JOINTS_0, WEIGHTS_0 } = prim.attributes;
+    if ((JOINTS_0 === undefined) !== (WEIGHTS_0 === undefined)) throw new Error(`scene.glb: mesh ${m} has one of JOINTS_0 and WEIGHTS_0`);
+    if (JOINTS_0 !== undefined) {
+      out.joints = accessor(JOINTS_0, UNSIGNED_SHORT, "VEC4");
+      out.weights = accessor(WEIGHTS_0, FLOAT, "VEC4");
+      if (out.joints.length !== 4 * vertices || out.weights.length !== 4 * vertices) {
+        throw new Error(`scene.glb: mesh ${m}'s joints or weights are not one VEC4 per vertex`);
+      }
+    }
+    return out;
   });
 
   const nodes = (json.nodes ?? []).map((node, n) => {
@@ -75,7 +91,19 @@ export function parseGlb(arrayBuffer) {
     if (!Number.isInteger(instance) || instance < 0 || instance > 0xfffffffe) {
       throw new Error(`scene.glb: node ${n} has no extras.psao_instance (a u32)`);
     }
-    return { mesh: node.mesh, matrix, instance, bindSpace: node.extras.bind_space === true };
+    const out = { mesh: node.mesh, matrix, instance, bindSpace: node.extras.bind_space === true };
+    const skin = node.extras.psao_skin;
+    if (skin !== undefined) {
+      const { joints, fps, frames, duration } = skin;
+      if (!meshes[node.mesh].joints) throw new Error(`scene.glb: node ${n} is skinned but mesh ${node.mesh} has no JOINTS_0`);
+      if (!(Number.isInteger(joints) && joints > 0 && Number.isInteger(frames) && frames > 0 && fps > 0 && duration >= 0)) {
+        throw new Error(`scene.glb: node ${n}'s psao_skin is malformed`);
+      }
+      const matrices = accessor(skin.matrices, FLOAT, "SCALAR");
+      if (matrices.length !== frames * joints * 12) throw new Error(`scene.glb: node ${n}'s psao_skin has ${matrices.length} floats, expected ${frames * joints * 12}`);
+      out.skin = { joints, fps, frames, duration, matrices };
+    }
+    return out;
   });
   return { meshes, nodes: nodes.filter((n) => n !== null) };
 }
@@ -93,7 +121,7 @@ function readAccessor(json, bin, index, componentType, type) {
   const bv = json.bufferViews?.[acc.bufferView];
   if (!bv || (bv.buffer ?? 0) !== 0 || bin === null) throw new Error(`scene.glb: accessor ${index} has no data in the BIN chunk`);
   const comps = COMPONENTS[type];
-  const elementBytes = 4 * comps;
+  const elementBytes = COMPONENT_BYTES[componentType] * comps;
   const stride = bv.byteStride ?? elementBytes;
   const start = (bv.byteOffset ?? 0) + (acc.byteOffset ?? 0);
   const count = acc.count;
@@ -101,10 +129,12 @@ function readAccessor(json, bin, index, componentType, type) {
   if (stride < elementBytes || lastEnd > (bv.byteOffset ?? 0) + bv.byteLength || lastEnd > bin.byteLength) {
     throw new Error(`scene.glb: accessor ${index} runs past its bufferView`);
   }
+  const size = COMPONENT_BYTES[componentType];
   const out = componentType === FLOAT ? new Float32Array(count * comps) : new Uint32Array(count * comps);
-  const read = componentType === FLOAT ? (at) => bin.getFloat32(at, true) : (at) => bin.getUint32(at, true);
+  const read =
+    componentType === FLOAT ? (at) => bin.getFloat32(at, true) : componentType === UNSIGNED_SHORT ? (at) => bin.getUint16(at, true) : (at) => bin.getUint32(at, true);
   for (let i = 0; i < count; i++) {
-    for (let c = 0; c < comps; c++) out[i * comps + c] = read(start + i * stride + 4 * c);
+    for (let c = 0; c < comps; c++) out[i * comps + c] = read(start + i * stride + size * c);
   }
   return out;
 }

@@ -13,6 +13,7 @@ import { Overlay } from "./overlay.js";
 import { CpuRenderer } from "./render_cpu.js";
 import { createWebGpuRenderer } from "./render_webgpu.js";
 import { SessionLink, plainStats } from "./session.js";
+import { NodeSkin } from "./skin.js";
 
 const params = new URLSearchParams(location.search);
 const FIXED_VIEW = params.get("view") === "fixed";
@@ -37,6 +38,9 @@ let link = null; // SessionLink
 let renderer = null; // WebGpuRenderer or CpuRenderer
 let camera = null;
 let scene = null;
+// The server's scene time (config.json's scene_time) against this page's
+// clock: performance.now() when it was read, at the request's midpoint.
+let clock = { sceneTime: 0, at: 0 };
 
 // Rendering state: one render at a time; a new one when the mirror, the
 // camera or the size changed.
@@ -52,12 +56,21 @@ const ready = start();
 ready.catch((e) => report("start", e));
 
 async function start() {
+  const asked = performance.now();
   const [config, glb] = await Promise.all([
-    fetchOk("/config.json").then((r) => r.json()),
+    fetchOk("/config.json")
+      .then((r) => r.json())
+      .then((c) => {
+        clock = { sceneTime: c.scene_time ?? 0, at: (asked + performance.now()) / 2 };
+        return c;
+      }),
     fetchOk("/scene.glb").then((r) => r.arrayBuffer()),
     init(),
   ]);
   scene = parseGlb(glb);
+  for (const node of scene.nodes) {
+    if (node.skin) node.skinState = new NodeSkin(node.skin, scene.meshes[node.mesh]);
+  }
   camera = new Camera(config.camera, sceneBounds(scene));
 
   session = new WasmSession(); // queues HELLO
@@ -107,14 +120,22 @@ function viewSize() {
   return renderer instanceof CpuRenderer ? [w >> 1, h >> 1] : [w, h];
 }
 
+// The server's scene time now, as this page's clock follows it.
+function sceneTime() {
+  return clock.sceneTime + (performance.now() - clock.at) / 1000;
+}
+
 // The draws: every node's mesh, placed by the stream's transform of its
-// instance when it has one (instances in bind space stay at rest).
+// instance when it has one (else at rest); a skinned one posed at the
+// server's scene time (skin.js), looked up by its bind pose.
 function draws() {
+  const t = sceneTime();
   return scene.nodes.map((node) => {
     const bindSpace = node.bindSpace || session.bind_space(node.instance);
-    const t = bindSpace ? undefined : session.transform(node.instance);
-    const model = t ? affineToMat4(t) : node.matrix;
-    return { mesh: node.mesh, model, normal: normalMatrix(model), instance: node.instance, bindSpace };
+    const placed = session.transform(node.instance);
+    const model = placed ? affineToMat4(placed) : node.matrix;
+    const posed = node.skinState?.pose(t);
+    return { mesh: node.mesh, model, normal: normalMatrix(model), instance: node.instance, bindSpace, posed, node: scene.nodes.indexOf(node) };
   });
 }
 

@@ -43,20 +43,24 @@ export function rasterize(meshes, draws, matrices, width, height) {
 // Per vertex: clip-space position and the attributes to interpolate.
 function transformVertices(mesh, draw, viewProj) {
   const { model: m, normal: nm } = draw;
+  // The lookup uses the mesh's own vertices; the place on screen the posed
+  // ones (a skinned node's, from skin.js; else the same).
   const p = mesh.positions;
   const n = mesh.normals;
+  const pp = draw.posed?.positions ?? p;
+  const pn = draw.posed?.normals ?? n;
   const verts = new Array(p.length / 3);
   for (let v = 0; v < verts.length; v++) {
-    const [x, y, z] = [p[3 * v], p[3 * v + 1], p[3 * v + 2]];
-    const [a, b, c] = [n[3 * v], n[3 * v + 1], n[3 * v + 2]];
+    const [x, y, z] = [pp[3 * v], pp[3 * v + 1], pp[3 * v + 2]];
+    const [a, b, c] = [pn[3 * v], pn[3 * v + 1], pn[3 * v + 2]];
     const world = [0, 1, 2].map((k) => m[k] * x + m[4 + k] * y + m[8 + k] * z + m[12 + k]);
     const clip = [0, 1, 2, 3].map((k) => viewProj[k] * world[0] + viewProj[4 + k] * world[1] + viewProj[8 + k] * world[2] + viewProj[12 + k]);
     verts[v] = {
       clip,
       world,
       worldNormal: [0, 1, 2].map((k) => nm[k] * a + nm[4 + k] * b + nm[8 + k] * c),
-      local: [x, y, z],
-      localNormal: [a, b, c],
+      local: [p[3 * v], p[3 * v + 1], p[3 * v + 2]],
+      localNormal: [n[3 * v], n[3 * v + 1], n[3 * v + 2]],
     };
   }
   return verts;

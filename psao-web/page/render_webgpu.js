@@ -77,7 +77,10 @@ class WebGpuRenderer {
     [this.gbufferPipeline, this.aoPipeline, this.displayPipeline] = await Promise.all([
       d.createRenderPipelineAsync({
         layout: "auto",
-        vertex: { module: gbufferModule, entryPoint: "vs", buffers: [attribute(0), attribute(1)] },
+        // 0, 1: the bind-pose position and normal (the lookup of a
+        // bind-space instance); 2, 3: the drawn ones (the same buffers but
+        // for a skinned node, posed by skin.js).
+        vertex: { module: gbufferModule, entryPoint: "vs", buffers: [attribute(0), attribute(1), attribute(2), attribute(3)] },
         fragment: {
           module: gbufferModule,
           entryPoint: "fs",
@@ -203,6 +206,20 @@ class WebGpuRenderer {
         ],
       });
     }
+    // A skinned node's posed vertices, in buffers of its own.
+    this.posed ??= new Map();
+    for (const draw of draws) {
+      if (!draw.posed) continue;
+      let b = this.posed.get(draw.node);
+      if (!b) {
+        const size = draw.posed.positions.byteLength;
+        const make = () => this.device.createBuffer({ size, usage: GPUBufferUsage.VERTEX | GPUBufferUsage.COPY_DST });
+        b = { positions: make(), normals: make() };
+        this.posed.set(draw.node, b);
+      }
+      this.device.queue.writeBuffer(b.positions, 0, draw.posed.positions);
+      this.device.queue.writeBuffer(b.normals, 0, draw.posed.normals);
+    }
     const data = new ArrayBuffer(bytes);
     draws.forEach((draw, i) => {
       new Float32Array(data, i * DRAW_BYTES, 32).set([...draw.model, ...draw.normal]);
@@ -230,8 +247,11 @@ class WebGpuRenderer {
     gpass.setBindGroup(0, this.gbufferGroup);
     this.draws.forEach((draw, i) => {
       const mesh = this.meshes[draw.mesh];
+      const posed = draw.posed ? this.posed.get(draw.node) : mesh;
       gpass.setVertexBuffer(0, mesh.positions);
       gpass.setVertexBuffer(1, mesh.normals);
+      gpass.setVertexBuffer(2, posed.positions);
+      gpass.setVertexBuffer(3, posed.normals);
       gpass.setIndexBuffer(mesh.indices, "uint32");
       gpass.drawIndexed(mesh.count, 1, 0, 0, i); // firstInstance = draw index
     });

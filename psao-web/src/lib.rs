@@ -22,4 +22,4 @@ pub mod site;
 
 pub use cert::{Rotation, WebCertificate};
 pub use https::HttpsServer;
-pub use site::{PageConfig, Site, SiteError};
+pub use site::{PageConfig, SceneClock, Site, SiteError};

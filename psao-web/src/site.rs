@@ -51,12 +51,25 @@ pub enum SiteError {
     },
 }
 
+/// The server's scene time in seconds, read at each request of
+/// `/config.json` (a page poses skinned meshes by it).
+pub type SceneClock = Arc<dyn Fn() -> f64 + Send + Sync>;
+
 /// The page's files, the module, the geometry and the config.
-#[derive(Debug)]
 pub struct Site {
     files: HashMap<String, (&'static str, Bytes)>,
     page: PageConfig,
-    config: RwLock<Bytes>,
+    fingerprint: RwLock<String>,
+    clock: RwLock<Option<SceneClock>>,
+}
+
+impl std::fmt::Debug for Site {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Site")
+            .field("paths", &self.paths())
+            .field("page", &self.page)
+            .finish()
+    }
 }
 
 /// The content type of a file name.
@@ -117,27 +130,44 @@ impl Site {
             ),
         );
         files.insert("/scene.glb".into(), (content_type("x.glb"), glb.into()));
-        let config = RwLock::new(config_json(&page, fingerprint));
         Ok(Arc::new(Site {
             files,
             page,
-            config,
+            fingerprint: RwLock::new(fingerprint.to_string()),
+            clock: RwLock::new(None),
         }))
     }
 
     /// The content type and bytes served at `path` (without a query).
     pub fn get(&self, path: &str) -> Option<(&'static str, Bytes)> {
         if path == "/config.json" {
-            let c = self.config.read().unwrap_or_else(|e| e.into_inner());
-            return Some((content_type(path), c.clone()));
+            let fingerprint = self
+                .fingerprint
+                .read()
+                .unwrap_or_else(|e| e.into_inner())
+                .clone();
+            let time = self
+                .clock
+                .read()
+                .unwrap_or_else(|e| e.into_inner())
+                .as_ref()
+                .map_or(0.0, |c| c());
+            return Some((
+                content_type(path),
+                config_json(&self.page, &fingerprint, time),
+            ));
         }
         self.files.get(path).cloned()
     }
 
     /// Tells pages loaded from now on to pin `fingerprint` (hex).
     pub fn set_fingerprint(&self, fingerprint: &str) {
-        let json = config_json(&self.page, fingerprint);
-        *self.config.write().unwrap_or_else(|e| e.into_inner()) = json;
+        *self.fingerprint.write().unwrap_or_else(|e| e.into_inner()) = fingerprint.to_string();
+    }
+
+    /// Where `/config.json`'s `scene_time` comes from (without one, 0).
+    pub fn set_clock(&self, clock: SceneClock) {
+        *self.clock.write().unwrap_or_else(|e| e.into_inner()) = Some(clock);
     }
 
     /// The paths served.
@@ -149,10 +179,11 @@ impl Site {
     }
 }
 
-fn config_json(page: &PageConfig, fingerprint: &str) -> Bytes {
+fn config_json(page: &PageConfig, fingerprint: &str, scene_time: f64) -> Bytes {
     let (eye, target, fov_y) = page.camera;
     let v = serde_json::json!({
         "url": page.url,
+        "scene_time": scene_time,
         "certificate_hashes": [fingerprint],
         "scene": page.scene,
         "frame_rate": page.frame_rate,

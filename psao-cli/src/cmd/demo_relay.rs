@@ -105,6 +105,23 @@ pub async fn run(d: RelayDemo, pipeline: Pipeline) -> anyhow::Result<()> {
             .map_err(anyhow::Error::from)
         })
         .collect::<anyhow::Result<_>>()?;
+    // The timed run starts once every subscriber has joined (applied a
+    // keyframe): one that subscribes through the second relay after the
+    // group began gets that group from where the relays' link picks it up
+    // and waits for the next keyframe (spec/moq.md 4), up to
+    // --group-seconds.
+    let joined = Instant::now();
+    while !subs.iter().all(|x| x.stats().join_time.is_some()) {
+        if joined.elapsed() > Duration::from_secs(30) {
+            bail!("not every subscriber joined within 30 s");
+        }
+        for x in &subs {
+            if let Some(why) = x.failed() {
+                bail!("a subscriber stopped: {why}");
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
     let total = (seconds * rate as f32).round() as u64;
     let start = server.stats();
     let (started, cpu0) = (Instant::now(), cpu_seconds());
@@ -145,27 +162,32 @@ pub async fn run(d: RelayDemo, pipeline: Pipeline) -> anyhow::Result<()> {
     let last = psao_proto::FrameSource::keyframe(&mut pipeline)
         .map_err(|e| anyhow::anyhow!("{e}"))?
         .sequence;
-    // Every subscriber reaches the last state, then its mirror is compared.
-    let until = Instant::now() + Duration::from_secs(10);
-    while Instant::now() < until
-        && !subs
-            .iter()
-            .all(|x| x.with_follower(|f| f.mirror().sequence()) == Some(last))
-    {
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
+    // Each subscriber's mirror is compared as soon as it reaches the last
+    // state (the broadcast has ended: a subscriber then subscribes again,
+    // which starts a fresh mirror).
     let same = |x: &Subscription| {
         x.with_follower(|f| {
-            f.mirror().sequence() == Some(last)
-                && (0..pipeline.instance_count()).all(|i| {
+            (f.mirror().sequence() == Some(last)).then(|| {
+                (0..pipeline.instance_count()).all(|i| {
                     let t = pipeline.table(i).expect("instance");
                     f.mirror()
                         .instance(i as u32)
                         .is_some_and(|m| m.words() == t.words() && m.buckets() == t.buckets())
                 })
+            })
         })
     };
-    let in_sync = subs.iter().filter(|x| same(x)).count();
+    let mut compared: Vec<Option<bool>> = vec![None; subs.len()];
+    let until = Instant::now() + Duration::from_secs(10);
+    while Instant::now() < until && compared.iter().any(Option::is_none) {
+        for (c, x) in compared.iter_mut().zip(&subs) {
+            if c.is_none() {
+                *c = same(x);
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    let in_sync = compared.iter().filter(|c| **c == Some(true)).count();
     let stats: Vec<_> = subs.iter().map(|x| x.stats()).collect();
     let mut joins: Vec<f64> = stats
         .iter()

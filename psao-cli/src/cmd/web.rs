@@ -47,6 +47,8 @@ pub struct WebPlan {
     camera: ([f32; 3], [f32; 3], f32),
     scene: String,
     rotation: Rotation,
+    /// The pipeline's lead (it poses the scene this far ahead of its time).
+    lead: f32,
 }
 
 /// What runs for the browsers while the server serves.
@@ -91,6 +93,7 @@ impl WebArgs {
             camera: first_camera(pipeline.scene()),
             scene: scene.to_string(),
             rotation,
+            lead: pipeline.config().lead,
         }))
     }
 }
@@ -159,6 +162,9 @@ impl WebPlan {
             camera: self.camera,
         };
         let site = Site::new(&pkg, self.glb, page, &cert.fingerprint_hex())?;
+        let frames = server.frames_stepped();
+        let (rate_s, lead) = (f64::from(rate), f64::from(self.lead));
+        site.set_clock(Arc::new(move || frames() as f64 / rate_s + lead));
         let https = HttpsServer::start(
             SocketAddr::new(bind.ip(), web.port()),
             &cert.identity,

@@ -309,10 +309,17 @@ async fn follow_broadcast(
     };
     let mut current: Option<group::Consumer> = None;
     let mut digest_group: Option<group::Consumer> = None;
+    // Once the frames track ended, the group being read is read to its end
+    // (its last frames can arrive after the track's end), then the
+    // broadcast has ended.
+    let mut track_open = true;
     loop {
+        if !track_open && current.is_none() {
+            return Ok(());
+        }
         tokio::select! {
-            g = frames.recv_group() => match g? {
-                None => return Ok(()),
+            g = frames.recv_group(), if track_open => match g? {
+                None => track_open = false,
                 Some(g) => {
                     if current.as_ref().is_none_or(|c| g.sequence > c.sequence) {
                         current = Some(g);

@@ -3,10 +3,14 @@
 //! node per instance, at its world transform at time 0, whose `extras`
 //! name the instance id of the stream (`psao_instance`) and whether its
 //! points live in bind space (`bind_space`: the client looks it up by the
-//! mesh's own positions and normals, spec/wire-format.md 6.1). Materials,
-//! alpha masks, skins and animations are not written: the stream's
-//! `Transform` messages move rigid instances; a deforming instance is
-//! drawn as stored (its bind pose).
+//! mesh's own positions and normals, spec/wire-format.md 6.1). A skinned
+//! mesh also carries `JOINTS_0` and `WEIGHTS_0`, and its instance's node
+//! `extras.psao_skin` its joint matrices (instance-local, as
+//! [`Pose::joints`](crate::Pose::joints)) sampled over the scene's
+//! animation loop ([`Scene::duration`]), so a client poses it at any scene
+//! time with linear blend skinning and places it with the stream's
+//! `Transform`. Materials, alpha masks, morph targets and the animations
+//! themselves are not written: a morphing instance is drawn as stored.
 
 use glam::Affine3A;
 use serde_json::json;
@@ -17,6 +21,14 @@ use crate::model::scene::Scene;
 /// glTF's component types and buffer targets.
 const FLOAT: u32 = 5126;
 const UNSIGNED_INT: u32 = 5125;
+const UNSIGNED_SHORT: u32 = 5123;
+
+/// Samples a second of the joint matrices' loop.
+pub const SKIN_SAMPLES_PER_SECOND: f32 = 30.0;
+
+/// The most samples of one skinned instance's loop (longer loops are
+/// sampled more sparsely).
+pub const MAX_SKIN_SAMPLES: usize = 3600;
 const ARRAY_BUFFER: u32 = 34962;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 
@@ -56,20 +68,56 @@ pub fn to_glb(scene: &Scene, bind_space: impl Fn(usize) -> bool) -> Result<Vec<u
         let ix = view(&mut bin, &idx, ELEMENT_ARRAY_BUFFER);
         accessors.push(json!({"bufferView": ix, "componentType": UNSIGNED_INT, "count": m.indices.len(), "type": "SCALAR"}));
         let a = accessors.len();
-        meshes.push(json!({"primitives": [{"attributes": {"POSITION": a - 3, "NORMAL": a - 2}, "indices": a - 1, "mode": 4}],
-            "extras": {"double_sided": m.double_sided}}));
+        let mut attributes = json!({"POSITION": a - 3, "NORMAL": a - 2});
+        if let Some(w) = m
+            .skin
+            .as_ref()
+            .filter(|w| w.joints.len() == m.positions.len())
+        {
+            let joints: Vec<u8> = w
+                .joints
+                .iter()
+                .flatten()
+                .flat_map(|j| j.to_le_bytes())
+                .collect();
+            let jv = view(&mut bin, &joints, ARRAY_BUFFER);
+            accessors.push(json!({"bufferView": jv, "componentType": UNSIGNED_SHORT, "count": w.joints.len(), "type": "VEC4"}));
+            let weights: Vec<u8> = w
+                .weights
+                .iter()
+                .flatten()
+                .flat_map(|x| x.to_le_bytes())
+                .collect();
+            let wv = view(&mut bin, &weights, ARRAY_BUFFER);
+            accessors.push(json!({"bufferView": wv, "componentType": FLOAT, "count": w.weights.len(), "type": "VEC4"}));
+            attributes["JOINTS_0"] = json!(accessors.len() - 2);
+            attributes["WEIGHTS_0"] = json!(accessors.len() - 1);
+        }
+        meshes.push(
+            json!({"primitives": [{"attributes": attributes, "indices": a - 1, "mode": 4}],
+            "extras": {"double_sided": m.double_sided}}),
+        );
     }
     let pose = scene.pose(0.0);
-    let nodes: Vec<_> = scene
-        .instances
-        .iter()
-        .enumerate()
-        .map(|(i, inst)| {
-            let world = pose.instances.get(i).copied().unwrap_or(Affine3A::IDENTITY);
-            json!({"mesh": inst.mesh, "matrix": glam::Mat4::from(world).to_cols_array(),
-                "extras": {"psao_instance": i, "bind_space": bind_space(i)}})
-        })
-        .collect();
+    let skins = SkinSamples::of(scene);
+    let mut nodes = Vec::with_capacity(scene.instances.len());
+    for (i, inst) in scene.instances.iter().enumerate() {
+        let world = pose.instances.get(i).copied().unwrap_or(Affine3A::IDENTITY);
+        let mut node = json!({"mesh": inst.mesh, "matrix": glam::Mat4::from(world).to_cols_array(),
+            "extras": {"psao_instance": i, "bind_space": bind_space(i)}});
+        let skinned = scene.meshes[inst.mesh]
+            .skin
+            .as_ref()
+            .is_some_and(|w| w.joints.len() == scene.meshes[inst.mesh].positions.len());
+        if let Some((joints, floats)) = skins.matrices(i).filter(|_| skinned) {
+            let bytes: Vec<u8> = floats.iter().flat_map(|x| x.to_le_bytes()).collect();
+            let v = view(&mut bin, &bytes, ARRAY_BUFFER);
+            accessors.push(json!({"bufferView": v, "componentType": FLOAT, "count": floats.len(), "type": "SCALAR"}));
+            node["extras"]["psao_skin"] = json!({"joints": joints, "fps": skins.fps, "frames": skins.frames,
+                "duration": skins.duration, "matrices": accessors.len() - 1});
+        }
+        nodes.push(node);
+    }
     let root = json!({
         "asset": {"version": "2.0", "generator": "psao-scene"},
         "scene": 0,
@@ -100,6 +148,66 @@ pub fn to_glb(scene: &Scene, bind_space: impl Fn(usize) -> bool) -> Result<Vec<u
         element: "glTF binary".into(),
         reason: e.to_string(),
     })
+}
+
+/// Every skinned instance's joint matrices over the animation loop.
+struct SkinSamples {
+    fps: f32,
+    frames: usize,
+    duration: f32,
+    /// Per instance: joints and `frames * joints * 12` floats (columns x,
+    /// y, z, translation), or nothing.
+    per_instance: Vec<Option<(usize, Vec<f32>)>>,
+}
+
+impl SkinSamples {
+    fn of(scene: &Scene) -> SkinSamples {
+        let duration = scene.duration().max(0.0);
+        let fps = if duration > 0.0 {
+            SKIN_SAMPLES_PER_SECOND.min((MAX_SKIN_SAMPLES - 1) as f32 / duration)
+        } else {
+            SKIN_SAMPLES_PER_SECOND
+        };
+        let frames = (duration * fps).ceil() as usize + 1;
+        let mut per_instance: Vec<Option<(usize, Vec<f32>)>> = vec![None; scene.instances.len()];
+        let skinned: Vec<usize> = (0..scene.instances.len())
+            .filter(|&i| scene.instances[i].skin.is_some())
+            .collect();
+        if !skinned.is_empty() {
+            let mut pose = crate::Pose::default();
+            for k in 0..frames {
+                scene.pose_into((k as f32 / fps).min(duration), &mut pose);
+                for &i in &skinned {
+                    let joints = &pose.joints[i];
+                    let (_, floats) =
+                        per_instance[i].get_or_insert_with(|| (joints.len(), Vec::new()));
+                    for j in joints {
+                        for c in [
+                            j.matrix3.x_axis,
+                            j.matrix3.y_axis,
+                            j.matrix3.z_axis,
+                            j.translation,
+                        ] {
+                            floats.extend_from_slice(&c.to_array());
+                        }
+                    }
+                }
+            }
+        }
+        SkinSamples {
+            fps,
+            frames,
+            duration,
+            per_instance,
+        }
+    }
+
+    fn matrices(&self, i: usize) -> Option<(usize, &[f32])> {
+        self.per_instance[i]
+            .as_ref()
+            .filter(|(j, _)| *j > 0)
+            .map(|(j, f)| (*j, f.as_slice()))
+    }
 }
 
 #[cfg(test)]
@@ -136,6 +244,34 @@ mod tests {
         for (i, node) in root["nodes"].as_array().unwrap().iter().enumerate() {
             assert_eq!(node["extras"]["psao_instance"], i);
             assert_eq!(node["extras"]["bind_space"], i == walker, "instance {i}");
+            assert_eq!(
+                node["extras"].get("psao_skin").is_some(),
+                i == walker,
+                "instance {i}"
+            );
+        }
+        // The walker's samples are its pose's joint matrices: sample k at
+        // k / fps, and linear blend skinning with them puts a vertex where
+        // the scene's own skinning does.
+        let skin = &root["nodes"][walker]["extras"]["psao_skin"];
+        let (joints, fps) = (
+            skin["joints"].as_u64().unwrap() as usize,
+            skin["fps"].as_f64().unwrap() as f32,
+        );
+        let acc = &root["accessors"][skin["matrices"].as_u64().unwrap() as usize];
+        let view = &root["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize];
+        let at = view["byteOffset"].as_u64().unwrap() as usize;
+        let bin = glb.bin.as_ref().unwrap();
+        let float =
+            |k: usize| f32::from_le_bytes(bin[at + 4 * k..at + 4 * k + 4].try_into().unwrap());
+        let k = 7;
+        let pose = scene.pose(k as f32 / fps);
+        let j = &pose.joints[walker];
+        assert_eq!(j.len(), joints);
+        for (n, m) in j.iter().enumerate() {
+            let base = (k * joints + n) * 12;
+            assert_eq!(float(base + 9), m.translation.x, "joint {n}");
+            assert_eq!(float(base + 4), m.matrix3.y_axis.y, "joint {n}");
         }
     }
 }

@@ -1,0 +1,83 @@
+// Skinned instances, posed as the server poses them: scene.glb carries, per
+// skinned node, its joint matrices (instance-local, as psao-scene's
+// Pose::joints) sampled over the scene's animation loop, and the mesh's
+// JOINTS_0/WEIGHTS_0. At scene time t the page blends the two samples
+// around t and skins the bind-pose vertices with the mesh's weights
+// (linear blend skinning, as psao-scene's SkinWeights::blend: weights
+// normalized, a vertex without weight stays put; normals through the
+// cofactor of the blended matrix, renormalized). The draw places the
+// posed vertices with the stream's Transform of the instance; the lookup
+// keeps the bind-pose position and normal (spec/wire-format.md 6.1).
+
+// The skin of one node: { joints, fps, frames, duration, matrices }
+// (matrices: frames * joints * 12 floats, columns x, y, z, translation).
+export class NodeSkin {
+  constructor(skin, mesh) {
+    this.skin = skin;
+    this.mesh = mesh;
+    const n = mesh.positions.length;
+    this.positions = new Float32Array(n);
+    this.normals = new Float32Array(n);
+    this.blend = new Float32Array(12 * skin.joints);
+  }
+
+  // The joint matrices at scene time t (seconds), into this.blend.
+  sample(t) {
+    const { joints, fps, frames, duration, matrices } = this.skin;
+    let u = duration > 0 ? (((t % duration) + duration) % duration) * fps : 0;
+    const k = Math.min(Math.floor(u), frames - 1);
+    const next = Math.min(k + 1, frames - 1);
+    const f = Math.min(Math.max(u - k, 0), 1);
+    const a = k * joints * 12;
+    const b = next * joints * 12;
+    for (let i = 0; i < joints * 12; i++) this.blend[i] = matrices[a + i] * (1 - f) + matrices[b + i] * f;
+  }
+
+  // The posed positions and normals (instance-local) at scene time t.
+  pose(t) {
+    this.sample(t);
+    const { positions, normals, joints: jointIds, weights } = this.mesh;
+    const J = this.skin.joints;
+    const m = new Float32Array(12);
+    for (let v = 0; v < positions.length / 3; v++) {
+      m.fill(0);
+      let sum = 0;
+      for (let k = 0; k < 4; k++) {
+        const w = weights[4 * v + k];
+        const j = jointIds[4 * v + k];
+        if (!(w > 0) || j >= J) continue;
+        sum += w;
+        for (let c = 0; c < 12; c++) m[c] += w * this.blend[12 * j + c];
+      }
+      const p = 3 * v;
+      const [x, y, z] = [positions[p], positions[p + 1], positions[p + 2]];
+      const [nx, ny, nz] = [normals[p], normals[p + 1], normals[p + 2]];
+      if (!(sum > 0)) {
+        this.positions.set([x, y, z], p);
+        this.normals.set([nx, ny, nz], p);
+        continue;
+      }
+      for (let c = 0; c < 12; c++) m[c] /= sum;
+      this.positions[p] = m[0] * x + m[3] * y + m[6] * z + m[9];
+      this.positions[p + 1] = m[1] * x + m[4] * y + m[7] * z + m[10];
+      this.positions[p + 2] = m[2] * x + m[5] * y + m[8] * z + m[11];
+      // The cofactor of the linear part (columns: y x z, z x x, x x y)
+      // carries normals as the inverse transpose does, up to a scale.
+      const cx = cross(m[3], m[4], m[5], m[6], m[7], m[8]);
+      const cy = cross(m[6], m[7], m[8], m[0], m[1], m[2]);
+      const cz = cross(m[0], m[1], m[2], m[3], m[4], m[5]);
+      let ox = cx[0] * nx + cy[0] * ny + cz[0] * nz;
+      let oy = cx[1] * nx + cy[1] * ny + cz[1] * nz;
+      let oz = cx[2] * nx + cy[2] * ny + cz[2] * nz;
+      const len = Math.hypot(ox, oy, oz) || 1;
+      this.normals[p] = ox / len;
+      this.normals[p + 1] = oy / len;
+      this.normals[p + 2] = oz / len;
+    }
+    return { positions: this.positions, normals: this.normals };
+  }
+}
+
+function cross(ax, ay, az, bx, by, bz) {
+  return [ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx];
+}
