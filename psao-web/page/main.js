@@ -182,6 +182,8 @@ function state() {
     closing: link?.closing ?? null,
     digests_requested: link?.digestsRequested ?? null,
     frame_bytes: link?.frameBytes ?? 0,
+    frame_age_ms: link?.frameAgeMs() ?? null,
+    rtt_ms: link?.rttMs ?? null,
     frozen,
     renders,
     render_ms: renderMs,

@@ -1,13 +1,13 @@
-// The live text overlay: frame rate and bit rate of the stream, the age of
-// the last applied frame, the mirror's sequence and sync, the rendering
-// mode, and how the session ended.
+// The live text overlay: frame rate and bit rate of the stream, the frame
+// age (since the newest frame arrived, plus half the RTT where the browser
+// reports it), the mirror's sequence and sync, the rendering mode, and how
+// the session ended.
 
 export class Overlay {
   constructor(element) {
     this.element = element;
     this.sample = null; // {t, applied, bytes}: the rates' last sample
     this.rates = { fps: 0, mbps: 0 };
-    this.lastApplied = { count: 0, at: null }; // when `applied` last grew
   }
 
   // `s`: main.js's state() ({welcomed, in_sync, sequence, stats, mode,
@@ -15,20 +15,22 @@ export class Overlay {
   update(s, frameBytes) {
     const now = performance.now();
     const applied = s.stats?.applied ?? 0;
-    if (applied !== this.lastApplied.count) this.lastApplied = { count: applied, at: now };
     if (!this.sample) this.sample = { t: now, applied, bytes: frameBytes };
     const dt = (now - this.sample.t) / 1000;
     if (dt >= 1) {
       this.rates = { fps: (applied - this.sample.applied) / dt, mbps: ((frameBytes - this.sample.bytes) * 8) / dt / 1e6 };
       this.sample = { t: now, applied, bytes: frameBytes };
     }
-    const age = this.lastApplied.at === null ? "none yet" : `${((now - this.lastApplied.at) / 1000).toFixed(1)} s ago`;
+    const age =
+      s.frame_age_ms === null || s.frame_age_ms === undefined
+        ? "none yet"
+        : `${s.frame_age_ms.toFixed(0)} ms${s.rtt_ms === null ? " (RTT unknown)" : ""}`;
     const items = [
       ["mode", s.mode],
       ["session", s.closed ? "closed" : s.welcomed ? "welcomed" : "connecting"],
       ["frames/s", this.rates.fps.toFixed(1)],
       ["Mbit/s", this.rates.mbps.toFixed(2)],
-      ["last frame", age],
+      ["frame age", age],
       ["sequence", s.sequence ?? "-"],
       ["in sync", s.in_sync ? "yes" : "no"],
       ["digests", s.stats ? `${s.stats.digests_matched} matched, ${s.stats.digest_mismatches} mismatched` : "-"],

@@ -35,6 +35,8 @@ export class SessionLink {
     this.error = null; // a client-side failure, as text
     this.digestsRequested = null; // request_digests' answer, once welcomed
     this.frameBytes = 0; // bytes read from the frame stream
+    this.lastFrameAt = null; // performance.now() when frame bytes last arrived
+    this.rttMs = null; // WebTransport's smoothed RTT, where the browser reports it
     this.frozen = false; // set by freeze(): frames are no longer read
     this.welcomed = new Promise((resolve, reject) => {
       this.resolveWelcomed = resolve;
@@ -61,8 +63,30 @@ export class SessionLink {
     // Should the session queue a message on its own clock (spec/session.md
     // 3.5: a KEYFRAME_REQUEST repeated after 2 s without frames), it goes
     // out without waiting for input.
-    this.timer = setInterval(() => this.flush(), 250);
+    this.timer = setInterval(() => {
+      this.flush();
+      this.readRtt();
+    }, 250);
     addEventListener("pagehide", () => this.close(NO_ERROR, "page closed"));
+  }
+
+  // The session's smoothed RTT, from WebTransport.getStats() (Chromium
+  // reports it; elsewhere it stays unknown).
+  readRtt() {
+    this.wt
+      ?.getStats?.()
+      .then((st) => {
+        const rtt = st?.smoothedRtt;
+        if (typeof rtt === "number" && Number.isFinite(rtt)) this.rttMs = rtt;
+      })
+      .catch(() => {});
+  }
+
+  // The age of the mirror's newest frame: since its bytes arrived, plus
+  // half the RTT for its way from the server (null before a frame).
+  frameAgeMs() {
+    if (this.lastFrameAt === null) return null;
+    return performance.now() - this.lastFrameAt + (this.rttMs ?? 0) / 2;
   }
 
   // Records how the session ended (once) and fails `welcomed` if pending.
@@ -184,6 +208,7 @@ export class SessionLink {
         if (done) return;
         if (this.frozen) await new Promise(() => {}); // freeze(): read no more
         this.frameBytes += value.byteLength;
+        this.lastFrameAt = performance.now();
         if (!this.feed(() => this.session.on_frames(value))) return;
       }
     } catch {
