@@ -121,7 +121,7 @@ pub fn parse_fingerprint(s: &str) -> Result<[u8; 32], TlsError> {
     Ok(out)
 }
 
-pub(crate) fn provider() -> Arc<CryptoProvider> {
+fn provider() -> Arc<CryptoProvider> {
     Arc::new(rustls::crypto::ring::default_provider())
 }
 
@@ -131,16 +131,7 @@ pub fn server_config(
     id: &Identity,
     idle_timeout: std::time::Duration,
 ) -> Result<quinn::ServerConfig, TlsError> {
-    let mut tls = rustls::ServerConfig::builder_with_provider(provider())
-        .with_protocol_versions(&[&rustls::version::TLS13])
-        .map_err(|e| TlsError::Config(e.to_string()))?
-        .with_no_client_auth()
-        .with_single_cert(id.chain.clone(), id.key.clone_key())
-        .map_err(|e| TlsError::Config(e.to_string()))?;
-    tls.alpn_protocols = vec![ALPN.to_vec()];
-    let quic = quinn::crypto::rustls::QuicServerConfig::try_from(tls)
-        .map_err(|e| TlsError::Config(e.to_string()))?;
-    let mut config = quinn::ServerConfig::with_crypto(Arc::new(quic));
+    let mut config = server_config_for(id, ALPN, idle_timeout)?;
     let transport = Arc::get_mut(&mut config.transport)
         .ok_or_else(|| TlsError::Config("transport configuration is shared".into()))?;
     // Clients open one bidirectional stream and no unidirectional one.
@@ -151,6 +142,30 @@ pub fn server_config(
     transport.send_window(SEND_WINDOW);
     // No QUIC datagrams in version 1: do not advertise them.
     transport.datagram_receive_buffer_size(None);
+    Ok(config)
+}
+
+/// A QUIC server configuration with TLS 1.3 on `id`, the single ALPN
+/// `alpn`, the idle timeout and [`SEND_WINDOW`]; each binding sets its
+/// stream limits on it.
+pub(crate) fn server_config_for(
+    id: &Identity,
+    alpn: &[u8],
+    idle_timeout: std::time::Duration,
+) -> Result<quinn::ServerConfig, TlsError> {
+    let mut tls = rustls::ServerConfig::builder_with_provider(provider())
+        .with_protocol_versions(&[&rustls::version::TLS13])
+        .map_err(|e| TlsError::Config(e.to_string()))?
+        .with_no_client_auth()
+        .with_single_cert(id.chain.clone(), id.key.clone_key())
+        .map_err(|e| TlsError::Config(e.to_string()))?;
+    tls.alpn_protocols = vec![alpn.to_vec()];
+    let quic = quinn::crypto::rustls::QuicServerConfig::try_from(tls)
+        .map_err(|e| TlsError::Config(e.to_string()))?;
+    let mut config = quinn::ServerConfig::with_crypto(Arc::new(quic));
+    let transport = Arc::get_mut(&mut config.transport)
+        .ok_or_else(|| TlsError::Config("transport configuration is shared".into()))?;
+    transport.send_window(SEND_WINDOW);
     transport.max_idle_timeout(Some(
         quinn::IdleTimeout::try_from(idle_timeout)
             .map_err(|e| TlsError::Config(format!("idle timeout: {e}")))?,

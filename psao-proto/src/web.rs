@@ -17,7 +17,7 @@ use web_transport_quinn as wt;
 
 use crate::server::{ServeError, ServerHandle, serve_connection};
 use crate::source::FrameSource;
-use crate::tls::{Identity, SEND_WINDOW, TlsError, provider};
+use crate::tls::{Identity, TlsError, server_config_for};
 
 /// The path of the WebTransport session's URL (spec/session.md 9.1);
 /// another path is answered `404`.
@@ -32,16 +32,7 @@ pub fn web_server_config(
     id: &Identity,
     idle_timeout: Duration,
 ) -> Result<quinn::ServerConfig, TlsError> {
-    let mut tls = rustls::ServerConfig::builder_with_provider(provider())
-        .with_protocol_versions(&[&rustls::version::TLS13])
-        .map_err(|e| TlsError::Config(e.to_string()))?
-        .with_no_client_auth()
-        .with_single_cert(id.chain.clone(), id.key.clone_key())
-        .map_err(|e| TlsError::Config(e.to_string()))?;
-    tls.alpn_protocols = vec![wt::ALPN.as_bytes().to_vec()];
-    let quic = quinn::crypto::rustls::QuicServerConfig::try_from(tls)
-        .map_err(|e| TlsError::Config(e.to_string()))?;
-    let mut config = quinn::ServerConfig::with_crypto(Arc::new(quic));
+    let mut config = server_config_for(id, wt::ALPN.as_bytes(), idle_timeout)?;
     let transport = Arc::get_mut(&mut config.transport)
         .ok_or_else(|| TlsError::Config("transport configuration is shared".into()))?;
     // HTTP/3 takes a bidirectional stream for the CONNECT request and
@@ -49,12 +40,7 @@ pub fn web_server_config(
     // itself allows one of each (the connection loop closes on more).
     transport.max_concurrent_bidi_streams(4u32.into());
     transport.max_concurrent_uni_streams(4u32.into());
-    transport.send_window(SEND_WINDOW);
     transport.keep_alive_interval(Some(WEB_KEEP_ALIVE));
-    transport.max_idle_timeout(Some(
-        quinn::IdleTimeout::try_from(idle_timeout)
-            .map_err(|e| TlsError::Config(format!("idle timeout: {e}")))?,
-    ));
     Ok(config)
 }
 
