@@ -70,12 +70,12 @@ pub use codes::{Close, CloseCode, SessionError};
 #[cfg(feature = "quic")]
 pub use connect::{ClientHandle, ConnectError, Ended, connect};
 pub use fanout::{ClientId, Fanout, Keyframes, Transmit};
+#[cfg(feature = "quic")]
+pub use link::Binding;
 pub use outbox::{Outbox, Pushed};
 pub use own_mirror::{OwnFrameRefused, OwnMirror};
 #[cfg(feature = "quic")]
-pub use server::{
-    Binding, ClientFigures, ServeError, ServerConfig, ServerHandle, ServerStats, serve,
-};
+pub use server::{ClientFigures, ServeError, ServerConfig, ServerHandle, ServerStats, serve};
 pub use server_conn::{Offer, ServerConn, ServerEvent, negotiate};
 pub use source::{ClientViews, FrameSource, SourceError, SourceInfo, StepReport};
 #[cfg(feature = "quic")]

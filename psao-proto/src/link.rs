@@ -7,6 +7,15 @@
 use std::future::Future;
 use std::net::SocketAddr;
 
+/// How a client is connected.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Binding {
+    /// QUIC with ALPN `psao/1` (spec/session.md 2).
+    Native,
+    /// A WebTransport session (spec/session.md 9).
+    WebTransport,
+}
+
 /// A read from a receive stream.
 pub(crate) enum Read {
     /// This many bytes were read into the buffer.
@@ -59,7 +68,7 @@ pub(crate) trait Link: Clone + Send + Sync + 'static {
     /// UDP bytes the connection sent so far.
     fn udp_sent(&self) -> u64;
     /// Which binding this is.
-    const BINDING: crate::server::Binding;
+    const BINDING: Binding;
 }
 
 impl LinkSend for quinn::SendStream {
@@ -116,7 +125,7 @@ impl Link for quinn::Connection {
     fn udp_sent(&self) -> u64 {
         self.stats().udp_tx.bytes
     }
-    const BINDING: crate::server::Binding = crate::server::Binding::Native;
+    const BINDING: Binding = Binding::Native;
 }
 
 #[cfg(feature = "web")]
@@ -179,6 +188,6 @@ mod web {
         fn udp_sent(&self) -> u64 {
             quinn::Connection::stats(self).udp_tx.bytes
         }
-        const BINDING: crate::server::Binding = crate::server::Binding::WebTransport;
+        const BINDING: Binding = Binding::WebTransport;
     }
 }

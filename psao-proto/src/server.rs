@@ -25,7 +25,7 @@ use tracing::{debug, info, warn};
 use crate::codes::{Close, CloseCode, SessionError};
 use crate::control::NoticeCode;
 use crate::fanout::{ClientId, Fanout, Keyframes, Transmit};
-use crate::link::{Link, LinkRecv, LinkSend, Read};
+use crate::link::{Binding, Link, LinkRecv, LinkSend, Read};
 use crate::own_mirror::OwnMirror;
 use crate::records::record_prefix;
 use crate::server_conn::{Offer, ServerConn, ServerEvent};
@@ -156,15 +156,6 @@ struct Slot {
     record_bytes: u64,
     /// UDP bytes its connection sent so far (QUIC's own count).
     udp_sent: Arc<dyn Fn() -> u64 + Send + Sync>,
-}
-
-/// How a client is connected.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Binding {
-    /// QUIC with ALPN `psao/1` (spec/session.md 2).
-    Native,
-    /// A WebTransport session (spec/session.md 9).
-    WebTransport,
 }
 
 /// One client's figures now.
