@@ -157,7 +157,10 @@ pub struct PipelineConfig {
     /// aside, as before). It pays where AO is near white and motion is
     /// fast (a spinning triangle: +14 dB), and costs bytes for little
     /// elsewhere (+27-90% bit rate for 0.0-0.1 dB on the bench's animated
-    /// scenes; BENCHMARKS.md), so it is off unless asked for.
+    /// scenes; BENCHMARKS.md), so it is off unless asked for. With the
+    /// Laine-Karras estimator at few rays (its AO moves in steps of
+    /// `1 / rays`: at 24 rays above the default send threshold of 8/255)
+    /// every change passes the threshold and nothing is left to settle.
     pub settle_steps: u8,
 }
 
