@@ -262,10 +262,22 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
     let morph = stage(load_gltf(&cube).unwrap()).unwrap();
     // Settling (the AO of every traced point read back and compared on
     // the host) and a lead, on the default scene.
-    for (name, scene, settle_steps, lead) in [
-        ("default", default_scene(), 0, 0.0),
-        ("default, settling, lead", default_scene(), 1, 1.0 / 30.0),
-        ("morph cube", morph, 0, 0.0),
+    // And a ray budget per step (issue 20): both backends then plan full
+    // traces (no kept ray scores, which only the CPU tracer has and which
+    // make its points cheaper under a budget), so they take the same
+    // budget decisions and must send the same frames.
+    let budget = RayBudget::Rays(800);
+    for (name, scene, settle_steps, lead, budget) in [
+        ("default", default_scene(), 0, 0.0, RayBudget::Unlimited),
+        (
+            "default, settling, lead",
+            default_scene(),
+            1,
+            1.0 / 30.0,
+            RayBudget::Unlimited,
+        ),
+        ("morph cube", morph, 0, 0.0, RayBudget::Unlimited),
+        ("default, a budget", default_scene(), 0, 0.0, budget),
     ] {
         let config = PipelineConfig {
             density: 16.0,
@@ -275,6 +287,8 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
             },
             settle_steps,
             lead,
+            budget,
+            ray_reuse: budget == RayBudget::Unlimited,
             ..PipelineConfig::default()
         };
         let mut cpu = Pipeline::new(scene.clone(), config.clone()).unwrap();
@@ -287,11 +301,13 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
         );
         assert_eq!(cpu.keyframe().unwrap().bytes, gpu.keyframe().unwrap().bytes);
         // The same points are traced and the same dirty sets sent.
-        let (mut traced, mut deformed, mut settled) = (0, 0, 0);
+        let (mut traced, mut deformed, mut settled, mut waited) = (0, 0, 0, 0);
         for _ in 0..20 {
             let (a, ra) = cpu.step(1.0 / 30.0).unwrap();
             let (b, rb) = gpu.step(1.0 / 30.0).unwrap();
             assert_eq!(ra.traced, rb.traced, "{name}");
+            assert_eq!(ra.waiting, rb.waiting, "{name}: points left waiting");
+            waited += rb.waiting;
             assert_eq!(ra.updated, rb.updated, "{name}: dirty sets differ");
             assert_eq!(ra.settled, rb.settled, "{name}");
             settled += rb.settled;
@@ -301,6 +317,12 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
         }
         assert!(traced > 0 && deformed > 0, "{name}: {traced} {deformed}");
         assert_eq!(settled > 0, settle_steps > 0, "{name}: {settled} settled");
+        // The budget bound: points waited for a later step.
+        assert_eq!(
+            waited > 0,
+            budget != RayBudget::Unlimited,
+            "{name}: {waited} waited"
+        );
     }
 }
 

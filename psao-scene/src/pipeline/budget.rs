@@ -11,6 +11,13 @@
 //! step), then the longest waiting, then in point order. A point that does
 //! not fit is passed over for smaller ones.
 //!
+//! A point costs the rays it traces. On the CPU backend with ray reuse
+//! that is only the rays motion reached (the others' scores are kept); a
+//! backend without kept scores (psao-gpu's) traces every ray of a point it
+//! traces, so the same budget takes fewer points there. With the same
+//! costs (ray reuse off) the backends take the same decisions and send the
+//! same frames, byte for byte (psao-gpu's tests check it).
+//!
 //! [`PipelineConfig::max_wait`]: super::config::PipelineConfig::max_wait
 
 use rustc_hash::FxHashMap;
