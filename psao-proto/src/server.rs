@@ -381,20 +381,16 @@ impl<S> Drop for ServerHandle<S> {
 }
 
 impl<S> ServerHandle<S> {
-    /// Closes every connection of both endpoints with `server_shutdown`
-    /// (a WebTransport one in HTTP/3's space of application codes,
-    /// spec/session.md 9.3).
+    /// Closes every connection of both endpoints: the native ones with
+    /// `server_shutdown`, the WebTransport ones with HTTP/3's
+    /// `H3_NO_ERROR` after their frame streams finished (spec/session.md
+    /// 9.3).
     fn close_endpoints(&self) {
         let code = CloseCode::ServerShutdown.code();
         self.endpoint
             .close(quinn::VarInt::from_u32(code), b"server shutdown");
         if let Some((web, _)) = &self.web {
-            #[cfg(feature = "web")]
-            let code = web_transport_quinn::proto::error_to_http3(code);
-            web.close(
-                quinn::VarInt::from_u64(code as u64).unwrap_or(quinn::VarInt::MAX),
-                b"server shutdown",
-            );
+            web.close(quinn::VarInt::from_u32(H3_NO_ERROR), b"server shutdown");
         }
     }
 }
@@ -631,6 +627,10 @@ pub(crate) async fn serve_connection<L: Link>(hub: Arc<Hub>, conn: L) {
         let _ = tokio::time::timeout(CLOSE_LINGER, conn.closed()).await;
     }
 }
+
+/// HTTP/3's `H3_NO_ERROR` (RFC 9114 8.1): how the WebTransport endpoint's
+/// connections close on shutdown.
+const H3_NO_ERROR: u32 = 0x100;
 
 /// How long a closed session is kept for its close to go out.
 const CLOSE_LINGER: Duration = Duration::from_secs(2);

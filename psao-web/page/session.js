@@ -9,6 +9,7 @@
 // Error codes of spec/session.md section 7.
 export const NO_ERROR = 0x00;
 export const PROTOCOL_VIOLATION = 0x01;
+export const SERVER_SHUTDOWN = 0x07;
 export const INTERNAL_ERROR = 0x09;
 
 // The counters of WasmSession.stats().
@@ -38,6 +39,7 @@ export class SessionLink {
     this.lastFrameAt = null; // performance.now() when frame bytes last arrived
     this.rttMs = null; // WebTransport's smoothed RTT, where the browser reports it
     this.frozen = false; // set by freeze(): frames are no longer read
+    this.framesFinished = false; // the server finished the frame stream
     this.welcomed = new Promise((resolve, reject) => {
       this.resolveWelcomed = resolve;
       this.rejectWelcomed = reject;
@@ -90,9 +92,17 @@ export class SessionLink {
   }
 
   // Records how the session ended (once) and fails `welcomed` if pending.
+  // An end without a close code (the connection closed under the session)
+  // reads as server_shutdown after the frame stream finished, else as
+  // internal_error (spec/session.md 9.3).
   settle(info) {
     if (this.closed) return;
     const by = this.closing ? "client" : info.closeCode === null ? "transport" : "server";
+    if (info.closeCode === null && !this.closing) {
+      info = this.framesFinished
+        ? { closeCode: SERVER_SHUTDOWN, reason: `the server shut down (${info.reason})` }
+        : { closeCode: INTERNAL_ERROR, reason: `the connection was lost (${info.reason})` };
+    }
     this.closed = { ...info, by };
     clearInterval(this.timer);
     this.rejectWelcomed(new Error(`session closed before WELCOME: ${info.closeCode} ${info.reason}`));
@@ -204,8 +214,11 @@ export class SessionLink {
       for (;;) {
         const { value, done } = await reader.read();
         // A finished frame stream means the server is shutting down: the
-        // close follows (spec/session.md 2.1).
-        if (done) return;
+        // close follows (spec/session.md 2.1, 5.3).
+        if (done) {
+          this.framesFinished = true;
+          return;
+        }
         if (this.frozen) await new Promise(() => {}); // freeze(): read no more
         this.frameBytes += value.byteLength;
         this.lastFrameAt = performance.now();
