@@ -223,7 +223,14 @@ pub(crate) struct Hub {
     /// What `WELCOME` offers.
     offer: Offer,
     config: ServerConfig,
+    /// How to close each open WebTransport session with a capsule, for
+    /// shutdown (spec/session.md 9.3), by a number of its own.
+    web_sessions: Mutex<HashMap<u64, SessionCloser>>,
+    next_web_session: std::sync::atomic::AtomicU64,
 }
+
+/// Closes one session with a code and reason.
+type SessionCloser = Box<dyn Fn(u32, &[u8]) + Send>;
 
 impl Hub {
     fn lock(&self) -> MutexGuard<'_, HubState> {
@@ -355,6 +362,15 @@ impl<S: FrameSource> ServerHandle<S> {
             tokio::time::sleep(Duration::from_millis(5)).await;
         }
         let stats = self.stats();
+        // WebTransport sessions get their capsule first, and a moment for
+        // it to go out (spec/session.md 9.3).
+        let web: Vec<SessionCloser> = lock_sessions(&self.hub).drain().map(|(_, c)| c).collect();
+        for close in &web {
+            close(CloseCode::ServerShutdown.code(), b"server shutdown");
+        }
+        if !web.is_empty() {
+            tokio::time::sleep(WEB_CLOSE_WAIT).await;
+        }
         self.close_endpoints();
         self.endpoint.wait_idle().await;
         if let Some((web, _)) = &self.web {
@@ -446,6 +462,8 @@ pub async fn serve<S: FrameSource>(
         }),
         stop: AtomicBool::new(false),
         closing: AtomicBool::new(false),
+        web_sessions: Mutex::new(HashMap::new()),
+        next_web_session: std::sync::atomic::AtomicU64::new(0),
         writers: std::sync::atomic::AtomicUsize::new(0),
         offer,
         config,
@@ -615,7 +633,19 @@ fn digest_after(
 
 pub(crate) async fn serve_connection<L: Link>(hub: Arc<Hub>, conn: L) {
     let remote = conn.remote_address();
+    // A WebTransport session is closed with its own capsule on shutdown
+    // (the connection's close would tell a page no code).
+    let web = (L::BINDING == Binding::WebTransport).then(|| {
+        let id = hub.next_web_session.fetch_add(1, Ordering::SeqCst);
+        let c = conn.clone();
+        let closer: SessionCloser = Box::new(move |code, reason| c.close(code, reason));
+        lock_sessions(&hub).insert(id, closer);
+        id
+    });
     let result = run_connection(&hub, &conn).await;
+    if let Some(id) = web {
+        lock_sessions(&hub).remove(&id);
+    }
     if let Err(e) = result {
         let close = Close::from(e);
         debug!(%remote, "closing: {close}");
@@ -628,9 +658,17 @@ pub(crate) async fn serve_connection<L: Link>(hub: Arc<Hub>, conn: L) {
     }
 }
 
+fn lock_sessions(hub: &Hub) -> MutexGuard<'_, HashMap<u64, SessionCloser>> {
+    hub.web_sessions.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// HTTP/3's `H3_NO_ERROR` (RFC 9114 8.1): how the WebTransport endpoint's
 /// connections close on shutdown.
-const H3_NO_ERROR: u32 = 0x100;
+pub(crate) const H3_NO_ERROR: u32 = 0x100;
+
+/// How long shutdown waits for WebTransport sessions' capsules to go out
+/// before it closes their connections.
+const WEB_CLOSE_WAIT: Duration = Duration::from_millis(300);
 
 /// How long a closed session is kept for its close to go out.
 const CLOSE_LINGER: Duration = Duration::from_secs(2);
