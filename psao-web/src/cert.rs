@@ -6,7 +6,7 @@ use std::time::{Duration, SystemTime};
 
 use base64::Engine;
 use psao_proto::tls::{Identity, fingerprint_hex};
-use rustls::pki_types::PrivateKeyDer;
+use rustls::pki_types::{PrivateKeyDer, PrivatePkcs8KeyDer};
 use sha2::{Digest, Sha256};
 
 /// The longest validity a browser accepts for a certificate pinned by its
@@ -41,14 +41,36 @@ pub enum CertError {
 }
 
 impl WebCertificate {
-    /// A fresh P-256 certificate for `localhost` and 127.0.0.1, valid from
-    /// a minute ago (clocks differ a little) for `valid_for`.
+    /// A fresh P-256 key and a certificate for `localhost` and 127.0.0.1,
+    /// valid from a minute ago (clocks differ a little) for `valid_for`.
     pub fn generate(valid_for: Duration) -> Result<WebCertificate, CertError> {
+        let key = rcgen::KeyPair::generate_for(&rcgen::PKCS_ECDSA_P256_SHA256)
+            .map_err(|e| CertError::Generate(e.to_string()))?;
+        Self::sign(key, valid_for)
+    }
+
+    /// A new certificate for the same key, valid from a minute ago for
+    /// `valid_for`: its hash changes, its SPKI hash (what Chromium's
+    /// `--ignore-certificate-errors-spki-list` was given) does not.
+    pub fn renew(&self, valid_for: Duration) -> Result<WebCertificate, CertError> {
+        let der = self.pkcs8_key()?;
+        let key = rcgen::KeyPair::try_from(&der).map_err(|e| CertError::Generate(e.to_string()))?;
+        Self::sign(key, valid_for)
+    }
+
+    /// A copy of the key (PKCS#8).
+    fn pkcs8_key(&self) -> Result<PrivatePkcs8KeyDer<'static>, CertError> {
+        match &self.identity.key {
+            PrivateKeyDer::Pkcs8(der) => Ok(der.clone_key()),
+            _ => Err(CertError::Generate("the key is not PKCS#8".into())),
+        }
+    }
+
+    fn sign(key: rcgen::KeyPair, valid_for: Duration) -> Result<WebCertificate, CertError> {
         if valid_for <= Duration::from_secs(60) || valid_for > MAX_VALIDITY {
             return Err(CertError::Validity(valid_for));
         }
         let gen_err = |e: rcgen::Error| CertError::Generate(e.to_string());
-        let key = rcgen::KeyPair::generate_for(&rcgen::PKCS_ECDSA_P256_SHA256).map_err(gen_err)?;
         let mut params =
             rcgen::CertificateParams::new(vec!["localhost".to_string(), "127.0.0.1".to_string()])
                 .map_err(gen_err)?;
@@ -114,30 +136,49 @@ impl Rotation {
         Ok(())
     }
 
-    /// Runs until the returned task is aborted: every `replace_after`, a
-    /// new certificate goes to `install` (which hands it to every server
-    /// that presents it). A failure to make one is logged and retried a
-    /// minute later; the current certificate stays until then.
+    /// Runs until the returned task is aborted: `replace_after` after
+    /// `current` was made (by the wall clock, which a suspended machine's
+    /// sleep does not stop: it is looked at at least hourly), a renewal
+    /// of it (the same key) goes to `install` (which hands it to every
+    /// server that presents it), and so on from there. A failure to make
+    /// one is logged and retried a minute later; the current certificate
+    /// stays until then.
     pub fn spawn(
         self,
+        current: &WebCertificate,
         install: impl Fn(WebCertificate) + Send + 'static,
-    ) -> tokio::task::JoinHandle<()> {
-        tokio::spawn(async move {
-            let mut wait = self.replace_after;
+    ) -> Result<tokio::task::JoinHandle<()>, CertError> {
+        self.check()?;
+        let key = current.pkcs8_key()?;
+        let ahead = self.valid_for - self.replace_after;
+        let mut due = current
+            .not_after
+            .checked_sub(ahead)
+            .unwrap_or(SystemTime::now());
+        Ok(tokio::spawn(async move {
             loop {
-                tokio::time::sleep(wait).await;
-                match WebCertificate::generate(self.valid_for) {
+                let left = due
+                    .duration_since(SystemTime::now())
+                    .unwrap_or(Duration::ZERO);
+                if !left.is_zero() {
+                    tokio::time::sleep(left.min(Duration::from_secs(3600))).await;
+                    continue;
+                }
+                let renewed = rcgen::KeyPair::try_from(&key)
+                    .map_err(|e| CertError::Generate(e.to_string()))
+                    .and_then(|k| WebCertificate::sign(k, self.valid_for));
+                match renewed {
                     Ok(c) => {
                         tracing::info!(fingerprint = %c.fingerprint_hex(), "certificate replaced");
+                        due = c.not_after.checked_sub(ahead).unwrap_or(SystemTime::now());
                         install(c);
-                        wait = self.replace_after;
                     }
                     Err(e) => {
                         tracing::warn!("cannot replace the certificate: {e}");
-                        wait = Duration::from_secs(60);
+                        due = SystemTime::now() + Duration::from_secs(60);
                     }
                 }
             }
-        })
+        }))
     }
 }

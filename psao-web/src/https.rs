@@ -1,11 +1,15 @@
 //! The HTTPS server of the page: HTTP/1.1 (hyper) over TLS 1.3 and 1.2
 //! (tokio-rustls), GET and HEAD of the [`Site`]'s paths only. Its
 //! certificate can be replaced while it runs (new connections get the new
-//! one). Bounded: at most [`MAX_CONNECTIONS`] at once, a TLS handshake and
-//! a request's headers within [`HANDSHAKE_TIMEOUT`].
+//! one). Bounded: at most [`MAX_CONNECTIONS`] at once and
+//! [`MAX_PER_ADDRESS`] from one address, a TLS handshake and a request's
+//! headers within [`HANDSHAKE_TIMEOUT`], [`MAX_HEADER_BYTES`] and
+//! [`MAX_HEADERS`] of headers, and a connection's whole life within
+//! [`CONNECTION_LIFETIME`] (a reader that stops reading is cut off).
+//! Dropping it stops it and every connection.
 
-use std::net::SocketAddr;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::collections::HashMap;
+use std::net::{IpAddr, SocketAddr};
 use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
@@ -24,8 +28,21 @@ use crate::site::Site;
 /// Most HTTPS connections at once; more are closed at once.
 pub const MAX_CONNECTIONS: usize = 256;
 
+/// Most HTTPS connections from one IP address at once.
+pub const MAX_PER_ADDRESS: usize = 32;
+
 /// How long a TLS handshake, and a request's headers, may take.
 pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// How long one connection may last (the page's files take well under a
+/// second on any link that can carry the stream).
+pub const CONNECTION_LIFETIME: Duration = Duration::from_secs(60);
+
+/// The most bytes hyper buffers for a request's head (its minimum).
+pub const MAX_HEADER_BYTES: usize = 8192;
+
+/// The most headers in a request.
+pub const MAX_HEADERS: usize = 32;
 
 /// Why the HTTPS server could not start.
 #[derive(Debug, thiserror::Error)]
@@ -59,6 +76,10 @@ fn certified(id: &Identity) -> Result<Arc<CertifiedKey>, HttpsError> {
         .map(Arc::new)
         .map_err(|e| HttpsError::Tls(e.to_string()))
 }
+
+/// A certificate and key checked by [`HttpsServer::prepare`].
+#[derive(Debug)]
+pub struct PreparedIdentity(Arc<CertifiedKey>);
 
 /// A running HTTPS server; dropping it stops it.
 #[derive(Debug)]
@@ -101,22 +122,41 @@ impl HttpsServer {
             addr: bind,
             reason: e.to_string(),
         })?;
-        let open = Arc::new(AtomicUsize::new(0));
         let task = tokio::spawn(async move {
+            // The connections' tasks: aborted with this one (a dropped
+            // server closes them all).
+            let mut connections = tokio::task::JoinSet::new();
+            let mut per_address: HashMap<IpAddr, usize> = HashMap::new();
             loop {
-                let Ok((tcp, remote)) = listener.accept().await else {
+                let accepted = tokio::select! {
+                    a = listener.accept() => a,
+                    Some(done) = connections.join_next() => {
+                        if let Ok(ip) = done {
+                            forget(&mut per_address, ip);
+                        }
+                        continue;
+                    }
+                };
+                let Ok((tcp, remote)) = accepted else {
                     tokio::time::sleep(Duration::from_millis(50)).await;
                     continue;
                 };
-                if open.load(Ordering::SeqCst) >= MAX_CONNECTIONS {
-                    debug!(%remote, "refused: {MAX_CONNECTIONS} connections open");
+                let from = per_address.get(&remote.ip()).copied().unwrap_or(0);
+                if connections.len() >= MAX_CONNECTIONS || from >= MAX_PER_ADDRESS {
+                    debug!(%remote, "refused: {} connections open, {from} from it", connections.len());
                     continue;
                 }
-                open.fetch_add(1, Ordering::SeqCst);
-                let (acceptor, site, open) = (acceptor.clone(), site.clone(), open.clone());
-                tokio::spawn(async move {
-                    serve_connection(acceptor, tcp, remote, site).await;
-                    open.fetch_sub(1, Ordering::SeqCst);
+                *per_address.entry(remote.ip()).or_insert(0) += 1;
+                let (acceptor, site) = (acceptor.clone(), site.clone());
+                connections.spawn(async move {
+                    let served = serve_connection(acceptor, tcp, remote, site);
+                    if tokio::time::timeout(CONNECTION_LIFETIME, served)
+                        .await
+                        .is_err()
+                    {
+                        debug!(%remote, "HTTPS connection cut after {CONNECTION_LIFETIME:?}");
+                    }
+                    remote.ip()
                 });
             }
         });
@@ -134,9 +174,20 @@ impl HttpsServer {
 
     /// New connections get `identity` from now on.
     pub fn set_identity(&self, identity: &Identity) -> Result<(), HttpsError> {
-        let key = certified(identity)?;
-        *self.current.0.write().unwrap_or_else(|e| e.into_inner()) = key;
+        let prepared = Self::prepare(identity)?;
+        self.install(prepared);
         Ok(())
+    }
+
+    /// Checks `identity` and readies it for [`install`](Self::install),
+    /// which cannot fail (to swap it together with other servers).
+    pub fn prepare(identity: &Identity) -> Result<PreparedIdentity, HttpsError> {
+        certified(identity).map(PreparedIdentity)
+    }
+
+    /// New connections get the prepared identity from now on.
+    pub fn install(&self, prepared: PreparedIdentity) {
+        *self.current.0.write().unwrap_or_else(|e| e.into_inner()) = prepared.0;
     }
 }
 
@@ -158,10 +209,22 @@ async fn serve_connection(
     let served = hyper::server::conn::http1::Builder::new()
         .timer(TokioTimer::new())
         .header_read_timeout(HANDSHAKE_TIMEOUT)
+        .max_buf_size(MAX_HEADER_BYTES)
+        .max_headers(MAX_HEADERS)
         .serve_connection(TokioIo::new(tls), service)
         .await;
     if let Err(e) = served {
         debug!(%remote, "HTTPS connection ended: {e}");
+    }
+}
+
+/// One connection from `ip` ended.
+fn forget(per_address: &mut HashMap<IpAddr, usize>, ip: IpAddr) {
+    if let Some(n) = per_address.get_mut(&ip) {
+        *n -= 1;
+        if *n == 0 {
+            per_address.remove(&ip);
+        }
     }
 }
 

@@ -117,6 +117,21 @@ async fn every_path_with_its_type_and_nothing_else() {
         "{headers}"
     );
     assert!(body.is_empty());
+    // Too many headers, or too many bytes of them: refused, not buffered.
+    let many: String = (0..40).map(|k| format!("\r\nX-{k}: v")).collect();
+    let (status, _, _) = request(&server, fp, &format!("GET / HTTP/1.1{many}"))
+        .await
+        .unwrap();
+    assert!(status.contains("431"), "{status}");
+    let long = format!("GET / HTTP/1.1\r\nX-Long: {}", "a".repeat(20_000));
+    let refused = request(&server, fp, &long).await;
+    assert!(
+        refused
+            .as_ref()
+            .map_or(true, |r| r.0.contains("431") || r.0.contains("400")),
+        "{:?}",
+        refused.map(|r| r.0)
+    );
     // A client pinning another certificate is refused by its own check.
     assert!(request(&server, [7; 32], "GET / HTTP/1.1").await.is_err());
 }
@@ -134,15 +149,19 @@ async fn a_replaced_certificate_serves_new_connections_and_the_config_names_it()
         replace_after: Duration::from_millis(300),
     };
     rotation.check().unwrap();
-    let task = rotation.spawn(move |c| {
-        let _ = tx.send(c);
-    });
+    let task = rotation
+        .spawn(&old, move |c| {
+            let _ = tx.send(c);
+        })
+        .unwrap();
     let new = tokio::time::timeout(Duration::from_secs(10), rx.recv())
         .await
         .unwrap()
         .unwrap();
     task.abort();
     assert_ne!(new.fingerprint, old.fingerprint);
+    // The same key: Chromium's SPKI pin stays good.
+    assert_eq!(new.spki_sha256, old.spki_sha256);
     server.set_identity(&new.identity).unwrap();
     site.set_fingerprint(&new.fingerprint_hex());
     assert!(

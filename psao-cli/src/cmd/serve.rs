@@ -184,7 +184,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
 async fn next_certificate<S: FrameSource>(
     web: &mut Option<WebRunning>,
     server: &psao_proto::ServerHandle<S>,
-) -> anyhow::Result<()> {
+) {
     match web {
         Some(w) => w.next_certificate(server).await,
         None => std::future::pending().await,
@@ -224,7 +224,7 @@ async fn serve_until<S: FrameSource>(
     loop {
         tokio::select! {
             _ = tokio::signal::ctrl_c() => break,
-            r = next_certificate(&mut web, &server) => r?,
+            _ = next_certificate(&mut web, &server) => {}
             _ = tokio::time::sleep(Duration::from_secs(1)) => {
                 let s = server.stats();
                 let dt = prev.1.elapsed().as_secs_f64();

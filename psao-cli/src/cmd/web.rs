@@ -33,9 +33,9 @@ pub struct WebArgs {
     /// else under the current folder].
     #[arg(long, requires = "web")]
     pub web_pkg: Option<PathBuf>,
-    /// Validity of each certificate, in hours (below 336: browsers pin
-    /// only certificates valid for less than 14 days); a new one replaces
-    /// it after 70% of that.
+    /// Validity of each certificate, in hours (at most 335: browsers pin
+    /// only certificates valid for no more than 14 days); a new one, for
+    /// the same key, replaces it after 70% of that.
     #[arg(long, requires = "web", default_value_t = 240.0)]
     pub web_cert_hours: f64,
 }
@@ -172,9 +172,9 @@ impl WebPlan {
         )
         .await?;
         let (tx, certs) = tokio::sync::mpsc::unbounded_channel();
-        let rotation = self.rotation.spawn(move |c| {
+        let rotation = self.rotation.spawn(&cert, move |c| {
             let _ = tx.send(c);
-        });
+        })?;
         println!(
             "WebTransport on {web} (UDP), the page on {} (TCP)",
             https.local_addr()
@@ -206,20 +206,35 @@ fn print_certificate(cert: &WebCertificate) {
 
 impl WebRunning {
     /// Waits for the next certificate and installs it everywhere: the
-    /// WebTransport endpoint, the HTTPS server and the page's config.
-    pub async fn next_certificate<S: FrameSource>(
-        &mut self,
-        server: &ServerHandle<S>,
-    ) -> anyhow::Result<()> {
+    /// WebTransport endpoint, the HTTPS server and the page's config. Both
+    /// servers' configurations are made first, so a failure changes
+    /// nothing (it is reported, the current certificate stays, and the
+    /// next rotation tries again; it is valid well past it).
+    pub async fn next_certificate<S: FrameSource>(&mut self, server: &ServerHandle<S>) {
         let Some(cert) = self.certs.recv().await else {
             return std::future::pending().await;
         };
-        server.set_web_identity(&cert.identity)?;
-        self.https.set_identity(&cert.identity)?;
-        self.site.set_fingerprint(&cert.fingerprint_hex());
-        println!("certificate replaced: new sessions and pages use it; open ones keep theirs");
-        print_certificate(&cert);
-        Ok(())
+        let installed = HttpsServer::prepare(&cert.identity)
+            .map_err(anyhow::Error::from)
+            .and_then(|prepared| {
+                server.set_web_identity(&cert.identity)?;
+                self.https.install(prepared);
+                Ok(())
+            });
+        match installed {
+            Ok(()) => {
+                self.site.set_fingerprint(&cert.fingerprint_hex());
+                println!(
+                    "certificate replaced: new sessions and pages use it; open ones keep theirs"
+                );
+                print_certificate(&cert);
+            }
+            Err(e) => {
+                tracing::warn!(
+                    "the new certificate could not be installed (the current one stays): {e}"
+                );
+            }
+        }
     }
 }
 
