@@ -10,9 +10,10 @@ use psao_codec::{
 
 use crate::change_kind;
 
-/// Instance ids above this are not laid out densely for the GPU
-/// (psao-gpu's `MAX_GPU_INSTANCE_ID`).
-pub const MAX_GPU_INSTANCE_ID: u32 = 1 << 20;
+/// The largest instance id the page's dense per-instance table holds: its
+/// table is 192 bytes per id up to the largest, so this caps it at 16 MiB
+/// (psao-gpu allows ids up to 2^20, for a native renderer's memory).
+pub const MAX_GPU_INSTANCE_ID: u32 = (16 << 20) / (GPU_RECORD_WORDS as u32 * 4) - 1;
 
 /// What changed since the last call, flat (see `WasmDecoder::take_changes`).
 pub(crate) fn take_changes_flat(mirror: &mut Mirror) -> Vec<u32> {
@@ -40,6 +41,7 @@ pub(crate) fn take_changes_flat(mirror: &mut Mirror) -> Vec<u32> {
 /// the largest, instances above [`MAX_GPU_INSTANCE_ID`] left out), its
 /// record; every instance's bucket entries (key, cell) and words one after
 /// another, in id order.
+#[derive(Debug)]
 pub(crate) struct GpuFlat {
     pub records: Vec<u32>,
     pub buckets: Vec<u32>,
@@ -47,30 +49,30 @@ pub(crate) struct GpuFlat {
 }
 
 impl GpuFlat {
-    pub(crate) fn of(mirror: &Mirror) -> GpuFlat {
-        let count = mirror
-            .instances()
-            .map(|(id, _)| id)
-            .filter(|&id| id < MAX_GPU_INSTANCE_ID)
-            .max()
-            .map_or(0, |m| m as usize + 1);
+    /// The layout of `mirror`, or an error naming an instance id above
+    /// [`MAX_GPU_INSTANCE_ID`].
+    pub(crate) fn of(mirror: &Mirror) -> Result<GpuFlat, String> {
+        let largest = mirror.instances().map(|(id, _)| id).max();
+        if let Some(id) = largest.filter(|&id| id > MAX_GPU_INSTANCE_ID) {
+            return Err(format!(
+                "instance id {id} is above {MAX_GPU_INSTANCE_ID}, the largest the page's GPU table holds"
+            ));
+        }
+        let count = largest.map_or(0, |m| m as usize + 1);
         let mut records = vec![0u32; count.max(1) * GPU_RECORD_WORDS];
         let (mut buckets, mut words) = (Vec::new(), Vec::new());
         for (id, inst) in mirror.instances() {
-            if id >= MAX_GPU_INSTANCE_ID {
-                continue;
-            }
             let record = gpu_instance_record(inst, (buckets.len() / 2) as u32, words.len() as u32);
             let at = id as usize * GPU_RECORD_WORDS;
             records[at..at + GPU_RECORD_WORDS].copy_from_slice(&record);
             buckets.extend(inst.buckets().iter().flat_map(|e| [e.key, e.cell]));
             words.extend_from_slice(inst.words());
         }
-        GpuFlat {
+        Ok(GpuFlat {
             records,
             buckets,
             words,
-        }
+        })
     }
 }
 

@@ -88,6 +88,9 @@ pub struct WasmSession {
     /// Mismatches counted at the last keyframe.
     mismatches_at_keyframe: u64,
     keyframes_seen: u64,
+    /// The GPU layout of the mirror, and the count of applied frames it
+    /// was made at (the three buffers are read together: made once).
+    flat: std::cell::RefCell<Option<(u64, GpuFlat)>>,
 }
 
 impl Default for WasmSession {
@@ -112,6 +115,7 @@ impl WasmSession {
             bytes: 0,
             mismatches_at_keyframe: 0,
             keyframes_seen: 0,
+            flat: std::cell::RefCell::new(None),
         }
     }
 
@@ -219,19 +223,31 @@ impl WasmSession {
     }
 
     /// `reconstruct.wgsl`'s binding 0: 48 words per instance id, from 0
-    /// to the largest (all zero: not sampled).
-    pub fn gpu_instances(&self) -> Vec<u32> {
-        GpuFlat::of(self.inner.mirror()).records
+    /// to the largest (all zero: not sampled); an error for an id above
+    /// `MAX_GPU_INSTANCE_ID`. The three buffers are made once per applied
+    /// frame.
+    pub fn gpu_instances(&self) -> Result<Vec<u32>, String> {
+        self.with_flat(|f| f.records.clone())
     }
 
     /// Binding 1: every instance's bucket entries, (key, cell) pairs.
-    pub fn gpu_buckets(&self) -> Vec<u32> {
-        GpuFlat::of(self.inner.mirror()).buckets
+    pub fn gpu_buckets(&self) -> Result<Vec<u32>, String> {
+        self.with_flat(|f| f.buckets.clone())
     }
 
     /// Binding 2: every instance's point words.
-    pub fn gpu_words(&self) -> Vec<u32> {
-        GpuFlat::of(self.inner.mirror()).words
+    pub fn gpu_words(&self) -> Result<Vec<u32>, String> {
+        self.with_flat(|f| f.words.clone())
+    }
+
+    /// `f` of the mirror's GPU layout, made anew after each applied frame.
+    fn with_flat<R>(&self, f: impl FnOnce(&GpuFlat) -> R) -> Result<R, String> {
+        let applied = self.inner.stats().applied;
+        let mut cache = self.flat.borrow_mut();
+        if cache.as_ref().is_none_or(|(at, _)| *at != applied) {
+            *cache = Some((applied, GpuFlat::of(self.inner.mirror())?));
+        }
+        Ok(f(&cache.as_ref().expect("made above").1))
     }
 
     /// Whether instance `id` is looked up in bind space (point format 1).

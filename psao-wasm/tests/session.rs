@@ -115,9 +115,9 @@ fn a_session_follows_a_stream_fed_in_pieces() {
     // The GPU buffers: one record per id, every bucket and word.
     let m = reference.mirror();
     let inst = m.instance(1).unwrap();
-    assert_eq!(s.gpu_instances().len(), 2 * GPU_RECORD_WORDS);
-    assert_eq!(s.gpu_words(), inst.words());
-    assert_eq!(s.gpu_buckets().len(), 2 * inst.buckets().len());
+    assert_eq!(s.gpu_instances().unwrap().len(), 2 * GPU_RECORD_WORDS);
+    assert_eq!(s.gpu_words().unwrap(), inst.words());
+    assert_eq!(s.gpu_buckets().unwrap().len(), 2 * inst.buckets().len());
     assert_eq!(s.transform(1), Some(PLACED.to_vec()));
     // The CPU reconstruction is psao-codec's, pixel for pixel, at a
     // point's place in the world.
@@ -193,5 +193,24 @@ fn bad_bytes_close_with_the_spec_codes() {
         CloseCode::ProtocolViolation.code(),
         "{}",
         e.reason()
+    );
+}
+
+#[test]
+fn an_instance_id_past_the_pages_gpu_table_is_an_error_not_an_allocation() {
+    let (mut s, _, mut enc) = welcomed();
+    let big = psao_wasm::MAX_GPU_INSTANCE_ID + 1;
+    let mut kf = enc.keyframe();
+    kf.define_instance(big, &psao_tests::synthetic::def())
+        .unwrap();
+    s.on_frames(&record(&kf.finish().unwrap().unwrap()))
+        .unwrap();
+    assert!(s.sequence().is_some(), "the keyframe applied");
+    let e = s.gpu_instances().unwrap_err();
+    assert!(e.contains(&big.to_string()), "{e}");
+    // The CPU reconstruction does not need the table.
+    assert_eq!(
+        s.reconstruct(&[0.0; 4], &[0.0, 1.0, 0.0, 0.0], &[big]),
+        vec![1.0]
     );
 }
