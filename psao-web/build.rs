@@ -8,13 +8,16 @@ fn main() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("page");
     println!("cargo:rerun-if-changed={}", dir.display());
     let mut names: Vec<String> = std::fs::read_dir(&dir)
-        .map(|d| {
-            d.filter_map(|e| e.ok())
-                .filter(|e| e.path().is_file())
-                .filter_map(|e| e.file_name().into_string().ok())
-                .collect()
-        })
-        .unwrap_or_default();
+        .unwrap_or_else(|e| panic!("psao-web's page folder {}: {e}", dir.display()))
+        .filter_map(|e| e.ok())
+        .filter(|e| e.path().is_file())
+        .filter_map(|e| e.file_name().into_string().ok())
+        .collect();
+    assert!(
+        names.iter().any(|n| n == "index.html"),
+        "psao-web's page folder {} has no index.html",
+        dir.display()
+    );
     names.sort();
     let mut out = String::from(
         "/// The page's files: (name, bytes).\npub(crate) const PAGE: &[(&str, &[u8])] = &[\n",

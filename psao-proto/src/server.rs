@@ -280,16 +280,33 @@ impl<S: FrameSource> ServerHandle<S> {
 
     /// Every connected client's figures, by binding.
     pub fn client_figures(&self) -> Vec<ClientFigures> {
-        let s = self.hub.lock();
-        s.clients
-            .values()
-            .map(|c| ClientFigures {
-                binding: c.binding,
-                frames: c.frames,
-                record_bytes: c.record_bytes,
-                udp_sent: (c.udp_sent)(),
-                frame_age: c.frame_age,
-            })
+        // The connections' own counters are read outside the hub's lock.
+        let taken: Vec<_> = {
+            let s = self.hub.lock();
+            s.clients
+                .values()
+                .map(|c| {
+                    (
+                        c.binding,
+                        c.frames,
+                        c.record_bytes,
+                        c.frame_age,
+                        c.udp_sent.clone(),
+                    )
+                })
+                .collect()
+        };
+        taken
+            .into_iter()
+            .map(
+                |(binding, frames, record_bytes, frame_age, udp)| ClientFigures {
+                    binding,
+                    frames,
+                    record_bytes,
+                    udp_sent: udp(),
+                    frame_age,
+                },
+            )
             .collect()
     }
 

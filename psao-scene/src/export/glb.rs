@@ -29,6 +29,10 @@ pub const SKIN_SAMPLES_PER_SECOND: f32 = 30.0;
 /// The most samples of one skinned instance's loop (longer loops are
 /// sampled more sparsely).
 pub const MAX_SKIN_SAMPLES: usize = 3600;
+
+/// The most bytes of sampled joint matrices in one export, over all
+/// skinned instances: a scene past it is refused with an error.
+pub const MAX_SKIN_BYTES: usize = 256 << 20;
 const ARRAY_BUFFER: u32 = 34962;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 
@@ -49,7 +53,15 @@ pub fn to_glb(scene: &Scene, bind_space: impl Fn(usize) -> bool) -> Result<Vec<u
         );
         views.len() - 1
     };
+    // glTF allows no empty accessor: a mesh without triangles is left
+    // out, and its instances get nodes without a mesh.
+    let mut mesh_index: Vec<Option<usize>> = Vec::with_capacity(scene.meshes.len());
     for m in &scene.meshes {
+        if m.positions.is_empty() || m.indices.is_empty() {
+            mesh_index.push(None);
+            continue;
+        }
+        mesh_index.push(Some(meshes.len()));
         let floats = |v: &[glam::Vec3]| -> Vec<u8> {
             v.iter()
                 .flat_map(|p| p.to_array())
@@ -99,16 +111,21 @@ pub fn to_glb(scene: &Scene, bind_space: impl Fn(usize) -> bool) -> Result<Vec<u
         );
     }
     let pose = scene.pose(0.0);
-    let skins = SkinSamples::of(scene);
+    let skins = SkinSamples::of(scene)?;
     let mut nodes = Vec::with_capacity(scene.instances.len());
     for (i, inst) in scene.instances.iter().enumerate() {
         let world = pose.instances.get(i).copied().unwrap_or(Affine3A::IDENTITY);
-        let mut node = json!({"mesh": inst.mesh, "matrix": glam::Mat4::from(world).to_cols_array(),
+        let mut node = json!({"matrix": glam::Mat4::from(world).to_cols_array(),
             "extras": {"psao_instance": i, "bind_space": bind_space(i)}});
-        let skinned = scene.meshes[inst.mesh]
-            .skin
-            .as_ref()
-            .is_some_and(|w| w.joints.len() == scene.meshes[inst.mesh].positions.len());
+        let Some(mesh) = mesh_index[inst.mesh] else {
+            nodes.push(node);
+            continue;
+        };
+        node["mesh"] = json!(mesh);
+        let m = &scene.meshes[inst.mesh];
+        let skinned = m.skin.as_ref().is_some_and(|w| {
+            w.joints.len() == m.positions.len() && w.weights.len() == m.positions.len()
+        });
         if let Some((joints, floats)) = skins.matrices(i).filter(|_| skinned) {
             let bytes: Vec<u8> = floats.iter().flat_map(|x| x.to_le_bytes()).collect();
             let v = view(&mut bin, &bytes, ARRAY_BUFFER);
@@ -161,7 +178,7 @@ struct SkinSamples {
 }
 
 impl SkinSamples {
-    fn of(scene: &Scene) -> SkinSamples {
+    fn of(scene: &Scene) -> Result<SkinSamples, SceneError> {
         let duration = scene.duration().max(0.0);
         let fps = if duration > 0.0 {
             SKIN_SAMPLES_PER_SECOND.min((MAX_SKIN_SAMPLES - 1) as f32 / duration)
@@ -173,6 +190,25 @@ impl SkinSamples {
         let skinned: Vec<usize> = (0..scene.instances.len())
             .filter(|&i| scene.instances[i].skin.is_some())
             .collect();
+        let bytes: usize = skinned
+            .iter()
+            .map(|&i| {
+                let joints = scene.instances[i]
+                    .skin
+                    .and_then(|k| scene.skins.get(k))
+                    .map_or(0, |k| k.joints.len());
+                frames * joints * 48
+            })
+            .sum();
+        if bytes > MAX_SKIN_BYTES {
+            return Err(SceneError::Element {
+                element: "glTF export".into(),
+                reason: format!(
+                    "{bytes} bytes of sampled joint matrices ({} skinned instances, {frames} samples), above {MAX_SKIN_BYTES}",
+                    skinned.len()
+                ),
+            });
+        }
         if !skinned.is_empty() {
             let mut pose = crate::Pose::default();
             for k in 0..frames {
@@ -194,12 +230,12 @@ impl SkinSamples {
                 }
             }
         }
-        SkinSamples {
+        Ok(SkinSamples {
             fps,
             frames,
             duration,
             per_instance,
-        }
+        })
     }
 
     fn matrices(&self, i: usize) -> Option<(usize, &[f32])> {
