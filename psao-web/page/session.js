@@ -50,13 +50,32 @@ export class SessionLink {
   // Opens the WebTransport session and starts the stream loops. Resolves
   // once they run; `welcomed` resolves on WELCOME.
   async start() {
-    const hashes = this.config.certificate_hashes.map((h) => ({ algorithm: "sha-256", value: hexToBytes(h) }));
-    this.wt = new WebTransport(this.config.url, { serverCertificateHashes: hashes });
+    try {
+      this.wt = await connect(this.config);
+    } catch (first) {
+      // The server may have replaced its certificate since config.json was
+      // read (spec/session.md 9.1): read it again, and try once more if it
+      // names another.
+      const fresh = await fetch("/config.json", { cache: "no-store" })
+        .then((r) => (r.ok ? r.json() : null))
+        .catch(() => null);
+      const changed = fresh && JSON.stringify(fresh.certificate_hashes) !== JSON.stringify(this.config.certificate_hashes);
+      if (!changed) {
+        this.settle({ closeCode: null, reason: `could not connect: ${first?.message ?? first}` });
+        throw first;
+      }
+      this.config = { ...this.config, certificate_hashes: fresh.certificate_hashes, url: fresh.url };
+      try {
+        this.wt = await connect(this.config);
+      } catch (second) {
+        this.settle({ closeCode: null, reason: `could not connect: ${second?.message ?? second}` });
+        throw second;
+      }
+    }
     this.wt.closed.then(
       (info) => this.settle({ closeCode: info.closeCode, reason: info.reason }),
       (err) => this.settle({ closeCode: null, reason: `${err?.name ?? "Error"}: ${err?.message ?? err}` }),
     );
-    await this.wt.ready;
     const control = await this.wt.createBidirectionalStream();
     this.writer = control.writable.getWriter();
     this.flush(); // HELLO, queued when the WasmSession was made
@@ -247,6 +266,16 @@ export function plainStats(session) {
   for (const k of new Set([...STAT_NAMES, ...getters])) out[k] = Number(s[k]);
   s.free?.();
   return out;
+}
+
+// A WebTransport session to config.url pinning config's certificate
+// hashes, once it is ready.
+async function connect(config) {
+  const hashes = config.certificate_hashes.map((h) => ({ algorithm: "sha-256", value: hexToBytes(h) }));
+  const wt = new WebTransport(config.url, { serverCertificateHashes: hashes });
+  wt.closed.catch(() => {}); // a session that never got ready rejects here too
+  await wt.ready;
+  return wt;
 }
 
 function hexToBytes(hex) {
