@@ -21,8 +21,9 @@ export class Overlay {
       this.rates = { fps: (applied - this.sample.applied) / dt, mbps: ((frameBytes - this.sample.bytes) * 8) / dt / 1e6 };
       this.sample = { t: now, applied, bytes: frameBytes };
     }
-    const age =
-      s.frame_age_ms === null || s.frame_age_ms === undefined
+    const age = s.frozen
+      ? "- (stopped: the test compares this frame)"
+      : s.frame_age_ms === null || s.frame_age_ms === undefined
         ? "none yet"
         : `${s.frame_age_ms.toFixed(0)} ms${s.rtt_ms === null ? " (RTT unknown)" : ""}`;
     const items = [
