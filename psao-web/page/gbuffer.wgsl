@@ -34,7 +34,7 @@ struct Varyings {
 
 // `position` and `normal` are the mesh's own (bind pose); `posed` and
 // `posed_normal` where the draw puts them (the same, but for a skinned
-// mesh: instance-local, skinned by skin.js).
+// or morphing mesh: instance-local, posed by pose.js).
 @vertex
 fn vs(
     @location(0) position: vec3<f32>,

@@ -7,7 +7,9 @@
 // `extras: {psao_instance, bind_space}`, and for a skinned instance
 // `extras.psao_skin: {joints, fps, frames, duration, matrices}` (its joint
 // matrices sampled over the animation loop: an accessor of frames * joints
-// * 12 floats, see skin.js). Anything else is refused with an error that
+// * 12 floats), for a morphing one `extras.psao_morph: {targets, fps,
+// frames, duration, weights}` (frames * targets floats) over its mesh's
+// `targets` (POSITION, NORMAL offsets) and rest `weights`; see pose.js. Anything else is refused with an error that
 // says what, rather than drawn wrongly.
 
 const MAGIC_GLTF = 0x46546c67; // "glTF", little-endian
@@ -68,6 +70,20 @@ export function parseGlb(arrayBuffer) {
       if (i >= vertices) throw new Error(`scene.glb: mesh ${m} indexes vertex ${i} of ${vertices}`);
     }
     const out = { positions, normals, indices };
+    if (prim.targets !== undefined) {
+      if (!Array.isArray(prim.targets)) throw new Error(`scene.glb: mesh ${m}'s targets are not a list`);
+      out.targets = prim.targets.map((t, k) => {
+        const target = {};
+        for (const [name, key] of [["POSITION", "positions"], ["NORMAL", "normals"]]) {
+          if (t[name] === undefined) continue;
+          target[key] = accessor(t[name], FLOAT, "VEC3");
+          if (target[key].length !== positions.length) throw new Error(`scene.glb: mesh ${m}'s target ${k} ${name} is not one VEC3 per vertex`);
+        }
+        return target;
+      });
+      out.restWeights = Float32Array.from(mesh.weights ?? out.targets.map(() => 0));
+      if (out.restWeights.length !== out.targets.length) throw new Error(`scene.glb: mesh ${m} has ${out.restWeights.length} weights for ${out.targets.length} targets`);
+    }
     const { JOINTS_0, WEIGHTS_0 } = prim.attributes;
     if ((JOINTS_0 === undefined) !== (WEIGHTS_0 === undefined)) throw new Error(`scene.glb: mesh ${m} has one of JOINTS_0 and WEIGHTS_0`);
     if (JOINTS_0 !== undefined) {
@@ -102,6 +118,15 @@ export function parseGlb(arrayBuffer) {
       const matrices = accessor(skin.matrices, FLOAT, "SCALAR");
       if (matrices.length !== frames * joints * 12) throw new Error(`scene.glb: node ${n}'s psao_skin has ${matrices.length} floats, expected ${frames * joints * 12}`);
       out.skin = { joints, fps, frames, duration, matrices };
+    }
+    const morph = node.extras.psao_morph;
+    if (morph !== undefined) {
+      const { targets, fps, frames, duration } = morph;
+      if (meshes[node.mesh].targets?.length !== targets) throw new Error(`scene.glb: node ${n}'s psao_morph names ${targets} targets its mesh lacks`);
+      if (!(Number.isInteger(frames) && frames > 0 && fps > 0 && duration >= 0)) throw new Error(`scene.glb: node ${n}'s psao_morph is malformed`);
+      const weights = accessor(morph.weights, FLOAT, "SCALAR");
+      if (weights.length !== frames * targets) throw new Error(`scene.glb: node ${n}'s psao_morph has ${weights.length} weights, expected ${frames * targets}`);
+      out.morph = { targets, fps, frames, duration, weights };
     }
     return out;
   });

@@ -13,7 +13,7 @@ import { Overlay } from "./overlay.js";
 import { CpuRenderer } from "./render_cpu.js";
 import { createWebGpuRenderer } from "./render_webgpu.js";
 import { SessionLink, plainStats } from "./session.js";
-import { NodeSkin } from "./skin.js";
+import { NodePose } from "./pose.js";
 
 const params = new URLSearchParams(location.search);
 const FIXED_VIEW = params.get("view") === "fixed";
@@ -69,7 +69,7 @@ async function start() {
   ]);
   scene = parseGlb(glb);
   for (const node of scene.nodes) {
-    if (node.skin) node.skinState = new NodeSkin(node.skin, scene.meshes[node.mesh]);
+    if (node.skin || node.morph) node.poseState = new NodePose(node.skin, node.morph, scene.meshes[node.mesh]);
   }
   camera = new Camera(config.camera, sceneBounds(scene));
 
@@ -126,15 +126,15 @@ function sceneTime() {
 }
 
 // The draws: every node's mesh, placed by the stream's transform of its
-// instance when it has one (else at rest); a skinned one posed at the
-// server's scene time (skin.js), looked up by its bind pose.
+// instance when it has one (else at rest); a skinned or morphing one
+// posed at the server's scene time (pose.js), looked up by its bind pose.
 function draws() {
   const t = sceneTime();
   return scene.nodes.map((node) => {
     const bindSpace = node.bindSpace || session.bind_space(node.instance);
     const placed = session.transform(node.instance);
     const model = placed ? affineToMat4(placed) : node.matrix;
-    const posed = node.skinState?.pose(t);
+    const posed = node.poseState?.pose(t);
     return { mesh: node.mesh, model, normal: normalMatrix(model), instance: node.instance, bindSpace, posed, node: scene.nodes.indexOf(node) };
   });
 }

@@ -44,7 +44,7 @@ export function rasterize(meshes, draws, matrices, width, height) {
 function transformVertices(mesh, draw, viewProj) {
   const { model: m, normal: nm } = draw;
   // The lookup uses the mesh's own vertices; the place on screen the posed
-  // ones (a skinned node's, from skin.js; else the same).
+  // ones (a skinned or morphing node's, from pose.js; else the same).
   const p = mesh.positions;
   const n = mesh.normals;
   const pp = draw.posed?.positions ?? p;

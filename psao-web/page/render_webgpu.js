@@ -79,7 +79,7 @@ class WebGpuRenderer {
         layout: "auto",
         // 0, 1: the bind-pose position and normal (the lookup of a
         // bind-space instance); 2, 3: the drawn ones (the same buffers but
-        // for a skinned node, posed by skin.js).
+        // for a skinned or morphing node, posed by pose.js).
         vertex: { module: gbufferModule, entryPoint: "vs", buffers: [attribute(0), attribute(1), attribute(2), attribute(3)] },
         fragment: {
           module: gbufferModule,

@@ -9,8 +9,10 @@
 //! [`Pose::joints`](crate::Pose::joints)) sampled over the scene's
 //! animation loop ([`Scene::duration`]), so a client poses it at any scene
 //! time with linear blend skinning and places it with the stream's
-//! `Transform`. Materials, alpha masks, morph targets and the animations
-//! themselves are not written: a morphing instance is drawn as stored.
+//! `Transform`. A morphing mesh carries its targets (`targets`, with its
+//! rest `weights`), and its instance's node `extras.psao_morph` its weights
+//! sampled the same way ([`Pose::weights`](crate::Pose::weights)).
+//! Materials, alpha masks and the animations themselves are not written.
 
 use glam::Affine3A;
 use serde_json::json;
@@ -84,7 +86,7 @@ pub fn to_glb(scene: &Scene, bind_space: impl Fn(usize) -> bool) -> Result<Vec<u
         if let Some(w) = m
             .skin
             .as_ref()
-            .filter(|w| w.joints.len() == m.positions.len())
+            .filter(|w| w.joints.len() == m.positions.len() && w.weights.len() == m.positions.len())
         {
             let joints: Vec<u8> = w
                 .joints
@@ -105,10 +107,33 @@ pub fn to_glb(scene: &Scene, bind_space: impl Fn(usize) -> bool) -> Result<Vec<u
             attributes["JOINTS_0"] = json!(accessors.len() - 2);
             attributes["WEIGHTS_0"] = json!(accessors.len() - 1);
         }
-        meshes.push(
-            json!({"primitives": [{"attributes": attributes, "indices": a - 1, "mode": 4}],
-            "extras": {"double_sided": m.double_sided}}),
-        );
+        let mut primitive = json!({"attributes": attributes, "indices": a - 1, "mode": 4});
+        let mut mesh = json!({"primitives": [], "extras": {"double_sided": m.double_sided}});
+        if let Some(t) = m
+            .morph
+            .as_ref()
+            .filter(|t| t.check(m.positions.len()).is_ok() && !t.is_empty())
+        {
+            // The targets' offsets, applied as (weight - rest weight) times
+            // the offset to the mesh as stored (MorphTargets::apply).
+            let mut targets = Vec::new();
+            for k in 0..t.len() {
+                let mut target = json!({});
+                for (name, offsets) in [("POSITION", &t.positions[k]), ("NORMAL", &t.normals[k])] {
+                    if offsets.is_empty() {
+                        continue;
+                    }
+                    let v = view(&mut bin, &floats(offsets), ARRAY_BUFFER);
+                    accessors.push(json!({"bufferView": v, "componentType": FLOAT, "count": offsets.len(), "type": "VEC3"}));
+                    target[name] = json!(accessors.len() - 1);
+                }
+                targets.push(target);
+            }
+            primitive["targets"] = json!(targets);
+            mesh["weights"] = json!(t.rest_weights);
+        }
+        mesh["primitives"] = json!([primitive]);
+        meshes.push(mesh);
     }
     let pose = scene.pose(0.0);
     let skins = SkinSamples::of(scene)?;
@@ -132,6 +157,17 @@ pub fn to_glb(scene: &Scene, bind_space: impl Fn(usize) -> bool) -> Result<Vec<u
             accessors.push(json!({"bufferView": v, "componentType": FLOAT, "count": floats.len(), "type": "SCALAR"}));
             node["extras"]["psao_skin"] = json!({"joints": joints, "fps": skins.fps, "frames": skins.frames,
                 "duration": skins.duration, "matrices": accessors.len() - 1});
+        }
+        if let Some((targets, weights)) = skins.weights(i).filter(|_| {
+            m.morph
+                .as_ref()
+                .is_some_and(|t| t.check(m.positions.len()).is_ok())
+        }) {
+            let bytes: Vec<u8> = weights.iter().flat_map(|x| x.to_le_bytes()).collect();
+            let v = view(&mut bin, &bytes, ARRAY_BUFFER);
+            accessors.push(json!({"bufferView": v, "componentType": FLOAT, "count": weights.len(), "type": "SCALAR"}));
+            node["extras"]["psao_morph"] = json!({"targets": targets, "fps": skins.fps, "frames": skins.frames,
+                "duration": skins.duration, "weights": accessors.len() - 1});
         }
         nodes.push(node);
     }
@@ -167,7 +203,8 @@ pub fn to_glb(scene: &Scene, bind_space: impl Fn(usize) -> bool) -> Result<Vec<u
     })
 }
 
-/// Every skinned instance's joint matrices over the animation loop.
+/// Every skinned instance's joint matrices, and every morphing one's
+/// weights, over the animation loop.
 struct SkinSamples {
     fps: f32,
     frames: usize,
@@ -175,6 +212,8 @@ struct SkinSamples {
     /// Per instance: joints and `frames * joints * 12` floats (columns x,
     /// y, z, translation), or nothing.
     per_instance: Vec<Option<(usize, Vec<f32>)>>,
+    /// Per instance: targets and `frames * targets` weights, or nothing.
+    morphs: Vec<Option<(usize, Vec<f32>)>>,
 }
 
 impl SkinSamples {
@@ -190,6 +229,10 @@ impl SkinSamples {
         let skinned: Vec<usize> = (0..scene.instances.len())
             .filter(|&i| scene.instances[i].skin.is_some())
             .collect();
+        let morphing: Vec<usize> = (0..scene.instances.len())
+            .filter(|&i| scene.meshes[scene.instances[i].mesh].morph.is_some())
+            .collect();
+        let mut morphs: Vec<Option<(usize, Vec<f32>)>> = vec![None; scene.instances.len()];
         let bytes: usize = skinned
             .iter()
             .map(|&i| {
@@ -199,6 +242,13 @@ impl SkinSamples {
                     .map_or(0, |k| k.joints.len());
                 frames * joints * 48
             })
+            .chain(morphing.iter().map(|&i| {
+                let targets = scene.meshes[scene.instances[i].mesh]
+                    .morph
+                    .as_ref()
+                    .map_or(0, |m| m.len());
+                frames * targets * 4
+            }))
             .sum();
         if bytes > MAX_SKIN_BYTES {
             return Err(SceneError::Element {
@@ -209,10 +259,27 @@ impl SkinSamples {
                 ),
             });
         }
-        if !skinned.is_empty() {
+        if !skinned.is_empty() || !morphing.is_empty() {
             let mut pose = crate::Pose::default();
             for k in 0..frames {
                 scene.pose_into((k as f32 / fps).min(duration), &mut pose);
+                for &i in &morphing {
+                    let targets = scene.meshes[scene.instances[i].mesh]
+                        .morph
+                        .as_ref()
+                        .map_or(0, |m| m.len());
+                    let (_, w) = morphs[i].get_or_insert_with(|| (targets, Vec::new()));
+                    let now = &pose.weights[i];
+                    // As MorphTargets::apply: a missing weight is the rest one.
+                    w.extend((0..targets).map(|t| {
+                        now.get(t).copied().unwrap_or_else(|| {
+                            scene.meshes[scene.instances[i].mesh]
+                                .morph
+                                .as_ref()
+                                .map_or(0.0, |m| m.rest_weights[t])
+                        })
+                    }));
+                }
                 for &i in &skinned {
                     let joints = &pose.joints[i];
                     let (_, floats) =
@@ -235,7 +302,15 @@ impl SkinSamples {
             frames,
             duration,
             per_instance,
+            morphs,
         })
+    }
+
+    fn weights(&self, i: usize) -> Option<(usize, &[f32])> {
+        self.morphs[i]
+            .as_ref()
+            .filter(|(t, _)| *t > 0)
+            .map(|(t, w)| (*t, w.as_slice()))
     }
 
     fn matrices(&self, i: usize) -> Option<(usize, &[f32])> {

@@ -1,8 +1,9 @@
-//! The page poses a skinned instance where psao-scene does: the default
-//! scene's walker, exported by `psao_scene::export::glb`, posed by the
-//! page's own glb.js and skin.js on Node, against `Scene::deform_into` at
-//! a sample time (equal to float rounding) and between two samples (the
-//! sampling's interpolation error, bounded).
+//! The page poses deforming instances where psao-scene does: the default
+//! scene's walker (a skin) and a cube whose morph weights an animation
+//! drives, exported by `psao_scene::export::glb`, posed by the page's own
+//! glb.js and pose.js on Node, against `Scene::deform_into` at a sample
+//! time (equal to float rounding) and between two samples (the sampling's
+//! interpolation error, bounded).
 //!
 //! Needs Node; without it the test says it skips, unless
 //! `PSAO_REQUIRE_BROWSER` is set.
@@ -59,39 +60,63 @@ fn worst(page: &[f32], scene: &[Vec3]) -> f32 {
         .fold(0.0, f32::max)
 }
 
-#[test]
-fn the_page_poses_the_walker_where_the_scene_does() {
-    let scene = default_scene();
-    let glb = to_glb(&scene, |i| scene.deforms(i)).unwrap();
-    let file = std::env::temp_dir().join(format!("psao-skin-{}.glb", std::process::id()));
+/// Exports `scene`, poses `instance` with the page's code at a sample time
+/// and between two, and compares with the scene's own deformation.
+fn compare(scene: &psao_scene::Scene, instance: usize, name: &str) {
+    let glb = to_glb(scene, |i| scene.deforms(i)).unwrap();
+    let file = std::env::temp_dir().join(format!("psao-pose-{name}-{}.glb", std::process::id()));
     std::fs::write(&file, &glb).unwrap();
     let (mut p, mut n) = (Vec::new(), Vec::new());
-    let size = scene.meshes[scene.instances[WALKER].mesh]
+    let size = scene.meshes[scene.instances[instance].mesh]
         .bounds()
         .map_or(1.0, |(lo, hi)| (hi - lo).length());
     // A sample's time, and halfway between two samples.
     for (k, (t, bound)) in [
-        (7.0 / SKIN_SAMPLES_PER_SECOND, 1e-4),
-        (7.5 / SKIN_SAMPLES_PER_SECOND, 0.01),
+        (37.0 / SKIN_SAMPLES_PER_SECOND, 1e-4),
+        (37.5 / SKIN_SAMPLES_PER_SECOND, 0.01),
     ]
     .into_iter()
     .enumerate()
     {
-        let Some((page_p, page_n)) = posed_by_the_page(&file, WALKER, t) else {
+        let Some((page_p, page_n)) = posed_by_the_page(&file, instance, t) else {
             return;
         };
-        scene.deform_into(WALKER, &scene.pose(t), &mut p, &mut n);
+        scene.deform_into(instance, &scene.pose(t), &mut p, &mut n);
         let d = worst(&page_p, &p);
         eprintln!(
-            "t = {t:.4} s: worst distance {d:.2e} ({:.2e} of the figure's size)",
+            "{name}, t = {t:.4} s: worst distance {d:.2e} ({:.2e} of its size)",
             d / size
         );
-        assert!(d <= bound * size, "case {k}: {d} against {}", bound * size);
+        assert!(
+            d <= bound * size,
+            "{name}, case {k}: {d} against {}",
+            bound * size
+        );
         let normals = worst(&page_n, &n);
         assert!(
             normals <= if k == 0 { 1e-3 } else { 0.1 },
-            "case {k}: normals {normals}"
+            "{name}, case {k}: normals {normals}"
         );
+        // The pose is not the rest shape (or the comparison says nothing).
+        let rest = &scene.meshes[scene.instances[instance].mesh].positions;
+        let moved = worst(&page_p, rest);
+        assert!(moved > 0.01 * size, "{name}, case {k}: {moved} from rest");
     }
     let _ = std::fs::remove_file(&file);
+}
+
+#[test]
+fn the_page_poses_the_walker_where_the_scene_does() {
+    compare(&default_scene(), WALKER, "walker");
+}
+
+#[test]
+fn the_page_morphs_the_cube_where_the_scene_does() {
+    let file = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../psao-scene/tests/data/AnimatedMorphCube.glb");
+    let scene = psao_scene::stage(psao_scene::load_gltf(&file).unwrap()).unwrap();
+    let cube = (0..scene.instances.len())
+        .find(|&i| scene.meshes[scene.instances[i].mesh].morph.is_some())
+        .expect("a morphing instance");
+    compare(&scene, cube, "morph cube");
 }
