@@ -79,17 +79,7 @@ impl GpuFlat {
 /// Instance `id`'s local-to-world transform as 12 floats (the columns of
 /// the linear part, then the translation), if the stream gave one.
 pub(crate) fn transform12(mirror: &Mirror, id: u32) -> Option<Vec<f32>> {
-    let t = mirror.instance(id)?.transform()?.affine();
-    let mut out = Vec::with_capacity(12);
-    for c in [
-        t.matrix3.x_axis,
-        t.matrix3.y_axis,
-        t.matrix3.z_axis,
-        t.translation,
-    ] {
-        out.extend_from_slice(&c.to_array());
-    }
-    Some(out)
+    Some(mirror.instance(id)?.transform()?.matrix.to_vec())
 }
 
 /// AO per pixel from a G-buffer: positions and normals 4 floats a pixel

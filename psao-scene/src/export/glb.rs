@@ -285,14 +285,7 @@ impl SkinSamples {
                     let (_, floats) =
                         per_instance[i].get_or_insert_with(|| (joints.len(), Vec::new()));
                     for j in joints {
-                        for c in [
-                            j.matrix3.x_axis,
-                            j.matrix3.y_axis,
-                            j.matrix3.z_axis,
-                            j.translation,
-                        ] {
-                            floats.extend_from_slice(&c.to_array());
-                        }
+                        floats.extend_from_slice(&j.to_cols_array());
                     }
                 }
             }
