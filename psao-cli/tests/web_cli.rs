@@ -176,3 +176,76 @@ fn a_real_chromium_follows_the_stream() {
         assert!(shot.is_file(), "no screenshot at {}", shot.display());
     }
 }
+
+/// Starts `psao serve --web` on `web_port` (0: any) for `seconds`; returns
+/// the child and the page's address once it printed it.
+fn web_server(
+    pkg: &Path,
+    web_port: u16,
+    seconds: u32,
+) -> (std::process::Child, String, std::thread::JoinHandle<()>) {
+    let mut server = Command::new(PSAO)
+        .args(["serve", "--bind", "127.0.0.1:0", "--web", "--web-port"])
+        .arg(web_port.to_string())
+        .arg("--web-pkg")
+        .arg(pkg)
+        .args(["--seconds", &seconds.to_string()])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap();
+    let mut out = BufReader::new(server.stdout.take().unwrap());
+    let mut line = String::new();
+    let started = Instant::now();
+    let page = loop {
+        line.clear();
+        assert!(
+            out.read_line(&mut line).unwrap() > 0 && started.elapsed() < Duration::from_secs(120),
+            "the server did not print its page"
+        );
+        if let Some(rest) = line.split("the page on ").nth(1) {
+            break rest.split_whitespace().next().unwrap().to_string();
+        }
+    };
+    // Its output keeps flowing (a full pipe would stall it).
+    let drain = std::thread::spawn(move || for _ in out.lines().map_while(Result::ok) {});
+    (server, page, drain)
+}
+
+#[test]
+fn the_page_reconnects_to_a_new_server_on_the_same_port() {
+    let (chromium, pkg) = match browser_setup() {
+        Ok(s) => s,
+        Err(why) => {
+            assert!(
+                std::env::var_os("PSAO_REQUIRE_BROWSER").is_none(),
+                "PSAO_REQUIRE_BROWSER is set: {why}"
+            );
+            eprintln!("skipped: {why}");
+            return;
+        }
+    };
+    // The first server stops by itself (a clean shutdown: the page reads
+    // server_shutdown); the second takes its ports, with a new certificate.
+    let (mut first, page, drain) = web_server(&pkg, 0, 20);
+    let port: u16 = page.rsplit(':').next().unwrap().parse().unwrap();
+    let driver = Command::new("node")
+        .arg(root().join("tests/browser/reconnect.mjs"))
+        .args(["--url", &format!("https://{page}/")])
+        .arg("--chromium")
+        .arg(&chromium)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap();
+    let _ = first.wait();
+    let _ = drain.join();
+    let (mut second, _, drain) = web_server(&pkg, port, 120);
+    let out = driver.wait_with_output().unwrap();
+    let _ = second.kill();
+    let _ = second.wait();
+    let _ = drain.join();
+    let report = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(out.status.success(), "the page did not reconnect: {report}");
+    assert!(report.contains("\"ok\":true"), "{report}");
+}

@@ -55,6 +55,41 @@ let renderMs = null; // how long the last render took
 const ready = start();
 ready.catch((e) => report("start", e));
 
+// Reconnecting: after the server ended the session for a reason a new
+// session can mend (it shut down, was full, failed, or the connection was
+// lost), the page joins again, with a fresh mirror and config.json read
+// again (the server may be a new one, with a new certificate), waiting 1,
+// 2, 4, 8 then 10 s between tries. A close for something the page did
+// wrong (protocol_violation, message_too_large, ...) is left as it is.
+const RECONNECT_CODES = new Set([0x06, 0x07, 0x08, 0x09]);
+let reconnects = 0;
+let reconnecting = false;
+setInterval(() => {
+  const closed = link?.closed;
+  if (!closed || link.closing || reconnecting || frozen || !RECONNECT_CODES.has(closed.closeCode)) return;
+  reconnecting = true;
+  const wait = Math.min(10_000, 1000 * 2 ** Math.min(reconnects, 3));
+  setTimeout(() => reconnect().finally(() => (reconnecting = false)), wait);
+}, 250);
+
+async function reconnect() {
+  reconnects++;
+  try {
+    const asked = performance.now();
+    const config = await fetchOk("/config.json").then((r) => r.json());
+    const next = new WasmSession();
+    const nextLink = new SessionLink(next, SessionClose, config);
+    await nextLink.start();
+    clock = { sceneTime: config.scene_time ?? 0, at: (asked + performance.now()) / 2 };
+    session = next;
+    link = nextLink;
+    if (renderer instanceof CpuRenderer) renderer.session = next;
+    mirrorDirty = true;
+  } catch (e) {
+    console.warn(`reconnect ${reconnects} failed: ${e?.message ?? e}`);
+  }
+}
+
 async function start() {
   const asked = performance.now();
   const [config, glb] = await Promise.all([
@@ -185,6 +220,7 @@ function state() {
     frame_age_ms: link?.frameAgeMs() ?? null,
     rtt_ms: link?.rttMs ?? null,
     frozen,
+    reconnects,
     renders,
     render_ms: renderMs,
     error: null,
