@@ -17,6 +17,10 @@ use std::time::{Duration, Instant};
 
 const PSAO: &str = env!("CARGO_BIN_EXE_psao");
 
+/// The browser tests run one at a time (each drives a Chromium on
+/// SwiftShader: two at once on 2 cores would only slow each other).
+static ONE_BROWSER: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
@@ -84,6 +88,7 @@ fn browser_setup() -> Result<(PathBuf, PathBuf), String> {
 
 #[test]
 fn a_real_chromium_follows_the_stream() {
+    let _one = ONE_BROWSER.lock().unwrap_or_else(|e| e.into_inner());
     let (chromium, pkg) = match browser_setup() {
         Ok(s) => s,
         Err(why) => {
@@ -214,6 +219,7 @@ fn web_server(
 
 #[test]
 fn the_page_reconnects_to_a_new_server_on_the_same_port() {
+    let _one = ONE_BROWSER.lock().unwrap_or_else(|e| e.into_inner());
     let (chromium, pkg) = match browser_setup() {
         Ok(s) => s,
         Err(why) => {
