@@ -86,64 +86,34 @@ fn browser_setup() -> Result<(PathBuf, PathBuf), String> {
     Ok((chromium, pkg))
 }
 
-#[test]
-fn a_real_chromium_follows_the_stream() {
-    let _one = ONE_BROWSER.lock().unwrap_or_else(|e| e.into_inner());
-    let (chromium, pkg) = match browser_setup() {
-        Ok(s) => s,
+/// What the browser tests need; `None` (said) when it is missing and
+/// `PSAO_REQUIRE_BROWSER` is not set.
+fn browser_or_skip() -> Option<(PathBuf, PathBuf)> {
+    match browser_setup() {
+        Ok(s) => Some(s),
         Err(why) => {
             assert!(
                 std::env::var_os("PSAO_REQUIRE_BROWSER").is_none(),
                 "PSAO_REQUIRE_BROWSER is set: {why}"
             );
             eprintln!("skipped: {why}");
-            return;
-        }
-    };
-    let mut server = Command::new(PSAO)
-        .args(["serve", "--bind", "127.0.0.1:0", "--web", "--web-port", "0"])
-        .arg("--web-pkg")
-        .arg(&pkg)
-        .args(["--seconds", "240"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .unwrap();
-    let mut out = BufReader::new(server.stdout.take().unwrap());
-    let (mut page, mut spki) = (None, None);
-    let started = Instant::now();
-    let mut line = String::new();
-    while (page.is_none() || spki.is_none()) && started.elapsed() < Duration::from_secs(120) {
-        line.clear();
-        if out.read_line(&mut line).unwrap() == 0 {
-            break;
-        }
-        eprint!("server: {line}");
-        if let Some(rest) = line.split("the page on ").nth(1) {
-            page = rest.split_whitespace().next().map(str::to_string);
-        }
-        if let Some(rest) = line.split("--ignore-certificate-errors-spki-list=").nth(1) {
-            spki = rest
-                .trim()
-                .trim_end_matches(')')
-                .split(')')
-                .next()
-                .map(str::to_string);
+            None
         }
     }
-    let (Some(page), Some(spki)) = (page, spki) else {
-        let _ = server.kill();
-        panic!("the server did not print its page and certificate");
+}
+
+#[test]
+fn a_real_chromium_follows_the_stream() {
+    let _one = ONE_BROWSER.lock().unwrap_or_else(|e| e.into_inner());
+    let Some((chromium, pkg)) = browser_or_skip() else {
+        return;
     };
-    // The server's output keeps flowing (a full pipe would stall it).
-    let drain = std::thread::spawn(move || {
-        let mut rest = String::new();
-        for l in out.lines().map_while(Result::ok) {
-            rest.push_str(&l);
-            rest.push('\n');
-        }
-        rest
-    });
+    let WebServer {
+        child: mut server,
+        page,
+        spki,
+        drain,
+    } = web_server(&pkg, 0, 240);
     let shots = std::env::var_os("PSAO_SCREENSHOT_DIR")
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_TARGET_TMPDIR")));
@@ -182,14 +152,20 @@ fn a_real_chromium_follows_the_stream() {
     }
 }
 
-/// Starts `psao serve --web` on `web_port` (0: any) for `seconds`; returns
-/// the child and the page's address once it printed it.
-fn web_server(
-    pkg: &Path,
-    web_port: u16,
-    seconds: u32,
-) -> (std::process::Child, String, std::thread::JoinHandle<()>) {
-    let mut server = Command::new(PSAO)
+/// A `psao serve --web` running: its page's address and certificate's
+/// SPKI hash as it printed them, and the thread reading the rest of its
+/// output (a full pipe would stall it).
+struct WebServer {
+    child: std::process::Child,
+    page: String,
+    spki: String,
+    drain: std::thread::JoinHandle<()>,
+}
+
+/// Starts `psao serve --web` on `web_port` (0: any) for `seconds`, until it
+/// printed its page and certificate.
+fn web_server(pkg: &Path, web_port: u16, seconds: u32) -> WebServer {
+    let mut child = Command::new(PSAO)
         .args(["serve", "--bind", "127.0.0.1:0", "--web", "--web-port"])
         .arg(web_port.to_string())
         .arg("--web-pkg")
@@ -199,41 +175,43 @@ fn web_server(
         .stderr(Stdio::inherit())
         .spawn()
         .unwrap();
-    let mut out = BufReader::new(server.stdout.take().unwrap());
-    let mut line = String::new();
+    let mut out = BufReader::new(child.stdout.take().unwrap());
+    let (mut page, mut spki) = (None, None);
     let started = Instant::now();
-    let page = loop {
+    let mut line = String::new();
+    while page.is_none() || spki.is_none() {
         line.clear();
-        assert!(
-            out.read_line(&mut line).unwrap() > 0 && started.elapsed() < Duration::from_secs(120),
-            "the server did not print its page"
-        );
-        if let Some(rest) = line.split("the page on ").nth(1) {
-            break rest.split_whitespace().next().unwrap().to_string();
+        if out.read_line(&mut line).unwrap() == 0 || started.elapsed() > Duration::from_secs(120) {
+            let _ = child.kill();
+            panic!("the server did not print its page and certificate");
         }
-    };
-    // Its output keeps flowing (a full pipe would stall it).
+        eprint!("server: {line}");
+        if let Some(rest) = line.split("the page on ").nth(1) {
+            page = rest.split_whitespace().next().map(str::to_string);
+        }
+        if let Some(rest) = line.split("--ignore-certificate-errors-spki-list=").nth(1) {
+            spki = rest.trim().split(')').next().map(str::to_string);
+        }
+    }
     let drain = std::thread::spawn(move || for _ in out.lines().map_while(Result::ok) {});
-    (server, page, drain)
+    WebServer {
+        child,
+        page: page.unwrap_or_default(),
+        spki: spki.unwrap_or_default(),
+        drain,
+    }
 }
 
 #[test]
 fn the_page_reconnects_to_a_new_server_on_the_same_port() {
     let _one = ONE_BROWSER.lock().unwrap_or_else(|e| e.into_inner());
-    let (chromium, pkg) = match browser_setup() {
-        Ok(s) => s,
-        Err(why) => {
-            assert!(
-                std::env::var_os("PSAO_REQUIRE_BROWSER").is_none(),
-                "PSAO_REQUIRE_BROWSER is set: {why}"
-            );
-            eprintln!("skipped: {why}");
-            return;
-        }
+    let Some((chromium, pkg)) = browser_or_skip() else {
+        return;
     };
     // The first server stops by itself (a clean shutdown: the page reads
     // server_shutdown); the second takes its ports, with a new certificate.
-    let (mut first, page, drain) = web_server(&pkg, 0, 20);
+    let first = web_server(&pkg, 0, 20);
+    let (mut first, page, drain) = (first.child, first.page, first.drain);
     let port: u16 = page.rsplit(':').next().unwrap().parse().unwrap();
     let driver = Command::new("node")
         .arg(root().join("tests/browser/reconnect.mjs"))
@@ -246,7 +224,8 @@ fn the_page_reconnects_to_a_new_server_on_the_same_port() {
         .unwrap();
     let _ = first.wait();
     let _ = drain.join();
-    let (mut second, _, drain) = web_server(&pkg, port, 120);
+    let second = web_server(&pkg, port, 120);
+    let (mut second, drain) = (second.child, second.drain);
     let out = driver.wait_with_output().unwrap();
     let _ = second.kill();
     let _ = second.wait();
