@@ -275,7 +275,7 @@ async fn follow_broadcast(
     let g = catalog.recv_group().await?.ok_or(MoqError::Timeout(
         "the catalog track ended before its group",
     ))?;
-    let mut one = Some(g);
+    let mut one = Some(Reading::from(g));
     // A WELCOME body is at most 16 + 200 bytes: a larger catalog frame is
     // not read (malformed).
     let (_, _, frame) = next_frame(&mut one, psao_proto::control::MAX_CONTROL_LEN as u64)
@@ -307,8 +307,8 @@ async fn follow_broadcast(
         },
         false => None,
     };
-    let mut current: Option<group::Consumer> = None;
-    let mut digest_group: Option<group::Consumer> = None;
+    let mut current: Option<Reading> = None;
+    let mut digest_group: Option<Reading> = None;
     // Once the frames track ended, the group being read is read to its end
     // (its last frames can arrive after the track's end), then the
     // broadcast has ended.
@@ -321,8 +321,8 @@ async fn follow_broadcast(
             g = frames.recv_group(), if track_open => match g? {
                 None => track_open = false,
                 Some(g) => {
-                    if current.as_ref().is_none_or(|c| g.sequence > c.sequence) {
-                        current = Some(g);
+                    if current.as_ref().is_none_or(|c| g.sequence > c.group.sequence) {
+                        current = Some(g.into());
                     }
                 }
             },
@@ -359,7 +359,7 @@ async fn follow_broadcast(
                 }
             },
             g = next_digest_group(&mut digests) => match g? {
-                Some(g) => digest_group = Some(g),
+                Some(g) => digest_group = Some(g.into()),
                 None => digests = None,
             },
             f = next_frame(&mut digest_group, DIGEST_FRAME_MAX) => match f {
@@ -379,26 +379,56 @@ async fn follow_broadcast(
 /// The largest `digest` frame read (a `DIGEST` body is 8 bytes).
 const DIGEST_FRAME_MAX: u64 = 64;
 
+/// A group being read, and the frame being read in it. The frame is kept
+/// here, not in the future that reads it, so that reading is
+/// cancellation-safe: the `select!` in [`follow_broadcast`] drops the
+/// future whenever another branch is ready first (a new group, a digest),
+/// and a frame whose bytes were still arriving would otherwise be lost with
+/// it, mid-group (the group then breaks, and a lost keyframe costs the whole
+/// group).
+struct Reading {
+    group: group::Consumer,
+    /// The frame's index in the group and its consumer, once it is known.
+    frame: Option<(u64, moq_net::frame::Consumer)>,
+}
+
+impl From<group::Consumer> for Reading {
+    fn from(group: group::Consumer) -> Reading {
+        Reading { group, frame: None }
+    }
+}
+
 /// The next frame of the group being read (id, index, payload); never
 /// resolves without one. A frame whose declared size is above `max` (the
 /// catalog's `max_frame_bytes`) is not read: an error, which ends that
 /// group as a lost one (spec/moq.md 4), before its bytes are gathered.
+/// Cancellation-safe: a call dropped at any await leaves the group and the
+/// frame where they were, and the next call goes on from there.
 async fn next_frame(
-    group: &mut Option<group::Consumer>,
+    reading: &mut Option<Reading>,
     max: u64,
 ) -> Result<Option<(u64, u64, bytes::Bytes)>, MoqError> {
-    let Some(g) = group.as_mut() else {
+    let Some(r) = reading.as_mut() else {
         return std::future::pending().await;
     };
-    let index = g.index();
-    let id = g.sequence;
-    let Some(mut f) = g.next_frame().await? else {
-        return Ok(None);
-    };
-    if f.size > max {
-        return Err(MoqError::FrameTooLarge { size: f.size, max });
+    if r.frame.is_none() {
+        let index = r.group.index();
+        // Resolves only with the frame, and within the poll that takes it
+        // from the group: nothing is taken by a call dropped here.
+        let Some(f) = r.group.next_frame().await? else {
+            return Ok(None);
+        };
+        if f.size > max {
+            return Err(MoqError::FrameTooLarge { size: f.size, max });
+        }
+        r.frame = Some((index, f));
     }
-    Ok(Some((id, index, f.read_all().await?)))
+    let (index, f) = r.frame.as_mut().expect("set above");
+    // read_all keeps what arrived in the frame consumer until all of it has.
+    let payload = f.read_all().await?;
+    let index = *index;
+    r.frame = None;
+    Ok(Some((r.group.sequence, index, payload)))
 }
 
 async fn next_digest_group(
@@ -408,4 +438,62 @@ async fn next_digest_group(
         return std::future::pending().await;
     };
     Ok(t.recv_group().await?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use moq_net::{Timestamp, frame};
+
+    /// A read dropped while a frame's bytes are still arriving (what
+    /// `select!` does when a new group or a digest comes first) loses
+    /// nothing: the next read returns that frame whole, then the next one.
+    #[tokio::test]
+    async fn a_frame_read_dropped_midway_is_read_whole_next_time() {
+        let broadcast = broadcast::Info::new().produce();
+        let track = broadcast.create_track(names::FRAMES, None).unwrap();
+        let mut group = track.create_group(group::Info { sequence: 3 }).unwrap();
+        let mut reading = Some(Reading::from(group.consume()));
+        {
+            let mut f = group
+                .create_frame(frame::Info {
+                    size: 6,
+                    timestamp: Timestamp::now(),
+                })
+                .unwrap();
+            f.write(bytes::Bytes::from_static(b"key")).unwrap();
+            // Half the frame has arrived: the read cannot finish, and is
+            // dropped as select! drops it.
+            let cut = tokio::time::timeout(Duration::from_millis(50), next_frame(&mut reading, 64));
+            assert!(cut.await.is_err(), "a read of half a frame returned");
+            f.write(bytes::Bytes::from_static(b"fra")).unwrap();
+            f.finish().unwrap();
+        }
+        group
+            .write_frame(Timestamp::now(), bytes::Bytes::from_static(b"delta"))
+            .unwrap();
+        group.finish().unwrap();
+        let (id, index, payload) = next_frame(&mut reading, 64).await.unwrap().unwrap();
+        assert_eq!((id, index, &payload[..]), (3, 0, &b"keyfra"[..]));
+        let (id, index, payload) = next_frame(&mut reading, 64).await.unwrap().unwrap();
+        assert_eq!((id, index, &payload[..]), (3, 1, &b"delta"[..]));
+        assert!(next_frame(&mut reading, 64).await.unwrap().is_none());
+    }
+
+    /// A frame declared above the limit is refused before its bytes are
+    /// read, and says how large it is.
+    #[tokio::test]
+    async fn a_frame_above_the_limit_is_refused_by_its_size() {
+        let broadcast = broadcast::Info::new().produce();
+        let track = broadcast.create_track(names::FRAMES, None).unwrap();
+        let mut group = track.create_group(group::Info { sequence: 0 }).unwrap();
+        let mut reading = Some(Reading::from(group.consume()));
+        group
+            .write_frame(Timestamp::now(), bytes::Bytes::from(vec![0u8; 65]))
+            .unwrap();
+        match next_frame(&mut reading, 64).await {
+            Err(MoqError::FrameTooLarge { size: 65, max: 64 }) => {}
+            other => panic!("{other:?}"),
+        }
+    }
 }
