@@ -16,43 +16,9 @@ use std::hint::black_box;
 use std::ptr::null_mut;
 use std::time::{Duration, Instant};
 
-use psao_codec::{Compression, Decoder, Encoder, EncoderConfig, Event, Limits, Thresholds};
+use psao_codec::{Compression, Decoder, Event, Limits};
 use psao_ffi::*;
-use psao_tests::synthetic::Synthetic;
-
-const FRAMES: usize = 120;
-
-/// The keyframe and the deltas of the bench stream, for one compression.
-fn stream(compression: Compression, level: i32) -> (Vec<u8>, Vec<Vec<u8>>, u64) {
-    let mut s = Synthetic::new(7);
-    s.table.take_dirty();
-    let mut enc = Encoder::new(EncoderConfig {
-        compression,
-        zstd_level: level,
-        checksum: false,
-        ..Default::default()
-    });
-    let mut kf = enc.keyframe();
-    kf.snapshot(&s.table).expect("no pending changes");
-    let keyframe = kf
-        .finish()
-        .expect("encode")
-        .expect("keyframe")
-        .bytes
-        .to_vec();
-    let th = Thresholds::default();
-    let (mut deltas, mut points) = (Vec::new(), 0u64);
-    for _ in 0..FRAMES {
-        s.step(&th);
-        let mut d = enc.delta();
-        d.changes(&mut s.table);
-        if let Some(f) = d.finish().expect("encode") {
-            points += f.stats.points as u64;
-            deltas.push(f.bytes.to_vec());
-        }
-    }
-    (keyframe, deltas, points)
-}
+use psao_tests::synthetic::{BENCH_FRAMES, BenchStream};
 
 /// The Rust API: returns the change items seen (so nothing is optimized out).
 fn rust_pass(keyframe: &[u8], deltas: &[Vec<u8>]) -> (Duration, usize) {
@@ -143,7 +109,7 @@ fn main() {
         .and_then(|s| s.parse().ok())
         .unwrap_or(31);
     println!(
-        "decode+apply of the codec bench stream ({FRAMES} frames), Rust API vs C API, {reps} interleaved passes, medians"
+        "decode+apply of the codec bench stream ({BENCH_FRAMES} frames), Rust API vs C API, {reps} interleaved passes, medians"
     );
     println!();
     println!(
@@ -155,7 +121,11 @@ fn main() {
         ("lz4", Compression::Lz4, 0),
         ("zstd-3", Compression::Zstd, 3),
     ] {
-        let (keyframe, deltas, points) = stream(compression, level);
+        let BenchStream {
+            keyframe,
+            deltas,
+            points,
+        } = BenchStream::encode(compression, level);
         let mut changes = vec![
             psao_change {
                 kind: psao_change_kind::PSAO_CHANGE_DEFINED,

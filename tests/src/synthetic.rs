@@ -4,7 +4,9 @@
 //! whole grid. Each step updates points with the paper's thresholds.
 
 use glam::{UVec3, Vec3};
-use psao_codec::{GridTable, InstanceDef, POINT_FORMAT_PACKED32, Thresholds};
+use psao_codec::{
+    Compression, Encoder, EncoderConfig, GridTable, InstanceDef, POINT_FORMAT_PACKED32, Thresholds,
+};
 
 /// Deterministic xorshift generator.
 pub struct Rng(u64);
@@ -170,5 +172,62 @@ impl Synthetic {
             }
         }
         updated
+    }
+}
+
+/// The codec bench's stream, encoded: the keyframe of [`Synthetic::new`]`(7)`
+/// after its first updates, then one delta per [`Synthetic::step`] with
+/// the paper's thresholds (empty deltas left out). The codec's
+/// `codec_throughput`, psao-ffi's `c_boundary` and psao-wasm's
+/// `bench_stream` measure this stream.
+pub struct BenchStream {
+    /// The keyframe.
+    pub keyframe: Vec<u8>,
+    /// The deltas, in order.
+    pub deltas: Vec<Vec<u8>>,
+    /// Points carried by the deltas.
+    pub points: u64,
+}
+
+/// The frames the codec benches run over.
+pub const BENCH_FRAMES: usize = 120;
+
+impl BenchStream {
+    /// Encodes [`BENCH_FRAMES`] steps of the bench stream with `compression`
+    /// (`zstd_level` for zstd), without CRCs. Panics if the codec was built
+    /// without `compression` (a benchmark's setup, not untrusted input).
+    pub fn encode(compression: Compression, zstd_level: i32) -> BenchStream {
+        let mut s = Synthetic::new(7);
+        s.table.take_dirty();
+        let mut enc = Encoder::new(EncoderConfig {
+            compression,
+            zstd_level,
+            checksum: false,
+            ..Default::default()
+        });
+        let mut kf = enc.keyframe();
+        kf.snapshot(&s.table).expect("no pending changes");
+        let keyframe = kf
+            .finish()
+            .expect("encode")
+            .expect("keyframe")
+            .bytes
+            .to_vec();
+        let th = Thresholds::default();
+        let (mut deltas, mut points) = (Vec::new(), 0u64);
+        for _ in 0..BENCH_FRAMES {
+            s.step(&th);
+            let mut d = enc.delta();
+            d.changes(&mut s.table);
+            if let Some(f) = d.finish().expect("encode") {
+                points += f.stats.points as u64;
+                deltas.push(f.bytes.to_vec());
+            }
+        }
+        BenchStream {
+            keyframe,
+            deltas,
+            points,
+        }
     }
 }
