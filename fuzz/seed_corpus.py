@@ -61,3 +61,26 @@ table = b"\x06" + f3(-1, -1, -1) + f3(0.25, 0.25, 0.25) + bytes([8, 8, 8, 6, 8, 
 points = b"".join(b"\x07" + struct.pack("<H", i) + f3(0.1 * (i % 9) - 0.4, 0.05 * i - 0.5, 0.2) + f3(0, 1, 0) + struct.pack("<f", (i % 10) / 10) + bytes([i % 2]) for i in range(20))
 server = table + points + b"\x08\x02\x01\x00\x00\x00\x00" + b"\x08\x00" + b"\x09\x00" + b"\x0a\xff\xff" + b"\x08\x01" + b"\x09\x01" + b"\x0a\x10\x00" + b"\x0a\xff\xff"
 (c_api / "server").write_bytes(server)
+# moq_follow: each MoQ vector (spec/vectors/moq) as a program of the
+# target's operations (fuzz_targets/moq_follow.rs).
+moq = root / "corpus" / "moq_follow"
+moq.mkdir(parents=True, exist_ok=True)
+for v in sorted((root.parent / "spec" / "vectors" / "moq").glob("*.txt")):
+    program = bytearray()
+    for line in v.read_text().splitlines():
+        words = line.split()
+        if not words:
+            continue
+        if words[0] == "catalog" and len(bytes.fromhex(words[1])) < 256:
+            body = bytes.fromhex(words[1])
+            program += b"\x00" + bytes([len(body)]) + body
+        elif words[0] == "frame":
+            body = bytes.fromhex(words[3])
+            if len(body) < 65536:
+                program += b"\x01" + struct.pack("<HBH", int(words[1]) % 65536, int(words[2]) % 256, len(body)) + body
+        elif words[0] == "digest" and len(bytes.fromhex(words[1])) < 256:
+            body = bytes.fromhex(words[1])
+            program += b"\x02" + bytes([len(body)]) + body
+        elif words[0] == "restart":
+            program += b"\x03"
+    (moq / v.stem).write_bytes(bytes(program))
