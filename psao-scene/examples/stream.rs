@@ -12,7 +12,8 @@
 //!   (the baseline of re-tracing only the rays motion reaches);
 //! - `--ray-budget N` (rays per frame) or `--ray-budget auto` (as many as
 //!   80% of the frame period affords): points past it wait, at most
-//!   `--max-wait` frames (8);
+//!   `--max-wait` frames (8); `--movers-every-step` traces a moving
+//!   instance's own points every frame whatever the budget;
 //! - `--cull`: trace only near the viewer following the scene's camera
 //!   path;
 //! - `--scene NAME`: stream an embedded scene other than the default:
@@ -90,6 +91,7 @@ fn main() {
             })),
         },
         max_wait: arg("--max-wait", 8),
+        movers_every_step: flag("--movers-every-step"),
         ao: AoParams {
             rays,
             estimator: if flag("--lk") {

@@ -166,6 +166,60 @@ fn under_a_budget_no_point_waits_past_max_wait_and_all_catch_up() {
     assert!(err <= 8.5 / 255.0, "floor AO off by {err}");
 }
 
+/// The worst AO error clients hold on the sliding box's own points over
+/// the steps it slides up to a wall (its AO changes as it nears it),
+/// under a budget far below what its points need.
+fn box_error_while_it_moves(movers_every_step: bool) -> f32 {
+    let (mut scene, b) = sliding_box();
+    scene.add(
+        Mesh::quad(Vec3::new(0.6, 0.0, -1.5), Vec3::Y * 1.5, Vec3::Z * 3.0).subdivided(2),
+        Affine3A::IDENTITY,
+    );
+    let c = PipelineConfig {
+        budget: RayBudget::Rays(48),
+        max_wait: 6,
+        movers_every_step,
+        ..config(Estimator::ClosestHit)
+    };
+    let ao = c.ao;
+    let mut p = Pipeline::new(scene, c).unwrap();
+    let floor = p.points(0).unwrap().len() as u32;
+    let mut worst = 0.0f32;
+    // From x = -1.2 to 0.24: its face ends 0.06 m from the wall.
+    for t in 0..13 {
+        let x = -1.2 + 0.12 * t as f32;
+        p.place_instance(b, Affine3A::from_translation(Vec3::new(x, 0.0, 0.0)))
+            .unwrap();
+        let (_, r) = p.step(1.0 / 30.0).unwrap();
+        if movers_every_step {
+            // The box's points go past the budget, as overdue ones.
+            assert!(r.overdue >= p.points(b).unwrap().len() as u64, "{r:?}");
+        }
+        worst = worst.max(worst_held_error(&mut p, b, floor, &ao));
+    }
+    worst
+}
+
+#[test]
+fn movers_traced_every_step_hold_their_ao_under_any_budget() {
+    // Traced every step it moves: what clients hold of the box is a full
+    // trace of its pose, to the send threshold (8 steps of 1/255).
+    let every = box_error_while_it_moves(true);
+    assert!(
+        every <= 8.5 / 255.0,
+        "box AO off by {} steps",
+        every * 255.0
+    );
+    // Waiting their turn, its points hold AO of older poses (this is what
+    // the option removes).
+    let waiting = box_error_while_it_moves(false);
+    assert!(
+        waiting > every && waiting > 8.5 / 255.0,
+        "waiting points held AO within {} steps",
+        waiting * 255.0
+    );
+}
+
 #[test]
 fn an_automatic_budget_is_measured_and_reported() {
     let c = PipelineConfig {

@@ -120,6 +120,14 @@ pub struct Settings {
     pub budget: Option<RayBudget>,
     /// Under the budget, the most steps a point waits.
     pub max_wait: u32,
+    /// Under the budget, movers' own points are traced every step
+    /// ([`PipelineConfig::movers_every_step`](psao_scene::PipelineConfig::movers_every_step)).
+    pub movers_every_step: bool,
+    /// PSAO servers on the CPU backend keep the scores of the rays motion
+    /// did not reach and re-trace only the reached ones
+    /// ([`PipelineConfig::ray_reuse`](psao_scene::PipelineConfig::ray_reuse)),
+    /// or (false: the baseline) every ray of a point they trace.
+    pub ray_reuse: bool,
     /// Which measured frames are saved as images.
     pub image_frames: ImageFrames,
 }
@@ -221,6 +229,8 @@ impl Settings {
             settle_steps: PipelineConfig::default().settle_steps,
             budget: None,
             max_wait: 8,
+            movers_every_step: false,
+            ray_reuse: true,
             image_frames: ImageFrames::List(vec![0]),
         }
     }
@@ -703,6 +713,7 @@ fn measure_psao(
     if budget {
         config.budget = s.budget.unwrap_or(RayBudget::Unlimited);
         config.max_wait = s.max_wait;
+        config.movers_every_step = s.movers_every_step;
     }
     config.fill_buried = s.fill_buried;
     config.bind_space = s.bind_space;
@@ -710,6 +721,7 @@ fn measure_psao(
     config.fill_gaps = s.fill_gaps;
     let period = 1.0 / rate as f64;
     config.settle_steps = s.settle_steps;
+    config.ray_reuse = s.ray_reuse;
     if s.lead {
         config.lead = (period + s.network_ms as f64 / 1e3) as f32;
     }

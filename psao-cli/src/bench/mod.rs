@@ -157,6 +157,16 @@ pub struct BenchArgs {
     /// Under --ray-budget, the most ticks a point waits.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=1000))]
     max_wait: u32,
+    /// Servers re-trace every ray of a point motion reached (the baseline)
+    /// instead of only the reached rays, keeping the others' scores (the
+    /// frames are the same unbudgeted; under --ray-budget a point then
+    /// costs all its rays).
+    #[arg(long)]
+    no_ray_reuse: bool,
+    /// Under --ray-budget, trace a moving instance's own points every tick
+    /// it moves, whatever the budget (no AO lagging its transform).
+    #[arg(long)]
+    movers_every_frame: bool,
 }
 
 impl BenchArgs {
@@ -197,6 +207,8 @@ impl BenchArgs {
         settings.settle_steps = self.settle_steps;
         settings.budget = self.ray_budget;
         settings.max_wait = self.max_wait;
+        settings.ray_reuse = !self.no_ray_reuse;
+        settings.movers_every_step = self.movers_every_frame;
         settings
     }
 }

@@ -194,6 +194,12 @@ pub struct BudgetArgs {
     /// whatever the budget.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub max_wait: u32,
+    /// Under a budget, trace a moving instance's own points in every
+    /// frame it moves, whatever the budget (which then holds only the
+    /// static points around it): no AO lagging its transform, at the price
+    /// of frames over the budget where movers alone exceed it.
+    #[arg(long)]
+    pub movers_every_frame: bool,
 }
 
 impl BudgetArgs {
@@ -201,6 +207,7 @@ impl BudgetArgs {
     pub fn apply(&self, config: &mut PipelineConfig) {
         config.budget = self.ray_budget;
         config.max_wait = self.max_wait;
+        config.movers_every_step = self.movers_every_frame;
     }
 }
 

@@ -9,7 +9,9 @@
 //! their AO can change) times the steps they have waited plus one (so
 //! the budget goes round the points rather than to the same ones each
 //! step), then the longest waiting, then in point order. A point that does
-//! not fit is passed over for smaller ones.
+//! not fit is passed over for smaller ones. With
+//! [`PipelineConfig::movers_every_step`] a moving instance's own points
+//! count as having waited their longest: traced whatever the budget.
 //!
 //! A point costs the rays it traces. On the CPU backend with ray reuse
 //! that is only the rays motion reached (the others' scores are kept); a
@@ -19,6 +21,7 @@
 //! same frames, byte for byte (psao-gpu's tests check it).
 //!
 //! [`PipelineConfig::max_wait`]: super::config::PipelineConfig::max_wait
+//! [`PipelineConfig::movers_every_step`]: super::config::PipelineConfig::movers_every_step
 
 use rustc_hash::FxHashMap;
 

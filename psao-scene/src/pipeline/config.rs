@@ -137,6 +137,18 @@ pub struct PipelineConfig {
     /// Under a budget, the most steps a point waits: one that waited this
     /// long is traced whatever the budget (8).
     pub max_wait: u32,
+    /// Under a budget, a moving or deforming instance's own points are
+    /// traced in every step it moves, whatever the budget (which then
+    /// holds only the static points motion reaches), instead of waiting
+    /// their turn like the others (false, the default). A point of a mover
+    /// that waits holds AO traced at an older pose while clients place it
+    /// with the newest transform, so its AO slides over the scene with the
+    /// motion: on BoxAnimated at N = 1024 that costs 9.5 dB under a budget
+    /// a tenth of the demand, which this removes (BENCHMARKS.md, "the
+    /// ray budget, second part"), at the price of steps over the budget
+    /// where movers alone need more rays than it affords. Points traced so
+    /// are counted in [`FrameReport::overdue`](crate::FrameReport::overdue).
+    pub movers_every_step: bool,
     /// Seconds the scene is posed ahead of the pipeline's clock: a step
     /// to time `t` traces and sends the scene's animation (and its camera
     /// path, for culling) at `t + lead`, so a frame that reaches its
@@ -196,6 +208,7 @@ impl Default for PipelineConfig {
             ray_cache_bytes: 64 << 20,
             budget: RayBudget::Unlimited,
             max_wait: 8,
+            movers_every_step: false,
             lead: 0.0,
             settle_steps: 0,
             split_bvh: true,

@@ -184,10 +184,16 @@ impl Pipeline {
             };
             let (i, k) = batch.owner[b];
             at.push(b);
+            // A mover's own point traced every step it moves, if so
+            // configured: as one that waited its longest.
+            let age = match self.config.movers_every_step && motion.changed[i] {
+                true => self.config.max_wait,
+                false => self.waiting.get(key(i, k)).map_or(0, |w| w.0),
+            };
             cands.push(Candidate {
                 cost,
                 reached: reached as f32 / rays.max(1) as f32,
-                age: self.waiting.get(key(i, k)).map_or(0, |w| w.0),
+                age,
             });
         }
         let (chosen, _) = select(&cands, budget, self.config.max_wait);
