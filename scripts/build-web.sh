@@ -3,24 +3,13 @@
 # wasm32-unknown-unknown and its wasm-bindgen glue for the web, into
 # target/psao-web/pkg (psao_wasm.js, psao_wasm_bg.wasm).
 #
-# Needs the wasm32 target (`rustup target add wasm32-unknown-unknown`) and
-# wasm-bindgen-cli 0.2.130, the version psao-wasm pins: found on PATH, in
-# $WASM_BINDGEN, or installed into target/wasm-bindgen-cli (about 3 min).
+# Needs the wasm32 target (added if missing) and wasm-bindgen-cli 0.2.130,
+# the version psao-wasm pins: found on PATH, in $WASM_BINDGEN, or installed
+# into target/wasm-bindgen-cli (about 3 min; scripts/wasm-bindgen.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-rustup target add wasm32-unknown-unknown >/dev/null 2>&1 || true
-wbg="${WASM_BINDGEN:-}"
-if [ -z "$wbg" ]; then
-  if command -v wasm-bindgen >/dev/null && wasm-bindgen --version | grep -q " 0.2.130"; then
-    wbg=wasm-bindgen
-  else
-    wbg="$PWD/target/wasm-bindgen-cli/bin/wasm-bindgen"
-    if [ ! -x "$wbg" ]; then
-      echo "installing wasm-bindgen-cli 0.2.130 into target/wasm-bindgen-cli" >&2
-      cargo install wasm-bindgen-cli --version 0.2.130 --root "$PWD/target/wasm-bindgen-cli"
-    fi
-  fi
-fi
+# shellcheck source=scripts/wasm-bindgen.sh
+. scripts/wasm-bindgen.sh
 cargo build -p psao-wasm --release --target wasm32-unknown-unknown
 "$wbg" --target web --out-dir target/psao-web/pkg \
   target/wasm32-unknown-unknown/release/psao_wasm.wasm

@@ -10,21 +10,14 @@
 #
 #   scripts/wasm-bench.sh [CAPTURE ...]
 #
-# Needs Node, the wasm32 target and wasm-bindgen-cli 0.2.130 (on PATH, in
-# $WASM_BINDGEN or target/wasm-bindgen-cli, as scripts/build-web.sh).
+# Needs Node; the wasm32 target and wasm-bindgen-cli 0.2.130 are found or
+# installed as scripts/build-web.sh does (scripts/wasm-bindgen.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 rounds="${ROUNDS:-3}"
 reps="${REPS:-30}"
-wbg="${WASM_BINDGEN:-}"
-if [ -z "$wbg" ]; then
-  if command -v wasm-bindgen >/dev/null && wasm-bindgen --version | grep -q " 0.2.130"; then
-    wbg=wasm-bindgen
-  else
-    wbg="$PWD/target/wasm-bindgen-cli/bin/wasm-bindgen"
-    [ -x "$wbg" ] || { echo "wasm-bindgen 0.2.130 not found: run scripts/build-web.sh once" >&2; exit 1; }
-  fi
-fi
+# shellcheck source=scripts/wasm-bindgen.sh
+. scripts/wasm-bindgen.sh
 command -v node >/dev/null || { echo "node not found" >&2; exit 1; }
 cargo build -q -p psao-wasm --release --target wasm32-unknown-unknown
 "$wbg" --target nodejs --out-dir target/psao-wasm-node \
