@@ -26,7 +26,8 @@ use psao_codec::{
 };
 use psao_tests::synthetic::Synthetic;
 
-const FRAMES: usize = 120;
+/// The frames of the stream: the test kit's, as every codec bench's.
+const FRAMES: usize = psao_tests::synthetic::BENCH_FRAMES;
 
 /// One server frame: the table after the frame's updates and its dirty set.
 struct Step {

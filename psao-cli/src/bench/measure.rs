@@ -607,7 +607,9 @@ pub fn measure_scene(
         let label = method.label();
         bar.set_message(format!("{name}: {label}"));
         let say = |what: &str| bar.set_message(format!("{name}: {label}: {what}"));
-        let shown = density == focus && rate == first_rate && !budget;
+        // The focus density's images at the first rate, with and without
+        // a budget (the open causes are the unbudgeted server's).
+        let shown = density == focus && rate == first_rate;
         let (row, kept) = measure_psao(
             &scene,
             &frames,
@@ -618,6 +620,7 @@ pub fn measure_scene(
         )
         .with_context(|| format!("{name}: {label}"))?;
         for (k, img, causes) in kept {
+            let causes = if budget { Vec::new() } else { causes };
             showcase.add_with_causes(k, label.clone(), img, causes);
         }
         rows.push(row);

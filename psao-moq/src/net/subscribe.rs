@@ -382,10 +382,11 @@ const DIGEST_FRAME_MAX: u64 = 64;
 /// A group being read, and the frame being read in it. The frame is kept
 /// here, not in the future that reads it, so that reading is
 /// cancellation-safe: the `select!` in [`follow_broadcast`] drops the
-/// future whenever another branch is ready first (a new group, a digest),
-/// and a frame whose bytes were still arriving would otherwise be lost with
-/// it, mid-group (the group then breaks, and a lost keyframe costs the whole
-/// group).
+/// future whenever another branch is ready first (a digest, an older
+/// group, the track's end), and a frame whose bytes were still arriving
+/// would otherwise be lost with it, mid-group (the group then breaks, and a
+/// lost keyframe costs the whole group). A newer group replaces the
+/// `Reading` whole, frame and all: the newest group wins (spec/moq.md 4).
 struct Reading {
     group: group::Consumer,
     /// The frame's index in the group and its consumer, once it is known.
@@ -446,7 +447,7 @@ mod tests {
     use moq_net::{Timestamp, frame};
 
     /// A read dropped while a frame's bytes are still arriving (what
-    /// `select!` does when a new group or a digest comes first) loses
+    /// `select!` does when a digest or the track's end comes first) loses
     /// nothing: the next read returns that frame whole, then the next one.
     #[tokio::test]
     async fn a_frame_read_dropped_midway_is_read_whole_next_time() {
