@@ -14,6 +14,12 @@
 //!   80% of the frame period affords): points past it wait, at most
 //!   `--max-wait` frames (8); `--movers-every-step` traces a moving
 //!   instance's own points every frame whatever the budget;
+//! - `--early`: early decisions (a moving instance's point stops casting
+//!   rays once its AO is known to stay within the send threshold);
+//!   `--early-z Z` sets their confidence (3 standard errors) and
+//!   `--early-floor F` the least standard deviation they assume (0.02);
+//!   `--early-audit` re-traces every early stop in full after its frame
+//!   and counts the wrong ones (their full trace would have been sent);
 //! - `--cull`: trace only near the viewer following the scene's camera
 //!   path;
 //! - `--scene NAME`: stream an embedded scene other than the default:
@@ -92,6 +98,11 @@ fn main() {
         },
         max_wait: arg("--max-wait", 8),
         movers_every_step: flag("--movers-every-step"),
+        early: flag("--early").then(|| EarlyDecisions {
+            z: arg("--early-z", 3.0),
+            sd_floor: arg("--early-floor", 0.02),
+            ..EarlyDecisions::default()
+        }),
         ao: AoParams {
             rays,
             estimator: if flag("--lk") {
@@ -169,17 +180,27 @@ fn main() {
     }
     let mut sum = FrameReport::default();
     let mut sent = 0u32;
+    let audit = flag("--early-audit");
+    let (mut audited, mut audit_time) = (EarlyAudit::default(), std::time::Duration::ZERO);
     let t = Instant::now();
     for _ in 0..frames {
         let (frame, r) = server.step(1.0 / 60.0).expect("step");
         sum.accumulate(&r);
+        if audit {
+            let at = Instant::now();
+            let a = server.early_audit().expect("audit");
+            audit_time += at.elapsed();
+            audited.checked += a.checked;
+            audited.wrong += a.wrong;
+            audited.worst_steps = audited.worst_steps.max(a.worst_steps);
+        }
         if let Some(f) = frame {
             sent += 1;
             let e = client.receive(&f.bytes).expect("valid frame");
             assert!(matches!(e, Event::Applied { .. }), "{e:?}");
         }
     }
-    let wall = t.elapsed().as_secs_f64();
+    let wall = (t.elapsed() - audit_time).as_secs_f64();
     let n = frames as f64;
     let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3 / n;
     for i in 0..server.instance_count() {
@@ -224,6 +245,22 @@ fn main() {
             sum.waiting,
             sum.oldest_wait,
             sum.overdue as f64 / n
+        );
+    }
+    if server.config().early.is_some() {
+        println!(
+            "  early decisions    {:.0} points per frame stopped early (nothing to send)",
+            sum.early as f64 / n
+        );
+    }
+    if audit {
+        println!(
+            "  early audit        {} stops traced again in full: {} would have been sent ({:.3}%); the largest gap to what clients hold {} steps of 1/255 (threshold {})",
+            audited.checked,
+            audited.wrong,
+            100.0 * audited.wrong as f64 / audited.checked.max(1) as f64,
+            audited.worst_steps,
+            server.config().thresholds.ao_steps
         );
     }
     println!(

@@ -85,7 +85,10 @@ pub use model::scene::{Instance, MIN_TRANSFORM_RATIO, Scene, invertible};
 pub use model::skin::{Skin, SkinWeights};
 pub use morton::morton_order;
 pub use pipeline::backend::AoBackend;
-pub use pipeline::config::{DEFAULT_MAX_POINTS, PipelineConfig, RayBudget, ViewerCull, Views};
+pub use pipeline::config::{
+    DEFAULT_MAX_POINTS, EarlyDecisions, PipelineConfig, RayBudget, ViewerCull, Views,
+};
+pub use pipeline::early::EarlyAudit;
 pub use pipeline::report::FrameReport;
 pub use pipeline::{Pipeline, SetupProgress, SetupStage};
 pub use points::generate::{

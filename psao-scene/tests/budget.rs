@@ -349,3 +349,97 @@ fn a_lead_poses_the_scene_ahead_of_the_clock() {
         assert!(err.to_string().contains("lead"), "{bad}: {err}");
     }
 }
+
+/// The sliding box of [`box_error_while_it_moves`] up to the wall and
+/// resting there, unbudgeted, with `early` decisions: the rays cast over
+/// the run, the worst AO error clients hold on the box against a full
+/// trace while it moves, and once it has rested a step; and what the
+/// audits found over the run.
+fn early_run(early: Option<EarlyDecisions>) -> (u64, f32, f32, EarlyAudit) {
+    let (mut scene, b) = sliding_box();
+    scene.add(
+        Mesh::quad(Vec3::new(0.6, 0.0, -1.5), Vec3::Y * 1.5, Vec3::Z * 3.0).subdivided(2),
+        Affine3A::IDENTITY,
+    );
+    let mut c = PipelineConfig {
+        density: 256.0,
+        early,
+        ..config(Estimator::ClosestHit)
+    };
+    c.ao.rays = 32;
+    let ao = c.ao;
+    let mut p = Pipeline::new(scene, c).unwrap();
+    let floor = p.points(0).unwrap().len() as u32;
+    let (mut rays, mut moving) = (0u64, 0.0f32);
+    let mut audit = EarlyAudit::default();
+    for t in 0..25 {
+        let x = -1.2 + 0.06 * t as f32;
+        p.place_instance(b, Affine3A::from_translation(Vec3::new(x, 0.0, 0.0)))
+            .unwrap();
+        let (_, r) = p.step(1.0 / 30.0).unwrap();
+        rays += r.rays;
+        let a = p.early_audit().unwrap();
+        assert_eq!(a.checked, r.early, "step {t}");
+        audit.checked += a.checked;
+        audit.wrong += a.wrong;
+        audit.worst_steps = audit.worst_steps.max(a.worst_steps);
+        moving = moving.max(worst_held_error(&mut p, b, floor, &ao));
+    }
+    // It rests: the points that stopped early in its last step are traced
+    // again in full.
+    let (_, r) = p.step(1.0 / 30.0).unwrap();
+    assert_eq!(r.early, 0, "nothing moves, nothing stops early");
+    let rested = worst_held_error(&mut p, b, floor, &ao);
+    (rays, moving, rested, audit)
+}
+
+#[test]
+fn early_decisions_cast_fewer_rays_and_send_what_a_full_trace_would() {
+    let (full_rays, full_moving, full_rested, none) = early_run(None);
+    assert_eq!(
+        none,
+        EarlyAudit::default(),
+        "no early decisions, nothing to audit"
+    );
+    let (rays, moving, rested, audit) = early_run(Some(EarlyDecisions::default()));
+    assert!(audit.checked > 0, "points stopped early");
+    assert!(
+        rays * 10 < full_rays * 9,
+        "{rays} rays against {full_rays} without early decisions"
+    );
+    // The defaults' test, on this box: a wrong decision is rare (at most
+    // one in a thousand), and what it leaves behind is near the send
+    // threshold (within twice it), not a lost update.
+    assert!(audit.wrong * 1000 <= audit.checked, "{audit:?}");
+    assert!(audit.worst_steps <= 16, "{audit:?}");
+    assert!(
+        moving <= 16.5 / 255.0,
+        "box AO off by {} steps",
+        moving * 255.0
+    );
+    assert!(full_moving <= 8.5 / 255.0 && full_rested <= 8.5 / 255.0);
+    // Once it rests, clients hold a full trace, to the send threshold.
+    assert!(rested <= 8.5 / 255.0, "{}", rested * 255.0);
+}
+
+#[test]
+fn a_reckless_early_test_is_caught_by_the_audit_and_undone_when_motion_stops() {
+    // No margin at all: a point stops as soon as its estimate alone lies
+    // within the threshold, so some decisions go wrong, and the audit
+    // says so; the box resting, they are traced again in full.
+    let reckless = EarlyDecisions {
+        z: 0.0,
+        sd_floor: 0.0,
+        sd_floor_turning: 0.0,
+        ..EarlyDecisions::default()
+    };
+    let (_, moving, rested, audit) = early_run(Some(reckless));
+    assert!(audit.wrong > 0, "{audit:?}");
+    assert!(audit.worst_steps > 8, "{audit:?}");
+    assert!(moving > 8.5 / 255.0, "{}", moving * 255.0);
+    assert!(
+        rested <= 8.5 / 255.0,
+        "after the box rests: {}",
+        rested * 255.0
+    );
+}

@@ -123,6 +123,10 @@ pub struct Settings {
     /// Under the budget, movers' own points are traced every step
     /// ([`PipelineConfig::movers_every_step`](psao_scene::PipelineConfig::movers_every_step)).
     pub movers_every_step: bool,
+    /// PSAO servers make early decisions
+    /// ([`PipelineConfig::early`](psao_scene::PipelineConfig::early), the
+    /// defaults).
+    pub early: bool,
     /// PSAO servers on the CPU backend keep the scores of the rays motion
     /// did not reach and re-trace only the reached ones
     /// ([`PipelineConfig::ray_reuse`](psao_scene::PipelineConfig::ray_reuse)),
@@ -230,6 +234,7 @@ impl Settings {
             budget: None,
             max_wait: 8,
             movers_every_step: false,
+            early: false,
             ray_reuse: true,
             image_frames: ImageFrames::List(vec![0]),
         }
@@ -718,6 +723,7 @@ fn measure_psao(
         config.max_wait = s.max_wait;
         config.movers_every_step = s.movers_every_step;
     }
+    config.early = s.early.then(psao_scene::EarlyDecisions::default);
     config.fill_buried = s.fill_buried;
     config.bind_space = s.bind_space;
     config.layout.overflow = s.overflow;

@@ -167,6 +167,11 @@ pub struct BenchArgs {
     /// it moves, whatever the budget (no AO lagging its transform).
     #[arg(long)]
     movers_every_frame: bool,
+    /// Every PSAO server makes early decisions: a moving instance's point
+    /// stops casting rays once its AO is known, to 3 standard errors, to
+    /// stay within the send threshold of what clients hold.
+    #[arg(long)]
+    early_decisions: bool,
 }
 
 impl BenchArgs {
@@ -209,6 +214,7 @@ impl BenchArgs {
         settings.max_wait = self.max_wait;
         settings.ray_reuse = !self.no_ray_reuse;
         settings.movers_every_step = self.movers_every_frame;
+        settings.early = self.early_decisions;
         settings
     }
 }

@@ -200,14 +200,24 @@ pub struct BudgetArgs {
     /// of frames over the budget where movers alone exceed it.
     #[arg(long)]
     pub movers_every_frame: bool,
+    /// Early decisions: a moving instance's point stops casting rays once
+    /// its AO is known, to 3 standard errors, to stay within the send
+    /// threshold of what clients hold (nothing to send); a point that
+    /// goes on is traced in full. Fewer rays on moving scenes, for rare
+    /// updates sent a few frames late (BENCHMARKS.md measures both).
+    #[arg(long)]
+    pub early_decisions: bool,
 }
 
 impl BudgetArgs {
-    /// Sets the budget in `config`.
+    /// Sets the budget (and early decisions) in `config`.
     pub fn apply(&self, config: &mut PipelineConfig) {
         config.budget = self.ray_budget;
         config.max_wait = self.max_wait;
         config.movers_every_step = self.movers_every_frame;
+        config.early = self
+            .early_decisions
+            .then(psao_scene::EarlyDecisions::default);
     }
 }
 

@@ -5,6 +5,7 @@
 use psao_codec::{EncoderConfig, Thresholds};
 
 pub use super::budget::RayBudget;
+pub use super::early::EarlyDecisions;
 use crate::model::camera::Frustum;
 use crate::points::layout::LayoutParams;
 use crate::trace::ao::AoParams;
@@ -149,6 +150,22 @@ pub struct PipelineConfig {
     /// where movers alone need more rays than it affords. Points traced so
     /// are counted in [`FrameReport::overdue`](crate::FrameReport::overdue).
     pub movers_every_step: bool,
+    /// Early decisions (`Some`): a moving or deforming instance's point
+    /// casts its rays in a spread order over the scores its last trace
+    /// kept and stops once its AO is known, to the stated confidence, to
+    /// stay within the send threshold of what clients hold (the
+    /// pipeline's `early` module says how, and what error it can add).
+    /// A point that goes on casts every ray and sends the full trace's
+    /// AO. CPU tracer only: a backend ([`AoBackend`](crate::AoBackend))
+    /// traces every ray, so with this set its frames may differ from the
+    /// CPU's where a decision was wrong; with it off (`None`, the
+    /// default) they are the same. Off too while
+    /// [`settle_steps`](Self::settle_steps) is set (settling needs every
+    /// trace whole) and without [`skip`](Self::skip) (the baseline).
+    /// Moving points' scores take up to
+    /// [`ray_cache_bytes`](Self::ray_cache_bytes) besides the static
+    /// points' kept scores.
+    pub early: Option<EarlyDecisions>,
     /// Seconds the scene is posed ahead of the pipeline's clock: a step
     /// to time `t` traces and sends the scene's animation (and its camera
     /// path, for culling) at `t + lead`, so a frame that reaches its
@@ -209,6 +226,7 @@ impl Default for PipelineConfig {
             budget: RayBudget::Unlimited,
             max_wait: 8,
             movers_every_step: false,
+            early: None,
             lead: 0.0,
             settle_steps: 0,
             split_bvh: true,

@@ -11,6 +11,7 @@ use rayon::prelude::*;
 
 use super::Pipeline;
 use super::budget::{Candidate, RayBudget, select};
+use super::early::{Kept, trace_early};
 use super::ray_cache::key;
 use super::reach::{MotionBoxes, RayMask, reached_rays};
 use crate::error::SceneError;
@@ -42,6 +43,9 @@ pub(super) struct StepTrace {
     pub budget: Option<u64>,
     pub overdue: u64,
     pub settled: u64,
+    pub early: u64,
+    /// Time from the end of casting to the end of the trace phase.
+    pub after_cast: Duration,
 }
 
 /// What [`Pipeline::settle_left`] did.
@@ -154,15 +158,23 @@ impl Pipeline {
         let batch = self.batch(&lists, false);
         let plans = self.plan(&batch, motion);
         let rays = self.config.ao.rays;
+        // A moving point with early decisions costs what such points cast
+        // on average in the last step.
+        let moving_cost = match self.early_decisions() {
+            Some(_) => (self.early_cost.ceil() as u32).clamp(1, rays.max(1)),
+            None => rays,
+        };
         let budget = match self.config.budget {
             RayBudget::Unlimited => None,
             RayBudget::Rays(n) => Some(n),
             RayBudget::Auto { share } => {
-                // What is left of the share once the step so far and the
-                // planning are paid for.
+                // What is left of the share once the step so far, the
+                // planning and what the step does after casting (as it
+                // took in the last steps) are paid for.
                 let left = share as f64 * motion.period
                     - motion.elapsed.as_secs_f64()
-                    - started.elapsed().as_secs_f64();
+                    - started.elapsed().as_secs_f64()
+                    - self.tail_s;
                 Some(if self.ray_ns > 0.0 {
                     (left.max(0.0) * 1e9 / self.ray_ns) as u64
                 } else {
@@ -183,6 +195,10 @@ impl Pipeline {
                 Plan::Rays { need, reached } => (need.count(), reached.count()),
             };
             let (i, k) = batch.owner[b];
+            let cost = match plan {
+                Plan::Full { .. } if self.instances[i].dynamic => moving_cost,
+                _ => cost,
+            };
             at.push(b);
             // A mover's own point traced every step it moves, if so
             // configured: as one that waited its longest.
@@ -239,11 +255,12 @@ impl Pipeline {
             } else {
                 let owned = tracer.is_none().then(|| self.tracer(false));
                 let tracer = tracer.or(owned.as_ref()).expect("a tracer");
-                self.trace_planned(tracer, &sub, &sub_plans)?
+                self.trace_planned(tracer, &sub, &sub_plans, &motion.changed)?
             };
             self.compare_remembered(&values, &sub)?
         };
         let (traced, rays_cast) = (sub.ids.len() as u64, result.rays);
+        let t_after = std::time::Instant::now();
         if rays_cast >= 1024 {
             // The cost of a ray, for an automatic budget: a running mean
             // over the casting alone (planning is paid for apart).
@@ -281,6 +298,8 @@ impl Pipeline {
             rays_kept: (traced * rays as u64).saturating_sub(planned),
             budget,
             overdue,
+            early: self.last_early.len() as u64,
+            after_cast: t_after.elapsed(),
         })
     }
 
@@ -404,13 +423,14 @@ impl Pipeline {
         let reuse = self.config.ray_reuse && self.config.skip;
         let cache = reuse && self.backend.is_none();
         let (waiting_list, ray_cache) = (&self.waiting, &self.ray_cache);
+        let rested = &self.early_rested;
         let unlimited = self.config.budget == RayBudget::Unlimited;
         (0..batch.ids.len())
             .into_par_iter()
             .map(|b| {
                 let (i, k) = batch.owner[b];
                 let key = key(i, k);
-                if !reuse || motion.changed[i] {
+                if !reuse || motion.changed[i] || rested.binary_search(&key).is_ok() {
                     return Plan::Full { reached: rays };
                 }
                 let waiting = waiting_list.get(key);
@@ -455,33 +475,113 @@ impl Pipeline {
             .collect()
     }
 
+    /// Checks the last step's early decisions
+    /// ([`PipelineConfig::early`](super::config::PipelineConfig::early)):
+    /// traces each point that stopped early again, in full, in the scene
+    /// as it is now (as that step left it), and compares it with what
+    /// clients hold, as the thresholds would. A measurement for
+    /// benchmarks and tests: it costs a full trace of those points. Call
+    /// it right after [`step`](Self::step).
+    pub fn early_audit(&mut self) -> Result<super::early::EarlyAudit, SceneError> {
+        let mut which: Vec<Vec<u32>> = vec![Vec::new(); self.instances.len()];
+        for &k in &self.last_early {
+            which[(k >> 32) as usize].push(k as u32);
+        }
+        let batch = self.batch(&which, false);
+        let ao = self.config.ao;
+        let full = match &mut self.backend {
+            Some(_) => return Ok(super::early::EarlyAudit::default()),
+            None => self
+                .tracer(false)
+                .trace_ids(&batch.ids, &batch.points, &batch.normals, &ao)?,
+        };
+        let steps = self.config.thresholds.ao_steps;
+        let mut audit = super::early::EarlyAudit {
+            checked: batch.ids.len() as u64,
+            ..Default::default()
+        };
+        for (sent, &value) in batch.sent.iter().zip(&full.ao) {
+            let gap = quantize_ao(value).abs_diff(sent.word.fields().ao);
+            audit.worst_steps = audit.worst_steps.max(gap);
+            if gap > steps {
+                audit.wrong += 1;
+            }
+        }
+        Ok(audit)
+    }
+
+    /// The early decisions this pipeline makes: its
+    /// [`PipelineConfig::early`](super::config::PipelineConfig::early)
+    /// where they apply (the CPU tracer, skipping on, settling off, at
+    /// least 8 rays a point).
+    pub(super) fn early_decisions(&self) -> Option<super::early::EarlyDecisions> {
+        let c = &self.config;
+        c.early
+            .filter(|_| self.backend.is_none() && c.skip && c.settle_steps == 0 && c.ao.rays >= 8)
+    }
+
     /// Traces `batch` on the CPU by `plans`: a full trace casts every ray
     /// (and keeps the scores of a static instance's point), a partial one
     /// casts its needed rays over the kept scores. Each AO is the kept and
     /// new scores added in the tracer's order: what a full trace gives.
+    /// With [`PipelineConfig::early`] a moving instance's point may stop
+    /// early ([`early`](super::early)): its AO is then given as what
+    /// clients hold, so nothing is sent, and it is listed in
+    /// `last_early`.
+    ///
+    /// [`PipelineConfig::early`]: super::config::PipelineConfig::early
     fn trace_planned(
         &mut self,
         tracer: &AoTracer,
         batch: &Batch,
         plans: &[&Plan],
+        changed: &[bool],
     ) -> Result<AoResult, SceneError> {
         let ao = self.config.ao;
         ao.validate()?;
         let rays = ao.rays as usize;
         let order = morton_order(&batch.points);
-        let cache = &self.ray_cache;
         let keep = self.config.ray_reuse && self.config.skip;
+        let early = self.early_decisions();
+        // Moving points' kept scores, taken out for the parallel trace.
+        let mut taken: Vec<Option<Kept>> = Vec::new();
+        if early.is_some() {
+            taken = batch
+                .owner
+                .iter()
+                .map(|&(i, k)| {
+                    (self.instances[i].dynamic && changed[i])
+                        .then(|| self.kept_scores.take(key(i, k)))
+                        .flatten()
+                })
+                .collect();
+        }
+        let work: Vec<(usize, Option<Kept>)> = order
+            .iter()
+            .map(|&b| (b, taken.get_mut(b).and_then(Option::take)))
+            .collect();
+        let cache = &self.ray_cache;
         let instances = &self.instances;
-        let mut done: Vec<(usize, f32, u64, Option<Vec<f32>>)> = order
-            .par_iter()
-            .map(|&b| {
+        let (th, ray_order) = (self.config.thresholds, &self.ray_order);
+        let rot = super::early::rotation(ao.rays, self.frame);
+        let tolerance = th.ao_steps as f32 / 255.0;
+        let mut done: Vec<Traced> = work
+            .into_par_iter()
+            .map(|(b, kept)| {
                 let (i, k) = batch.owner[b];
                 let key = key(i, k);
                 let (id, p, n) = (batch.ids[b], batch.points[b], batch.normals[b]);
-                if !keep || instances[i].dynamic {
+                let dynamic = instances[i].dynamic;
+                if let (Some(test), true) = (&early, dynamic && changed[i]) {
+                    return trace_moving(
+                        tracer, batch, b, kept, test, ray_order, rot, tolerance, &th, &ao,
+                    );
+                }
+                if !keep || dynamic {
                     // Nothing kept (a moving instance's point): the
                     // tracer's own sum, no scores to hold.
-                    return (b, tracer.point_ao(id, p, n, &ao), ao.rays as u64, None);
+                    let value = tracer.point_ao(id, p, n, &ao);
+                    return Traced::new(b, value, ao.rays as u64, None);
                 }
                 let mut scores = vec![0.0f32; rays];
                 let kept = match plans[b] {
@@ -497,22 +597,31 @@ impl Pipeline {
                     None => tracer.trace_point_rays(id, p, n, &ao, &mut scores, |_| true),
                 };
                 let value = ao_of_scores(&scores);
-                (b, value, cast, Some(scores))
+                Traced::new(b, value, cast, Some(scores))
             })
             .collect();
-        done.sort_unstable_by_key(|d| d.0);
+        done.sort_unstable_by_key(|d| d.b);
         let mut result = AoResult {
             ao: Vec::with_capacity(done.len()),
             rays: 0,
         };
-        for (b, value, cast, scores) in &mut done {
-            result.ao.push(*value);
-            result.rays += *cast;
-            let (i, k) = batch.owner[*b];
+        let (mut eligible, mut eligible_rays) = (0u64, 0u64);
+        for d in &mut done {
+            result.ao.push(d.value);
+            result.rays += d.cast;
+            let (i, k) = batch.owner[d.b];
+            if let Some(kept) = d.kept.take() {
+                eligible += 1;
+                eligible_rays += d.cast;
+                if d.stopped {
+                    self.last_early.push(key(i, k));
+                }
+                self.kept_scores.put(key(i, k), kept);
+            }
             // Static points keep their scores for the next reach.
             if keep && !self.instances[i].dynamic {
-                if let Some(s) = scores.take() {
-                    let (id, p, n) = (batch.ids[*b], batch.points[*b], batch.normals[*b]);
+                if let Some(s) = d.scores.take() {
+                    let (id, p, n) = (batch.ids[d.b], batch.points[d.b], batch.normals[d.b]);
                     self.ray_cache.store(key(i, k), &s, || {
                         PointRays::new(id, p, n, &ao).map_or_else(Vec::new, |r| {
                             (0..ao.rays)
@@ -525,6 +634,10 @@ impl Pipeline {
                     });
                 }
             }
+        }
+        self.last_early.sort_unstable();
+        if eligible > 0 {
+            self.early_cost = eligible_rays as f64 / eligible as f64;
         }
         Ok(result)
     }
@@ -644,5 +757,105 @@ impl Pipeline {
             s.table.set_point(k, p, n, value)?;
         }
         Ok(())
+    }
+}
+
+/// One point as [`Pipeline::trace_planned`] traced it.
+struct Traced {
+    /// Its index in the batch.
+    b: usize,
+    /// Its AO (what clients hold, for a point that stopped early).
+    value: f32,
+    /// Rays cast.
+    cast: u64,
+    /// A static point's scores, to keep.
+    scores: Option<Vec<f32>>,
+    /// A moving point's kept scores, to put back (early decisions).
+    kept: Option<Kept>,
+    /// Whether it stopped early.
+    stopped: bool,
+}
+
+impl Traced {
+    fn new(b: usize, value: f32, cast: u64, scores: Option<Vec<f32>>) -> Traced {
+        Traced {
+            b,
+            value,
+            cast,
+            scores,
+            kept: None,
+            stopped: false,
+        }
+    }
+}
+
+/// Traces point `b` of a moving instance with early decisions: over its
+/// `kept` scores when it has them, has not stopped
+/// [`max_stops`](super::early::EarlyDecisions::max_stops) times in a row,
+/// and could go unsent (clients hold a word for it that its position and
+/// normal alone would not send again); in full otherwise, keeping the
+/// scores for the next time. The AO is the full trace's, bit for bit,
+/// unless it stopped early.
+#[allow(clippy::too_many_arguments)]
+fn trace_moving(
+    tracer: &AoTracer,
+    batch: &Batch,
+    b: usize,
+    kept: Option<Kept>,
+    test: &super::early::EarlyDecisions,
+    order: &[u32],
+    rot: usize,
+    tolerance: f32,
+    th: &Thresholds,
+    ao: &crate::trace::ao::AoParams,
+) -> Traced {
+    let (id, p, n) = (batch.ids[b], batch.points[b], batch.normals[b]);
+    let sent = &batch.sent[b];
+    let held = dequantize_ao(sent.word.fields().ao);
+    let could_stay = sent.word.is_allocated() && !sent.changed(held, th);
+    let rays = PointRays::new(id, p, n, ao);
+    match (kept, &rays) {
+        (Some(mut kept), Some(r)) if could_stay && kept.stops < test.max_stops => {
+            // Rays that turned with the point since its scores were kept
+            // change more, and more at once, than rays that held still.
+            let mut test = *test;
+            if kept.normal != n {
+                test.sd_floor = test.sd_floor.max(test.sd_floor_turning);
+            }
+            kept.normal = n;
+            let out = trace_early(order, rot, &mut kept, held, tolerance, &test, |k| {
+                r.score(tracer, k)
+            });
+            kept.stops = if out.value.is_some() {
+                0
+            } else {
+                kept.stops.saturating_add(1)
+            };
+            Traced {
+                b,
+                value: out.value.unwrap_or(held),
+                cast: out.cast as u64,
+                scores: None,
+                stopped: out.value.is_none(),
+                kept: Some(kept),
+            }
+        }
+        _ => {
+            let mut scores = vec![0.0f32; ao.rays as usize];
+            let cast = tracer.trace_point_rays(id, p, n, ao, &mut scores, |_| true);
+            Traced {
+                b,
+                value: ao_of_scores(&scores),
+                cast,
+                scores: None,
+                stopped: false,
+                kept: Some(Kept {
+                    normal: n,
+                    changed: super::reach::RayMask::all(ao.rays),
+                    scores: scores.into(),
+                    stops: 0,
+                }),
+            }
+        }
     }
 }

@@ -29,11 +29,13 @@
 //! what a frame did.
 
 pub(crate) mod backend;
+mod blocks;
 pub(crate) mod budget;
 mod buried;
 mod bvh;
 pub(crate) mod config;
 mod dirty;
+pub(crate) mod early;
 mod ray_cache;
 mod reach;
 pub(crate) mod report;
@@ -97,6 +99,9 @@ struct InstanceState {
     bvh: Option<Arc<TriangleBvh>>,
     /// Its buried points and their donors (none found yet, or none).
     buried: buried::Buried,
+    /// Its points in blocks (a rigid instance's; empty for a deforming
+    /// one, whose points move).
+    blocks: blocks::PointBlocks,
     /// Whether its table holds the points in the mesh's bind space (point
     /// format 1: a deforming instance with
     /// [`PipelineConfig::bind_space`]), where they never move.
@@ -172,6 +177,7 @@ impl InstanceState {
             + self.last_ao.capacity() as u64
             + self.table.memory_bytes()
             + self.buried.memory_bytes()
+            + self.blocks.memory_bytes()
     }
 }
 
@@ -228,12 +234,28 @@ pub struct Pipeline {
     ray_cache: ray_cache::RayCache,
     /// Points the ray budget put off to a later step.
     waiting: budget::Waiting,
+    /// Moving points' ray scores from their last trace (early decisions).
+    kept_scores: early::KeptScores,
+    /// The order early decisions cast a point's rays in.
+    ray_order: Vec<u32>,
+    /// Keys of the points that stopped early in the last step, ascending.
+    last_early: Vec<u64>,
+    /// Of those, the points whose instance stopped moving in this step
+    /// (traced in full), ascending.
+    early_rested: Vec<u64>,
+    /// Rays a moving point eligible for early decisions cast on average
+    /// in the last step that traced one: its cost under a budget.
+    early_cost: f64,
     /// Keys of the points the last step traced (sorted): those the next
     /// leaves alone are settled.
     last_traced: Vec<u64>,
     /// Nanoseconds a ray costs, measured over the last steps (from setup's
     /// trace at first): what an automatic budget divides by.
     ray_ns: f64,
+    /// Seconds a step takes after casting its rays (tables, buried
+    /// points, encoding), a running mean: what an automatic budget keeps
+    /// aside.
+    tail_s: f64,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -380,6 +402,17 @@ impl Pipeline {
             u32::MAX as f64,
             "at least 1 step",
         )?;
+        if let Some(e) = &config.early {
+            check_param("early.z", e.z as f64, 0.0, 100.0, "in [0, 100]")?;
+            check_param("early.sd_floor", e.sd_floor as f64, 0.0, 1.0, "in [0, 1]")?;
+            check_param(
+                "early.sd_floor_turning",
+                e.sd_floor_turning as f64,
+                0.0,
+                1.0,
+                "in [0, 1]",
+            )?;
+        }
         if let Some(c) = &config.cull {
             check_param("cull.aspect", c.aspect as f64, 1e-3, 1e3, "in [1e-3, 1e3]")?;
             check_param("cull.far", c.far as f64, 1e-3, 1e9, "in [1e-3, 1e9]")?;
@@ -473,7 +506,13 @@ impl Pipeline {
                 (Vec::new(), Vec::new())
             };
             let bounds = if deforms { bounds_of(&vertices) } else { rest };
+            let blocks = if deforms {
+                blocks::PointBlocks::default()
+            } else {
+                blocks::PointBlocks::new(&points.positions)
+            };
             Ok(InstanceState {
+                blocks,
                 pending: if config.cull.is_some() {
                     vec![false; points.len()]
                 } else {
@@ -518,6 +557,7 @@ impl Pipeline {
             .collect::<Result<Vec<_>, _>>()?;
         let skin_groups = skin_groups(&scene, &dynamic);
         let ray_cache = ray_cache::RayCache::new(config.ao.rays, config.ray_cache_bytes);
+        let (config_rays, config_cache_bytes) = (config.ao.rays, config.ray_cache_bytes);
         let mut pipeline = Pipeline {
             scene,
             backend,
@@ -536,8 +576,14 @@ impl Pipeline {
             views: Views::CameraPath,
             ray_cache,
             waiting: budget::Waiting::default(),
+            kept_scores: early::KeptScores::new(config_rays, config_cache_bytes),
+            ray_order: early::ray_order(config_rays),
+            last_early: Vec::new(),
+            early_rested: Vec::new(),
+            early_cost: config_rays as f64,
             last_traced: Vec::new(),
             ray_ns: 0.0,
+            tail_s: 0.0,
         };
         if pipeline.config.fill_buried {
             pipeline.find_buried(progress)?;
@@ -692,6 +738,7 @@ impl Pipeline {
             + bvh(&self.whole_layer)
             + self.skin_groups.iter().map(|g| bvh(&g.bvh)).sum::<u64>()
             + self.ray_cache.memory_bytes()
+            + self.kept_scores.memory_bytes()
             + self.waiting.memory_bytes()
     }
 

@@ -33,6 +33,11 @@ pub struct FrameReport {
     /// [`PipelineConfig::max_wait`](crate::PipelineConfig::max_wait)
     /// steps: a budget too small for the motion.
     pub overdue: u64,
+    /// Points of moving instances that stopped casting rays early, their
+    /// AO known to stay within the send threshold of what clients hold
+    /// ([`PipelineConfig::early`](crate::PipelineConfig::early)); counted
+    /// in `traced` too.
+    pub early: u64,
     /// Points whose change passed the thresholds (set in their table).
     pub updated: u64,
     /// Points sent because they settled below the send threshold (their
@@ -74,6 +79,7 @@ impl FrameReport {
         self.unreached += other.unreached;
         self.rays_kept += other.rays_kept;
         self.overdue += other.overdue;
+        self.early += other.early;
         self.budget = match (self.budget, other.budget) {
             (Some(a), Some(b)) => Some(a + b),
             (a, b) => a.or(b),

@@ -66,6 +66,28 @@ impl Pipeline {
         report.t_animate = t0.elapsed();
         let t1 = Instant::now();
         let mut which = self.points_to_retrace(&motion);
+        // Points that stopped early in the last step while their instance
+        // has stopped moving now: traced in full, so that no early decision
+        // outlives the motion.
+        self.early_rested = std::mem::take(&mut self.last_early)
+            .into_iter()
+            .filter(|&k| {
+                !motion
+                    .changed
+                    .get((k >> 32) as usize)
+                    .copied()
+                    .unwrap_or(true)
+            })
+            .collect();
+        for &k in &self.early_rested {
+            which[(k >> 32) as usize].push(k as u32);
+        }
+        for (w, &changed) in which.iter_mut().zip(&motion.changed) {
+            if !changed {
+                w.sort_unstable();
+                w.dedup();
+            }
+        }
         if let Some(cull) = self.config.cull {
             report.culled = self.cull(&cull, &mut which);
         }
@@ -75,6 +97,7 @@ impl Pipeline {
         let tracer = self.update_bvhs(&motion, anything);
         report.t_bvh = t2.elapsed();
         let t3 = Instant::now();
+        let mut after_cast = std::time::Duration::ZERO;
         if anything || self.waiting.len() > 0 {
             let step = StepMotion {
                 boxes: MotionBoxes::new(motion.boxes.iter().copied(), 4.0 * RAY_LEAD),
@@ -97,6 +120,8 @@ impl Pipeline {
             report.budget = done.budget;
             report.overdue = done.overdue;
             report.settled = done.settled;
+            report.early = done.early;
+            after_cast = done.after_cast;
         } else if !self.last_traced.is_empty() {
             // Nothing to trace: the points the last step traced settle.
             let settle = self.settle_left(&[])?;
@@ -115,6 +140,9 @@ impl Pipeline {
         let t4 = Instant::now();
         let frame = self.encode(&motion.moved, &mut report)?;
         report.t_encode = t4.elapsed();
+        // What a step takes after casting, for an automatic budget.
+        let tail = (after_cast + report.t_encode).as_secs_f64();
+        self.tail_s = 0.7 * self.tail_s + 0.3 * tail;
         Ok((frame, report))
     }
 
@@ -237,14 +265,19 @@ impl Pipeline {
                     continue;
                 }
                 let positions = s.now().0;
-                which[i] = (0..s.points.len() as u32)
-                    .filter(|&k| {
-                        let p = s.transform.transform_point3(positions[k as usize]);
-                        swept
-                            .iter()
-                            .any(|b| p.cmpge(b.0).all() && p.cmple(b.1).all())
-                    })
-                    .collect();
+                which[i] = if s.positions.is_empty() && s.blocks.covers(positions.len()) {
+                    // A rigid instance's points, block by block.
+                    s.blocks.within(positions, &s.transform, swept)
+                } else {
+                    (0..s.points.len() as u32)
+                        .filter(|&k| {
+                            let p = s.transform.transform_point3(positions[k as usize]);
+                            swept
+                                .iter()
+                                .any(|b| p.cmpge(b.0).all() && p.cmple(b.1).all())
+                        })
+                        .collect()
+                };
             }
         }
         which

@@ -1,0 +1,116 @@
+//! Blocks of a rigid instance's points, for choosing the points within
+//! reach of motion without testing each ([`PointBlocks`]).
+
+use glam::{Affine3A, Vec3};
+
+use crate::model::mesh::transformed_bounds;
+use crate::morton::morton_order;
+
+/// Points per block.
+const BLOCK: usize = 64;
+
+/// A rigid instance's points in blocks of [`BLOCK`] along a Morton curve,
+/// each with its local bounds: a step tests a block's box against what
+/// motion swept, and only the points of the blocks it meets one by one.
+#[derive(Clone, Debug, Default)]
+pub(super) struct PointBlocks {
+    /// Point indices, block by block.
+    order: Vec<u32>,
+    /// Each block's local bounds.
+    boxes: Vec<(Vec3, Vec3)>,
+}
+
+fn overlaps(a: (Vec3, Vec3), b: (Vec3, Vec3)) -> bool {
+    a.0.cmple(b.1).all() && b.0.cmple(a.1).all()
+}
+
+impl PointBlocks {
+    /// The blocks of the points at `positions` (local space).
+    pub fn new(positions: &[Vec3]) -> PointBlocks {
+        let order: Vec<u32> = morton_order(positions)
+            .into_iter()
+            .map(|i| i as u32)
+            .collect();
+        let boxes = order
+            .chunks(BLOCK)
+            .map(|c| {
+                let first = positions[c[0] as usize];
+                c.iter().fold((first, first), |(lo, hi), &k| {
+                    let p = positions[k as usize];
+                    (lo.min(p), hi.max(p))
+                })
+            })
+            .collect();
+        PointBlocks { order, boxes }
+    }
+
+    /// Whether it holds the blocks of `points` points.
+    pub fn covers(&self, points: usize) -> bool {
+        self.order.len() == points
+    }
+
+    /// The points at `positions` (local; those the blocks were made of)
+    /// that `transform` places inside any of the world boxes `swept`,
+    /// ascending: the same as testing every point.
+    pub fn within(
+        &self,
+        positions: &[Vec3],
+        transform: &Affine3A,
+        swept: &[(Vec3, Vec3)],
+    ) -> Vec<u32> {
+        let mut out = Vec::new();
+        for (chunk, &b) in self.order.chunks(BLOCK).zip(&self.boxes) {
+            let world = transformed_bounds(transform, b);
+            if !swept.iter().any(|&s| overlaps(s, world)) {
+                continue;
+            }
+            out.extend(chunk.iter().copied().filter(|&k| {
+                let p = transform.transform_point3(positions[k as usize]);
+                swept
+                    .iter()
+                    .any(|b| p.cmpge(b.0).all() && p.cmple(b.1).all())
+            }));
+        }
+        out.sort_unstable();
+        out
+    }
+
+    /// Bytes held (capacity).
+    pub fn memory_bytes(&self) -> u64 {
+        self.order.capacity() as u64 * 4 + self.boxes.capacity() as u64 * 24
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn blocks_choose_the_points_each_test_would() {
+        let positions: Vec<Vec3> = (0..1000)
+            .map(|k| {
+                let u = |s| crate::random::uniform(s, k, 0) * 10.0;
+                Vec3::new(u(1), u(2) * 0.1, u(3))
+            })
+            .collect();
+        let blocks = PointBlocks::new(&positions);
+        assert!(blocks.covers(1000));
+        let t =
+            Affine3A::from_rotation_y(0.3) * Affine3A::from_translation(Vec3::new(1.0, 0.0, -2.0));
+        let swept = [
+            (Vec3::new(2.0, -1.0, 1.0), Vec3::new(4.0, 1.0, 3.0)),
+            (Vec3::new(-5.0, -1.0, -5.0), Vec3::new(-4.0, 1.0, -4.5)),
+        ];
+        let each: Vec<u32> = (0..1000u32)
+            .filter(|&k| {
+                let p = t.transform_point3(positions[k as usize]);
+                swept
+                    .iter()
+                    .any(|b| p.cmpge(b.0).all() && p.cmple(b.1).all())
+            })
+            .collect();
+        assert!(!each.is_empty());
+        assert_eq!(blocks.within(&positions, &t, &swept), each);
+        assert!(blocks.within(&positions, &t, &[]).is_empty());
+    }
+}

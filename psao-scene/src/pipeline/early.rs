@@ -1,0 +1,461 @@
+//! Early decisions (issue 20): a moving instance's point casts its rays
+//! in a well-spread order and stops as soon as it is known, with a stated
+//! confidence, that its AO stays within the send threshold of what
+//! clients hold, so that nothing would be sent.
+//!
+//! **The test.** A point keeps each ray's score from its last cast (its
+//! rays are the same set every time: the order only says which are cast
+//! first), and which rays changed then. The full trace's AO now is
+//! `F = C + (sum of the changes) / n`, `C` the mean of the kept scores and
+//! `n` the rays: a control variate, so only the *change* is estimated,
+//! which is small and mostly zero where motion changes little.
+//! - The rays that changed at their last cast are cast first, all of them
+//!   (when they are at most half): their change is summed exactly.
+//! - The others are cast in the spread order (sorted by bit-reversed
+//!   index, so any run of them covers the bands from the normal to the
+//!   horizon), rotated by a quarter every step. After a quarter, a half
+//!   and three quarters of them, the mean change `m` of those cast so far
+//!   estimates the rest's, with standard error
+//!   `sqrt(max(s², floor²) / k * (r - k) / (r - 1))` for `k` of `r` rays cast
+//!   (`s²` their sample variance; the last factor because they are drawn
+//!   from the point's own rays without replacement), scaled by `r / n`.
+//! - The point stops when `|F̂ - h| + z · se <= t`, `h` the AO clients hold
+//!   and `t` the send threshold (`ao_steps / 255`): had the estimate erred
+//!   by less than `z` standard errors, the full trace would quantize
+//!   within the threshold of `h` and not be sent. A point that does not
+//!   stop casts every ray, and its AO is the full trace's, bit for bit.
+//!
+//! `floor` is [`EarlyDecisions::sd_floor`] for a point whose normal held
+//! still since its last cast (a sliding box: its rays are the same rays),
+//! and [`EarlyDecisions::sd_floor_turning`] for one whose normal turned (a
+//! turning or deforming instance's: its rays turn with it, and a ray that
+//! sweeps onto a limb changes all at once, which a few rays that did not
+//! change cannot rule out).
+//!
+//! **What it can add.** A wrong decision leaves clients holding `h` where
+//! a full trace would have sent a value more than the threshold away; by
+//! how much is what the estimate missed beyond `z` standard errors. Every
+//! ray is cast again within four steps (the rotation), and a point that
+//! stopped early [`max_stops`](EarlyDecisions::max_stops) times in a row
+//! traces in full: no wrong decision outlives that many of its traces.
+//! [`Pipeline::early_audit`](super::Pipeline::early_audit) re-traces the
+//! last step's early stops in full and counts the wrong ones; BENCHMARKS.md
+//! measures them and their cost in PSNR.
+//!
+//! Only the CPU tracer decides early, and only for points of instances
+//! that moved or deformed this step (a static point re-traces only the
+//! rays motion reached, the others' scores kept: see `reach`).
+
+use rustc_hash::FxHashMap;
+
+use super::reach::RayMask;
+
+/// Early decisions' settings ([`PipelineConfig::early`]).
+///
+/// [`PipelineConfig::early`]: super::config::PipelineConfig::early
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EarlyDecisions {
+    /// How many standard errors of the estimate must fit between it and
+    /// the send threshold for a point to stop (3).
+    pub z: f32,
+    /// The least standard deviation of a ray's score change the test
+    /// assumes (0.02), so that a few rays that all changed alike (often:
+    /// not at all) do not pass for certainty.
+    pub sd_floor: f32,
+    /// The least standard deviation assumed for a point whose normal
+    /// turned since its scores were kept (a turning or deforming
+    /// instance's: its rays turn with it, and a ray that swept onto a
+    /// limb changes all at once), 0.1.
+    pub sd_floor_turning: f32,
+    /// After this many early stops in a row a point traces all its rays
+    /// (8).
+    pub max_stops: u8,
+}
+
+impl Default for EarlyDecisions {
+    fn default() -> Self {
+        EarlyDecisions {
+            z: 3.0,
+            sd_floor: 0.02,
+            sd_floor_turning: 0.1,
+            max_stops: 8,
+        }
+    }
+}
+
+/// What [`Pipeline::early_audit`](super::Pipeline::early_audit) found:
+/// the last step's early stops against full traces.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct EarlyAudit {
+    /// Points that stopped early in the last step, each traced again in
+    /// full.
+    pub checked: u64,
+    /// Those whose full trace would have been sent (the wrong decisions).
+    pub wrong: u64,
+    /// The largest gap, in 1/255 steps, between a full trace and what
+    /// clients hold, over the points checked (at most the send threshold
+    /// where every decision was right).
+    pub worst_steps: u8,
+}
+
+/// A moving point's kept scores.
+#[derive(Clone, Debug)]
+pub(super) struct Kept {
+    /// Each ray's score as last cast.
+    pub scores: Box<[f32]>,
+    /// The point's world normal then: its rays turn with it.
+    pub normal: glam::Vec3,
+    /// The rays whose score changed when last cast, by more than
+    /// [`CHANGED`] (all of them after a full trace with nothing kept
+    /// before it).
+    pub changed: RayMask,
+    /// Early stops in a row.
+    pub stops: u8,
+}
+
+/// The kept scores of moving instances' points, by (instance, point), up
+/// to a number of points.
+#[derive(Debug, Default)]
+pub(super) struct KeptScores {
+    max_entries: usize,
+    entries: FxHashMap<u64, Kept>,
+}
+
+impl KeptScores {
+    /// A store of points with `rays` rays, holding at most `max_bytes`.
+    pub fn new(rays: u32, max_bytes: u64) -> KeptScores {
+        KeptScores {
+            max_entries: (max_bytes / (rays as u64 * 4 + 48)) as usize,
+            entries: FxHashMap::default(),
+        }
+    }
+
+    /// Takes a point's entry out (put it back with [`Self::put`]).
+    pub fn take(&mut self, key: u64) -> Option<Kept> {
+        self.entries.remove(&key)
+    }
+
+    /// Puts a point's entry (back); a new one only while there is room.
+    pub fn put(&mut self, key: u64, kept: Kept) {
+        if self.entries.len() < self.max_entries || self.entries.contains_key(&key) {
+            self.entries.insert(key, kept);
+        }
+    }
+
+    /// Bytes held (capacity; scores at the length of the first entry).
+    pub fn memory_bytes(&self) -> u64 {
+        let per = self.entries.values().next().map_or(0, |e| e.scores.len()) as u64 * 4 + 48;
+        self.entries.capacity() as u64 * per
+    }
+}
+
+/// The order a point's `n` rays are cast in: sorted by their bit-reversed
+/// index, so every prefix is spread over the rays' strata (ray `k` lies
+/// in the `k`-th of `n` bands from the normal to the horizon).
+pub(super) fn ray_order(n: u32) -> Vec<u32> {
+    let mut order: Vec<u32> = (0..n).collect();
+    order.sort_by_key(|k| k.reverse_bits());
+    order
+}
+
+/// Where in [`ray_order`] step `frame` starts: a quarter further each
+/// step, so that within four steps every ray is cast first once.
+pub(super) fn rotation(n: u32, frame: u64) -> usize {
+    if n == 0 {
+        return 0;
+    }
+    ((frame % 4) * n.div_ceil(4) as u64 % n as u64) as usize
+}
+
+/// A ray's score change above which it counts as changed (its hit moved
+/// by more than a thousandth of the radius): below it, rounding in the
+/// hit distance of a surface sliding along itself (a box sliding on a
+/// floor sees the floor at the same distance, up to the last bits).
+const CHANGED: f64 = 1e-3;
+
+/// What [`trace_early`] did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct Outcome {
+    /// The AO of the full trace, `None` when the point stopped early
+    /// (nothing to send).
+    pub value: Option<f32>,
+    /// Rays cast.
+    pub cast: u32,
+}
+
+/// Casts a point's rays over its `kept` scores (updated in place, with
+/// the rays whose score changed), with `score(k)` giving ray `k`'s score
+/// now, and stops early when the test of the module says that the full
+/// trace's AO lies within `tolerance` of `held`. The rays that changed at
+/// their last cast go first, all of them; then the others in `order` from
+/// `rot` on, tested after a quarter, a half and three quarters of them.
+/// When more than half the rays changed (a turning or deforming point,
+/// whose rays all turn with it) they are all sampled alike in `order`.
+/// A point that does not stop casts every ray; its value is then
+/// [`ao_of_scores`](crate::trace::ao::ao_of_scores) of the new scores,
+/// what a full trace gives, bit for bit.
+pub(super) fn trace_early(
+    order: &[u32],
+    rot: usize,
+    kept: &mut Kept,
+    held: f32,
+    tolerance: f32,
+    test: &EarlyDecisions,
+    mut score: impl FnMut(u32) -> f32,
+) -> Outcome {
+    let n = kept.scores.len();
+    let rays = n as u32;
+    let c = kept.scores.iter().map(|&s| s as f64).sum::<f64>() / n.max(1) as f64;
+    let mut changed = RayMask::none(rays);
+    let mut cast = 0u32;
+    let mut cast_mask = RayMask::none(rays);
+    let mut cast_ray = |k: u32, kept: &mut Kept, changed: &mut RayMask| {
+        cast_mask.set(k);
+        let s = score(k);
+        let d = (s - kept.scores[k as usize]) as f64;
+        kept.scores[k as usize] = s;
+        if d.abs() > CHANGED {
+            changed.set(k);
+        }
+        d
+    };
+    // The rays that changed last time, enumerated: their change is summed
+    // exactly.
+    let active = kept.changed.count() as usize;
+    let enumerate = active * 2 <= n;
+    let mut exact = 0.0f64;
+    if enumerate {
+        for k in 0..rays {
+            if kept.changed.has(k) {
+                exact += cast_ray(k, kept, &mut changed);
+                cast += 1;
+            }
+        }
+    }
+    // The rest, sampled in the spread order.
+    let rest = if enumerate { n - active } else { n };
+    let checks = [rest / 4, rest / 2, 3 * rest / 4];
+    let (mut sum, mut sum2, mut m) = (0.0f64, 0.0f64, 0usize);
+    let mut stopped = false;
+    for j in 0..n {
+        let k = order[(j + rot) % n];
+        if enumerate && kept.changed.has(k) {
+            continue;
+        }
+        let d = cast_ray(k, kept, &mut changed);
+        cast += 1;
+        sum += d;
+        sum2 += d * d;
+        m += 1;
+        if m >= 4 && m < rest && checks.contains(&m) {
+            let mean = sum / m as f64;
+            let var = ((sum2 - m as f64 * mean * mean) / (m - 1) as f64)
+                .max((test.sd_floor as f64).powi(2));
+            // The rest's share of the rays times the error of its mean.
+            let se = rest as f64 / n as f64
+                * (var / m as f64 * (rest - m) as f64 / (rest - 1) as f64).sqrt();
+            let estimate = c + (exact + mean * rest as f64) / n as f64;
+            if (estimate - held as f64).abs() + test.z as f64 * se <= tolerance as f64 {
+                stopped = true;
+                break;
+            }
+        }
+    }
+    // Rays not cast keep their marks (only a point that stopped has any).
+    if stopped {
+        for k in 0..rays {
+            if kept.changed.has(k) && !cast_mask.has(k) {
+                changed.set(k);
+            }
+        }
+    }
+    kept.changed = changed;
+    Outcome {
+        value: (!stopped).then(|| crate::trace::ao::ao_of_scores(&kept.scores)),
+        cast,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::trace::ao::ao_of_scores;
+
+    #[test]
+    fn the_order_is_a_spread_permutation_and_rotates() {
+        let o = ray_order(32);
+        let mut sorted = o.clone();
+        sorted.sort_unstable();
+        assert_eq!(sorted, (0..32).collect::<Vec<_>>());
+        // The first quarter takes one ray from every four bands.
+        let mut first: Vec<u32> = o[..8].to_vec();
+        first.sort_unstable();
+        assert_eq!(first, vec![0, 4, 8, 12, 16, 20, 24, 28]);
+        let odd = ray_order(24);
+        let mut s = odd.clone();
+        s.sort_unstable();
+        assert_eq!(s, (0..24).collect::<Vec<_>>());
+        assert_eq!(
+            (0..4).map(|f| rotation(32, f)).collect::<Vec<_>>(),
+            vec![0, 8, 16, 24]
+        );
+        assert_eq!(rotation(32, 4), 0);
+        assert_eq!(rotation(0, 3), 0);
+    }
+
+    /// A kept entry of `scores`, none marked as changed.
+    fn stable(scores: &[f32]) -> Kept {
+        Kept {
+            scores: scores.into(),
+            normal: glam::Vec3::Z,
+            changed: RayMask::none(scores.len() as u32),
+            stops: 0,
+        }
+    }
+
+    #[test]
+    fn an_unchanged_point_stops_after_a_quarter_and_a_changed_one_traces_all() {
+        let order = ray_order(32);
+        let test = EarlyDecisions::default();
+        let before: Vec<f32> = (0..32).map(|k| (k as f32 * 0.37).fract()).collect();
+        let held = ao_of_scores(&before);
+        let mut kept = stable(&before);
+        let out = trace_early(&order, 0, &mut kept, held, 8.0 / 255.0, &test, |k| {
+            before[k as usize]
+        });
+        assert_eq!(
+            out,
+            Outcome {
+                value: None,
+                cast: 8
+            }
+        );
+        // Every ray darker by 0.2: far past the threshold, traced in full,
+        // with the full trace's value bit for bit, every ray marked.
+        let now: Vec<f32> = before.iter().map(|s| (s - 0.2).max(0.0)).collect();
+        let mut kept = stable(&before);
+        let mut cast = 0;
+        let out = trace_early(&order, 8, &mut kept, held, 8.0 / 255.0, &test, |k| {
+            cast += 1;
+            now[k as usize]
+        });
+        assert_eq!(out.value, Some(ao_of_scores(&now)));
+        assert_eq!((out.cast, cast), (32, 32));
+        assert_eq!(kept.scores[..], now[..]);
+        let differ = before.iter().zip(&now).filter(|(b, n)| b != n).count();
+        assert_eq!(kept.changed.count() as usize, differ);
+    }
+
+    #[test]
+    fn rays_that_changed_last_time_are_all_cast_first() {
+        // Four rays changed at their last cast and change again: they are
+        // summed exactly, so the point stops on the rest's sample only when
+        // their change is within the threshold.
+        let order = ray_order(32);
+        let test = EarlyDecisions::default();
+        let before = vec![1.0f32; 32];
+        let mut kept = stable(&before);
+        for k in 12..16 {
+            kept.changed.set(k);
+        }
+        let mut now = before.clone();
+        for s in &mut now[12..16] {
+            *s = 0.0;
+        }
+        let mut cast = Vec::new();
+        let out = trace_early(&order, 0, &mut kept, 1.0, 8.0 / 255.0, &test, |k| {
+            cast.push(k);
+            now[k as usize]
+        });
+        assert_eq!(&cast[..4], &[12, 13, 14, 15]);
+        assert_eq!(out.value, Some(ao_of_scores(&now)), "4/32 darker: sent");
+        // A small change on them: stops after them and a quarter of the
+        // rest; the marks stay on the rays that changed.
+        let mut kept = stable(&before);
+        for k in 12..16 {
+            kept.changed.set(k);
+        }
+        now[12..16].copy_from_slice(&[0.99; 4]);
+        let out = trace_early(&order, 0, &mut kept, 1.0, 8.0 / 255.0, &test, |k| {
+            now[k as usize]
+        });
+        assert_eq!(
+            out,
+            Outcome {
+                value: None,
+                cast: 4 + 7
+            }
+        );
+        assert_eq!(kept.changed.count(), 4);
+    }
+
+    #[test]
+    fn a_change_in_rays_not_yet_cast_is_caught_by_the_spread() {
+        // Four neighbouring bands (one in eight of the rays) go dark while
+        // nothing was marked: the first quarter of the spread order meets
+        // one of them, and the change's variance keeps the point from
+        // stopping.
+        let order = ray_order(32);
+        let test = EarlyDecisions::default();
+        let before = vec![1.0f32; 32];
+        let mut now = before.clone();
+        for s in &mut now[12..16] {
+            *s = 0.0;
+        }
+        for rot in 0..4 {
+            let mut kept = stable(&before);
+            let out = trace_early(
+                &order,
+                rotation(32, rot),
+                &mut kept,
+                1.0,
+                8.0 / 255.0,
+                &test,
+                |k| now[k as usize],
+            );
+            assert_eq!(out.value, Some(ao_of_scores(&now)), "rotation {rot}");
+            assert_eq!(kept.changed.count(), 4);
+        }
+    }
+
+    #[test]
+    fn the_stated_confidence_holds_on_random_changes() {
+        // Points whose rays change at random by small amounts around a
+        // shift: count the stops whose full trace would have been sent.
+        let order = ray_order(32);
+        let test = EarlyDecisions::default();
+        let tol = 8.0 / 255.0;
+        let (mut stops, mut wrong) = (0, 0);
+        for p in 0..4000u32 {
+            let before: Vec<f32> = (0..32).map(|k| crate::random::uniform(1, p, k)).collect();
+            let shift = (crate::random::uniform(2, p, 0) - 0.5) * 0.1;
+            let now: Vec<f32> = (0..32)
+                .map(|k| {
+                    let noise = (crate::random::uniform(3, p, k) - 0.5) * 0.1;
+                    (before[k as usize] + shift + noise).clamp(0.0, 1.0)
+                })
+                .collect();
+            let held = ao_of_scores(&before);
+            let mut kept = stable(&before);
+            let out = trace_early(
+                &order,
+                rotation(32, p as u64),
+                &mut kept,
+                held,
+                tol,
+                &test,
+                |k| now[k as usize],
+            );
+            if out.value.is_none() {
+                stops += 1;
+                if (ao_of_scores(&now) - held).abs() > tol {
+                    wrong += 1;
+                }
+            }
+        }
+        assert!(stops > 400, "the test stops where it can: {stops}");
+        // z = 3: about 0.3% of the decisions on a normal estimate; allow
+        // ten times that for the few rays sampled.
+        assert!(wrong * 100 <= stops * 3, "{wrong} wrong of {stops} stops");
+    }
+}
