@@ -621,8 +621,14 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
         if next > now {
             std::thread::sleep(next - now);
             next += period;
+        } else if now - next < period {
+            // A tick that ran over: the next starts now and the schedule
+            // holds (a step's time varies around its budget; what one
+            // tick overran, the next gives back).
+            next += period;
         } else {
-            // Running late: do not try to catch up in a burst.
+            // More than a period behind: do not try to catch up in a
+            // burst.
             next = now + period;
         }
     }

@@ -173,10 +173,15 @@ pub fn parse_ray_budget(s: &str) -> Result<RayBudget, String> {
     match s {
         "auto" => Ok(RayBudget::Auto { share: 0.8 }),
         "none" => Ok(RayBudget::Unlimited),
-        n => n
-            .parse::<u64>()
-            .map(RayBudget::Rays)
-            .map_err(|_| format!("expected auto, none or a number of rays per frame, not {n:?}")),
+        n if n.starts_with("auto:") => match n["auto:".len()..].parse::<f32>() {
+            Ok(share) if share > 0.0 && share <= 1.0 => Ok(RayBudget::Auto { share }),
+            _ => Err(format!(
+                "expected auto:SHARE with a share of the frame period in (0, 1], not {n:?}"
+            )),
+        },
+        n => n.parse::<u64>().map(RayBudget::Rays).map_err(|_| {
+            format!("expected auto, auto:SHARE, none or a number of rays per frame, not {n:?}")
+        }),
     }
 }
 
@@ -185,8 +190,8 @@ pub fn parse_ray_budget(s: &str) -> Result<RayBudget, String> {
 pub struct BudgetArgs {
     /// Rays the server may trace per frame: `auto` (what 80% of the frame
     /// period affords at the measured cost of a ray, so the server holds
-    /// its rate), `none` (every point motion reaches, in its frame: the
-    /// baseline) or a number of rays. Points past it wait for a later
+    /// its rate; `auto:0.7` for 70%), `none` (every point motion reaches,
+    /// in its frame: the baseline) or a number of rays. Points past it wait for a later
     /// frame, the most reached first.
     #[arg(long, default_value = "auto", value_parser = parse_ray_budget)]
     pub ray_budget: RayBudget,
@@ -530,5 +535,20 @@ mod tests {
         // A radius lost in a city.
         let w = scale_warnings(&cube(10_000.0), 1e-6, 0.6).unwrap();
         assert!(w.len() == 1 && w[0].contains("1/10,000"), "{w:?}");
+    }
+
+    #[test]
+    fn ray_budgets_parse_with_a_share_or_say_what_they_expect() {
+        assert_eq!(parse_ray_budget("auto"), Ok(RayBudget::Auto { share: 0.8 }));
+        assert_eq!(
+            parse_ray_budget("auto:0.7"),
+            Ok(RayBudget::Auto { share: 0.7 })
+        );
+        assert_eq!(parse_ray_budget("none"), Ok(RayBudget::Unlimited));
+        assert_eq!(parse_ray_budget("5000"), Ok(RayBudget::Rays(5000)));
+        for bad in ["auto:0", "auto:1.5", "auto:x", "auto:", "lots"] {
+            let e = parse_ray_budget(bad).unwrap_err();
+            assert!(e.contains(bad), "{e}");
+        }
     }
 }
