@@ -188,7 +188,11 @@ fn bench_refuses_bad_settings() {
         (vec!["--radius", "0"], "--radius 0"),
         (
             vec!["--ray-budget", "lots"],
-            "expected auto, none or a number",
+            "expected auto, auto:SHARE, none or a number",
+        ),
+        (
+            vec!["--ray-budget", "auto:2"],
+            "a share of the frame period",
         ),
         (
             vec!["--frames", "2", "--image-frames", "0,2"],

@@ -196,7 +196,7 @@ impl Pipeline {
             };
             let (i, k) = batch.owner[b];
             let cost = match plan {
-                Plan::Full { .. } if self.instances[i].dynamic => moving_cost,
+                Plan::Full { .. } if self.instances[i].dynamic && motion.changed[i] => moving_cost,
                 _ => cost,
             };
             at.push(b);
