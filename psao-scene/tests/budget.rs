@@ -443,3 +443,37 @@ fn a_reckless_early_test_is_caught_by_the_audit_and_undone_when_motion_stops() {
         rested * 255.0
     );
 }
+
+#[test]
+fn bad_early_settings_are_refused_by_name() {
+    for (early, name) in [
+        (
+            EarlyDecisions {
+                z: f32::NAN,
+                ..EarlyDecisions::default()
+            },
+            "early.z",
+        ),
+        (
+            EarlyDecisions {
+                sd_floor: -0.1,
+                ..EarlyDecisions::default()
+            },
+            "early.sd_floor",
+        ),
+        (
+            EarlyDecisions {
+                sd_floor_turning: 2.0,
+                ..EarlyDecisions::default()
+            },
+            "early.sd_floor_turning",
+        ),
+    ] {
+        let c = PipelineConfig {
+            early: Some(early),
+            ..config(Estimator::ClosestHit)
+        };
+        let e = Pipeline::new(sliding_box().0, c).unwrap_err().to_string();
+        assert!(e.contains(name), "{e}");
+    }
+}
