@@ -622,9 +622,10 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
             std::thread::sleep(next - now);
             next += period;
         } else if now - next < period {
-            // A tick that ran over: the next starts now and the schedule
-            // holds (a step's time varies around its budget; what one
-            // tick overran, the next gives back).
+            // A tick that ran over: the next starts now, on the old
+            // schedule, which holds when the steps after it are shorter
+            // than the period (a budgeted step's time varies around its
+            // share of the period).
             next += period;
         } else {
             // More than a period behind: do not try to catch up in a

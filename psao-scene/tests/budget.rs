@@ -394,7 +394,7 @@ fn early_run(early: Option<EarlyDecisions>) -> (u64, f32, f32, EarlyAudit) {
 }
 
 #[test]
-fn early_decisions_cast_fewer_rays_and_send_what_a_full_trace_would() {
+fn early_decisions_cast_fewer_rays_and_stay_near_a_full_trace() {
     let (full_rays, full_moving, full_rested, none) = early_run(None);
     assert_eq!(
         none,

@@ -161,7 +161,8 @@ pub struct PipelineConfig {
     /// CPU's where a decision was wrong; with it off (`None`, the
     /// default) they are the same. Off too while
     /// [`settle_steps`](Self::settle_steps) is set (settling needs every
-    /// trace whole) and without [`skip`](Self::skip) (the baseline).
+    /// trace whole), without [`skip`](Self::skip) (the baseline), and
+    /// below 8 rays a point.
     /// Moving points' scores take up to
     /// [`ray_cache_bytes`](Self::ray_cache_bytes) besides the static
     /// points' kept scores.

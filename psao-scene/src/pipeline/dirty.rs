@@ -158,11 +158,12 @@ impl Pipeline {
         let batch = self.batch(&lists, false);
         let plans = self.plan(&batch, motion);
         let rays = self.config.ao.rays;
-        // A moving point with early decisions costs what such points cast
-        // on average in the last step.
-        let moving_cost = match self.early_decisions() {
-            Some(_) => (self.early_cost.ceil() as u32).clamp(1, rays.max(1)),
-            None => rays,
+        let (moving_cost, max_stops) = match self.early_decisions() {
+            Some(e) => (
+                (self.early_cost.ceil() as u32).clamp(1, rays.max(1)),
+                e.max_stops,
+            ),
+            None => (rays, 0),
         };
         let budget = match self.config.budget {
             RayBudget::Unlimited => None,
@@ -195,8 +196,17 @@ impl Pipeline {
                 Plan::Rays { need, reached } => (need.count(), reached.count()),
             };
             let (i, k) = batch.owner[b];
+            // A moving point that may stop early costs what such points
+            // cast on average; one that will trace in full (nothing kept
+            // yet, or stopped its most times in a row) all its rays.
             let cost = match plan {
-                Plan::Full { .. } if self.instances[i].dynamic && motion.changed[i] => moving_cost,
+                Plan::Full { .. }
+                    if self.instances[i].dynamic
+                        && motion.changed[i]
+                        && self.kept_scores.may_stop(key(i, k), max_stops) =>
+                {
+                    moving_cost
+                }
                 _ => cost,
             };
             at.push(b);
@@ -840,9 +850,17 @@ fn trace_moving(
                 kept: Some(kept),
             }
         }
-        _ => {
+        (old, _) => {
             let mut scores = vec![0.0f32; ao.rays as usize];
             let cast = tracer.trace_point_rays(id, p, n, ao, &mut scores, |_| true);
+            // The rays that changed since the kept scores (all of them
+            // with nothing kept).
+            let changed = match &old {
+                Some(o) if o.scores.len() == scores.len() => {
+                    super::early::changed_rays(&o.scores, &scores)
+                }
+                _ => super::reach::RayMask::all(ao.rays),
+            };
             Traced {
                 b,
                 value: ao_of_scores(&scores),
@@ -851,7 +869,7 @@ fn trace_moving(
                 stopped: false,
                 kept: Some(Kept {
                     normal: n,
-                    changed: super::reach::RayMask::all(ao.rays),
+                    changed,
                     scores: scores.into(),
                     stops: 0,
                 }),

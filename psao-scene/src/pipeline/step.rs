@@ -82,6 +82,7 @@ impl Pipeline {
         for &k in &self.early_rested {
             which[(k >> 32) as usize].push(k as u32);
         }
+        self.kept_scores.keep_moving(&motion.changed);
         for (w, &changed) in which.iter_mut().zip(&motion.changed) {
             if !changed {
                 w.sort_unstable();
