@@ -20,8 +20,16 @@ pub(super) struct PointBlocks {
     boxes: Vec<(Vec3, Vec3)>,
 }
 
-fn overlaps(a: (Vec3, Vec3), b: (Vec3, Vec3)) -> bool {
+/// Whether two boxes (min, max) overlap (touching counts).
+pub(super) fn overlaps(a: (Vec3, Vec3), b: (Vec3, Vec3)) -> bool {
     a.0.cmple(b.1).all() && b.0.cmple(a.1).all()
+}
+
+/// Whether `p` lies inside any of the boxes (min, max), borders included.
+pub(super) fn inside_any(p: Vec3, boxes: &[(Vec3, Vec3)]) -> bool {
+    boxes
+        .iter()
+        .any(|b| p.cmpge(b.0).all() && p.cmple(b.1).all())
 }
 
 impl PointBlocks {
@@ -64,12 +72,11 @@ impl PointBlocks {
             if !swept.iter().any(|&s| overlaps(s, world)) {
                 continue;
             }
-            out.extend(chunk.iter().copied().filter(|&k| {
-                let p = transform.transform_point3(positions[k as usize]);
-                swept
-                    .iter()
-                    .any(|b| p.cmpge(b.0).all() && p.cmple(b.1).all())
-            }));
+            out.extend(
+                chunk.iter().copied().filter(|&k| {
+                    inside_any(transform.transform_point3(positions[k as usize]), swept)
+                }),
+            );
         }
         out.sort_unstable();
         out

@@ -493,18 +493,19 @@ impl Pipeline {
     /// benchmarks and tests: it costs a full trace of those points. Call
     /// it right after [`step`](Self::step).
     pub fn early_audit(&mut self) -> Result<super::early::EarlyAudit, SceneError> {
+        if self.last_early.is_empty() {
+            // Nothing stopped early (always so with a backend).
+            return Ok(super::early::EarlyAudit::default());
+        }
         let mut which: Vec<Vec<u32>> = vec![Vec::new(); self.instances.len()];
         for &k in &self.last_early {
             which[(k >> 32) as usize].push(k as u32);
         }
         let batch = self.batch(&which, false);
         let ao = self.config.ao;
-        let full = match &mut self.backend {
-            Some(_) => return Ok(super::early::EarlyAudit::default()),
-            None => self
-                .tracer(false)
-                .trace_ids(&batch.ids, &batch.points, &batch.normals, &ao)?,
-        };
+        let full = self
+            .tracer(false)
+            .trace_ids(&batch.ids, &batch.points, &batch.normals, &ao)?;
         let steps = self.config.thresholds.ao_steps;
         let mut audit = super::early::EarlyAudit {
             checked: batch.ids.len() as u64,

@@ -8,6 +8,7 @@ use std::time::Instant;
 use glam::Vec3;
 use psao_codec::EncodedFrame;
 
+use super::blocks::{inside_any, overlaps};
 use super::config::{ViewerCull, Views};
 use super::dirty::StepMotion;
 use super::reach::MotionBoxes;
@@ -45,10 +46,6 @@ fn grow(ao: &AoParams, b: (Vec3, Vec3)) -> (Vec3, Vec3) {
     (b.0 - Vec3::splat(reach), b.1 + Vec3::splat(reach))
 }
 
-fn overlaps(a: (Vec3, Vec3), b: (Vec3, Vec3)) -> bool {
-    a.0.cmple(b.1).all() && b.0.cmple(a.1).all()
-}
-
 impl Pipeline {
     /// Advances the scene by `dt` seconds and produces the frame clients
     /// need, if any. Scene time is kept in f64, so a run is the same for
@@ -79,15 +76,16 @@ impl Pipeline {
                     .unwrap_or(true)
             })
             .collect();
+        let mut grown = vec![false; which.len()];
         for &k in &self.early_rested {
             which[(k >> 32) as usize].push(k as u32);
+            grown[(k >> 32) as usize] = true;
         }
         self.kept_scores.keep_moving(&motion.changed);
-        for (w, &changed) in which.iter_mut().zip(&motion.changed) {
-            if !changed {
-                w.sort_unstable();
-                w.dedup();
-            }
+        // The lists they joined: ascending, each point once, again.
+        for (w, _) in which.iter_mut().zip(&grown).filter(|(_, g)| **g) {
+            w.sort_unstable();
+            w.dedup();
         }
         if let Some(cull) = self.config.cull {
             report.culled = self.cull(&cull, &mut which);
@@ -272,10 +270,7 @@ impl Pipeline {
                 } else {
                     (0..s.points.len() as u32)
                         .filter(|&k| {
-                            let p = s.transform.transform_point3(positions[k as usize]);
-                            swept
-                                .iter()
-                                .any(|b| p.cmpge(b.0).all() && p.cmple(b.1).all())
+                            inside_any(s.transform.transform_point3(positions[k as usize]), swept)
                         })
                         .collect()
                 };
