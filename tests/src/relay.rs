@@ -39,6 +39,7 @@ impl Default for Impairment {
 pub struct Relay {
     addr: SocketAddr,
     cut: Arc<AtomicBool>,
+    cut_down: Arc<AtomicBool>,
     dropped: Arc<AtomicU64>,
     forwarded: Arc<AtomicU64>,
     tasks: Vec<tokio::task::JoinHandle<()>>,
@@ -52,15 +53,17 @@ impl Relay {
         back.connect(server).await?;
         let addr = front.local_addr()?;
         let cut = Arc::new(AtomicBool::new(false));
+        let cut_down = Arc::new(AtomicBool::new(false));
         let dropped = Arc::new(AtomicU64::new(0));
         let forwarded = Arc::new(AtomicU64::new(0));
         let client: Arc<tokio::sync::Mutex<Option<SocketAddr>>> = Default::default();
         let mut tasks = Vec::new();
         for upstream in [true, false] {
-            let (front, back, cut, dropped, forwarded, client) = (
+            let (front, back, cut, cut_down, dropped, forwarded, client) = (
                 front.clone(),
                 back.clone(),
                 cut.clone(),
+                cut_down.clone(),
                 dropped.clone(),
                 forwarded.clone(),
                 client.clone(),
@@ -84,7 +87,9 @@ impl Relay {
                         }
                     };
                     let r = next(&mut rng);
-                    if cut.load(Ordering::Relaxed) || r < imp.drop {
+                    let blocked = cut.load(Ordering::Relaxed)
+                        || (!upstream && cut_down.load(Ordering::Relaxed));
+                    if blocked || r < imp.drop {
                         dropped.fetch_add(1, Ordering::Relaxed);
                         continue;
                     }
@@ -108,6 +113,7 @@ impl Relay {
         Ok(Relay {
             addr,
             cut,
+            cut_down,
             dropped,
             forwarded,
             tasks,
@@ -122,6 +128,12 @@ impl Relay {
     /// Drops everything from now on (or forwards again).
     pub fn cut(&self, cut: bool) {
         self.cut.store(cut, Ordering::Relaxed);
+    }
+
+    /// Drops what the server sends from now on (or forwards it again),
+    /// while the client's datagrams still reach the server.
+    pub fn cut_downstream(&self, cut: bool) {
+        self.cut_down.store(cut, Ordering::Relaxed);
     }
 
     /// Datagrams dropped so far.

@@ -13,6 +13,7 @@ use psao_proto::tls::{client_config, client_crypto};
 use psao_proto::web::WEB_PATH;
 use psao_proto::*;
 use psao_scene::{Pipeline, PipelineConfig};
+use psao_tests::relay::{Impairment, Relay};
 use psao_tests::scenes::{pipeline_config, sliding_box};
 use web_transport_quinn as wt;
 
@@ -46,13 +47,22 @@ async fn web_session(
     fingerprint: [u8; 32],
     path: &str,
 ) -> Result<wt::Session, wt::ClientError> {
+    let port = server.web_addr().expect("listening").port();
+    web_session_at(port, fingerprint, path).await
+}
+
+/// A WebTransport session to `path` on `port` of the loopback address.
+async fn web_session_at(
+    port: u16,
+    fingerprint: [u8; 32],
+    path: &str,
+) -> Result<wt::Session, wt::ClientError> {
     let crypto = client_crypto(&Trust::Fingerprint(fingerprint), &[wt::ALPN.as_bytes()]).unwrap();
     let endpoint = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
     let client = wt::Client::new(
         endpoint,
         quinn::ClientConfig::new(std::sync::Arc::new(crypto)),
     );
-    let port = server.web_addr().expect("listening").port();
     let url: url::Url = format!("https://localhost:{port}{path}").parse().unwrap();
     client.connect(url).await
 }
@@ -274,6 +284,35 @@ async fn bad_input_over_web_transport_gets_the_native_close_codes() {
     std::mem::forget(uni);
     let (code, reason) = web_close(&session).await;
     assert_eq!(code, CloseCode::ProtocolViolation, "{reason}");
+}
+
+/// A violation's close capsule reaches the client even when the server's
+/// datagrams are lost for a while after it (a loaded browser that reads
+/// its socket late loses them so): the server sends the capsule again and
+/// closes the connection only after it had time to arrive. A connection
+/// closed first tells a browser no code (patches/README.md).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_close_capsule_lost_for_a_moment_is_sent_again() {
+    let (server, fp) = server().await;
+    let relay = Relay::start(server.web_addr().expect("listening"), Impairment::default())
+        .await
+        .unwrap();
+    let session = web_session_at(relay.addr().port(), fp, WEB_PATH)
+        .await
+        .unwrap();
+    let (mut send, mut recv) = session.open_bi().await.unwrap();
+    send.write_all(&hello()).await.unwrap();
+    let mut len = [0u8; 2];
+    recv.read_exact(&mut len).await.unwrap();
+    // The capsule and the server's first retransmissions of it are lost.
+    relay.cut_downstream(true);
+    send.write_all(&[0x01, 0x04, 0x11]).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    relay.cut_downstream(false);
+    let (code, reason) = web_close(&session).await;
+    assert_eq!(code, CloseCode::MessageTooLarge, "{reason}");
+    assert!(relay.dropped() > 0, "the relay dropped nothing");
+    std::mem::forget((send, recv));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
