@@ -38,6 +38,7 @@ impl FrameSource for Pipeline {
             culled: report.culled,
             waiting: report.waiting,
             oldest_wait: report.oldest_wait,
+            wait_bound: report.wait_bound,
         };
         Ok((frame, report))
     }

@@ -55,6 +55,9 @@ pub struct StepReport {
     /// The longest any point has waited for the budget, in steps (the
     /// largest, when summed).
     pub oldest_wait: u32,
+    /// The bound on waiting the step enforced, in steps: no point waits
+    /// longer (0 without a budget; the largest, when summed).
+    pub wait_bound: u32,
 }
 
 impl StepReport {
@@ -65,6 +68,7 @@ impl StepReport {
         self.culled += other.culled;
         self.waiting = other.waiting;
         self.oldest_wait = self.oldest_wait.max(other.oldest_wait);
+        self.wait_bound = self.wait_bound.max(other.wait_bound);
     }
 }
 

@@ -97,6 +97,7 @@ fn main() {
             })),
         },
         max_wait: arg("--max-wait", 8),
+        max_wait_limit: arg("--max-wait-limit", 60),
         movers_every_step: flag("--movers-every-step"),
         early: flag("--early").then(|| EarlyDecisions {
             z: arg("--early-z", 3.0),
@@ -240,10 +241,11 @@ fn main() {
     );
     if let Some(b) = sum.budget {
         println!(
-            "  ray budget         {:.0} rays per frame; {} points waiting at the end, the longest wait {} frames; {:.1} points per frame traced past the budget (overdue)",
+            "  ray budget         {:.0} rays per frame; {} points waiting at the end, the longest wait {} frames (bound up to {}); {:.1} points per frame traced past the budget (overdue)",
             b as f64 / n,
             sum.waiting,
             sum.oldest_wait,
+            sum.wait_bound,
             sum.overdue as f64 / n
         );
     }

@@ -135,6 +135,7 @@ fn under_a_budget_no_point_waits_past_max_wait_and_all_catch_up() {
     let c = PipelineConfig {
         budget: RayBudget::Rays(240),
         max_wait: 3,
+        max_wait_limit: 3,
         ..config(Estimator::ClosestHit)
     };
     let ao = c.ao;
@@ -164,6 +165,53 @@ fn under_a_budget_no_point_waits_past_max_wait_and_all_catch_up() {
     // the send threshold (8 steps of 1/255).
     let err = worst_held_error(&mut p, 0, 0, &ao);
     assert!(err <= 8.5 / 255.0, "floor AO off by {err}");
+}
+
+/// The sliding box across the floor for 60 steps under a budget of 48
+/// rays a step (far below what the points it reaches need), with the
+/// bound on waiting from 2 up to `limit`: the steps that cast more rays
+/// than the budget, and the highest bound in force. Every step, no point
+/// waited longer than the bound in force.
+fn demand_beyond_the_budget(limit: u32) -> (usize, u32) {
+    let (scene, b) = sliding_box();
+    let c = PipelineConfig {
+        budget: RayBudget::Rays(48),
+        max_wait: 2,
+        max_wait_limit: limit,
+        ..config(Estimator::ClosestHit)
+    };
+    let mut p = Pipeline::new(scene, c).unwrap();
+    let (mut over, mut highest) = (0, 0);
+    for t in 0..60 {
+        let x = -1.5 + 0.05 * t as f32;
+        p.place_instance(b, Affine3A::from_translation(Vec3::new(x, 0.0, 0.0)))
+            .unwrap();
+        let (_, r) = p.step(1.0 / 30.0).unwrap();
+        assert!(
+            r.oldest_wait <= r.wait_bound && (2..=limit).contains(&r.wait_bound),
+            "step {t}: waited {} under a bound of {}",
+            r.oldest_wait,
+            r.wait_bound
+        );
+        over += usize::from(r.rays > 48);
+        highest = highest.max(r.wait_bound);
+    }
+    (over, highest)
+}
+
+#[test]
+fn under_demand_beyond_the_budget_the_bound_on_waiting_rises_and_steps_keep_the_budget() {
+    // A fixed bound: points that reach it are traced past the budget.
+    let (over_fixed, fixed) = demand_beyond_the_budget(2);
+    assert_eq!(fixed, 2);
+    // A bound that follows demand rises, and fewer steps go past the
+    // budget.
+    let (over, highest) = demand_beyond_the_budget(40);
+    assert!(highest > 2, "the bound never rose");
+    assert!(
+        over < over_fixed,
+        "{over} steps past the budget with the bound following demand, {over_fixed} with it fixed"
+    );
 }
 
 /// The worst AO error clients hold on the sliding box's own points over
@@ -226,15 +274,17 @@ fn an_automatic_budget_is_measured_and_reported() {
         budget: RayBudget::Auto { share: 0.5 },
         ..config(Estimator::ClosestHit)
     };
-    let max_wait = c.max_wait;
+    let (least, limit) = (c.max_wait, c.max_wait_limit);
     let mut p = Pipeline::new(default_scene(), c).unwrap();
     for _ in 0..12 {
         // How many rays it allows depends on this machine's speed (and
         // may be none on a loaded one): it is reported, and it never
-        // holds a point back past max_wait.
+        // holds a point back past the bound in force, itself within
+        // max_wait and max_wait_limit.
         let (_, r) = p.step(1.0 / 60.0).unwrap();
         assert!(r.budget.is_some(), "{r:?}");
-        assert!(r.oldest_wait <= max_wait, "{r:?}");
+        assert!(r.oldest_wait <= r.wait_bound, "{r:?}");
+        assert!((least..=limit).contains(&r.wait_bound), "{r:?}");
     }
 }
 
@@ -476,4 +526,16 @@ fn bad_early_settings_are_refused_by_name() {
         let e = Pipeline::new(sliding_box().0, c).unwrap_err().to_string();
         assert!(e.contains(name), "{e}");
     }
+}
+
+#[test]
+fn a_wait_limit_below_max_wait_is_refused_by_name() {
+    let c = PipelineConfig {
+        budget: RayBudget::Rays(100),
+        max_wait: 8,
+        max_wait_limit: 4,
+        ..config(Estimator::ClosestHit)
+    };
+    let e = Pipeline::new(sliding_box().0, c).unwrap_err().to_string();
+    assert!(e.contains("max_wait_limit"), "{e}");
 }

@@ -118,8 +118,12 @@ pub struct Settings {
     /// tick by tick to each measured frame (a budget is per tick), not in
     /// one step.
     pub budget: Option<RayBudget>,
-    /// Under the budget, the most steps a point waits.
+    /// Under the budget, the most steps a point waits while the budget
+    /// affords it.
     pub max_wait: u32,
+    /// Under the budget, the most steps the bound on waiting rises to
+    /// with demand (at least `max_wait`).
+    pub max_wait_limit: u32,
     /// Under the budget, movers' own points are traced every step
     /// ([`PipelineConfig::movers_every_step`](psao_scene::PipelineConfig::movers_every_step)).
     pub movers_every_step: bool,
@@ -233,6 +237,7 @@ impl Settings {
             settle_steps: PipelineConfig::default().settle_steps,
             budget: None,
             max_wait: 8,
+            max_wait_limit: PipelineConfig::default().max_wait_limit,
             movers_every_step: false,
             early: false,
             ray_reuse: true,
@@ -721,6 +726,7 @@ fn measure_psao(
     if budget {
         config.budget = s.budget.unwrap_or(RayBudget::Unlimited);
         config.max_wait = s.max_wait;
+        config.max_wait_limit = s.max_wait_limit.max(s.max_wait);
         config.movers_every_step = s.movers_every_step;
     }
     config.early = s.early.then(psao_scene::EarlyDecisions::default);

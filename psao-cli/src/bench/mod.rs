@@ -154,9 +154,14 @@ pub struct BenchArgs {
     /// machine; or a number of rays per tick), beside the unbudgeted ones.
     #[arg(long, value_parser = crate::cmd::common::parse_ray_budget)]
     ray_budget: Option<psao_scene::RayBudget>,
-    /// Under --ray-budget, the most ticks a point waits.
+    /// Under --ray-budget, the most ticks a point waits while the budget
+    /// affords it.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=1000))]
     max_wait: u32,
+    /// Under --ray-budget, the most ticks the bound on waiting rises to
+    /// when demand exceeds the budget (at least --max-wait).
+    #[arg(long, default_value_t = PipelineConfig::default().max_wait_limit, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    max_wait_limit: u32,
     /// Servers re-trace every ray of a point motion reached (the baseline)
     /// instead of only the reached rays, keeping the others' scores (the
     /// frames are the same unbudgeted; under --ray-budget a point then
@@ -212,6 +217,7 @@ impl BenchArgs {
         settings.settle_steps = self.settle_steps;
         settings.budget = self.ray_budget;
         settings.max_wait = self.max_wait;
+        settings.max_wait_limit = self.max_wait_limit;
         settings.ray_reuse = !self.no_ray_reuse;
         settings.movers_every_step = self.movers_every_frame;
         settings.early = self.early_decisions;

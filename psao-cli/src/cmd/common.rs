@@ -196,9 +196,14 @@ pub struct BudgetArgs {
     #[arg(long, default_value = "auto", value_parser = parse_ray_budget)]
     pub ray_budget: RayBudget,
     /// Under a budget, the most frames a point waits before it is traced
-    /// whatever the budget.
+    /// whatever the budget, while the budget affords it.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub max_wait: u32,
+    /// Under a budget, the most frames the bound on waiting rises to when
+    /// the points that reach it alone cost more than a frame's budget (at
+    /// least --max-wait; the status line shows the bound in force).
+    #[arg(long, default_value_t = PipelineConfig::default().max_wait_limit, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    pub max_wait_limit: u32,
     /// Under a budget, trace a moving instance's own points in every
     /// frame it moves, whatever the budget (which then holds only the
     /// static points around it): no AO lagging its transform, at the price
@@ -219,6 +224,7 @@ impl BudgetArgs {
     pub fn apply(&self, config: &mut PipelineConfig) {
         config.budget = self.ray_budget;
         config.max_wait = self.max_wait;
+        config.max_wait_limit = self.max_wait_limit.max(self.max_wait);
         config.movers_every_step = self.movers_every_frame;
         config.early = self
             .early_decisions
@@ -400,13 +406,14 @@ pub fn status(s: &ServerStats, prev: &ServerStats, dt: f64) -> String {
         format!("{:5.1}", s.frame_age * 1e3)
     };
     format!(
-        "{:5.1} fps | {:6.3} Mbit/s per client | traced {:5.0}/frame | sent {:4.0}/frame | waiting {:5} (worst {:2} frames) | step {:5.2} ms | frame age {age} ms | {} clients",
+        "{:5.1} fps | {:6.3} Mbit/s per client | traced {:5.0}/frame | sent {:4.0}/frame | waiting {:5} (worst {:2} frames of {:2}) | step {:5.2} ms | frame age {age} ms | {} clients",
         (s.frames - prev.frames) as f64 / dt,
         (s.written_bytes - prev.written_bytes) as f64 * 8.0 / dt / 1e6 / clients,
         (s.report.traced - prev.report.traced) as f64 / frames,
         (s.report.updated - prev.report.updated) as f64 / frames,
         s.report.waiting,
         s.report.oldest_wait,
+        s.report.wait_bound,
         (s.step_time - prev.step_time).as_secs_f64() * 1e3 / frames,
         s.clients,
     )

@@ -2,9 +2,8 @@
 //! traced now, and which wait for a later step.
 //!
 //! Points are taken in order of priority until the budget is spent:
-//! first every point that has waited [`PipelineConfig::max_wait`]
-//! steps (so none starves, and none lags a full re-trace by more than that
-//! many steps), then by the share of their rays motion reached (a moving
+//! first every point that has waited the bound in force (so none starves,
+//! and none lags a full re-trace by more than that many steps), then by the share of their rays motion reached (a moving
 //! instance's points and those right beside what moves first: the most
 //! their AO can change) times the steps they have waited plus one (so
 //! the budget goes round the points rather than to the same ones each
@@ -12,6 +11,14 @@
 //! not fit is passed over for smaller ones. With
 //! [`PipelineConfig::movers_every_step`] a moving instance's own points
 //! count as having waited their longest: traced whatever the budget.
+//!
+//! The bound is [`PipelineConfig::max_wait`] while the budget affords the
+//! points that reach it, and follows demand beyond that ([`next_bound`],
+//! up to [`PipelineConfig::max_wait_limit`]): points that must wait
+//! longer wait longer, instead of the step running past its period.
+//! While the bound is above `max_wait`, a point that waited
+//! [`REPLAN_WAITS`] steps is no longer planned ray by ray each step: it is
+//! traced in full when its turn comes.
 //!
 //! A point costs the rays it traces. On the CPU backend with ray reuse
 //! that is only the rays motion reached (the others' scores are kept),
@@ -23,6 +30,7 @@
 //! same frames, byte for byte (psao-gpu's tests check it).
 //!
 //! [`PipelineConfig::max_wait`]: super::config::PipelineConfig::max_wait
+//! [`PipelineConfig::max_wait_limit`]: super::config::PipelineConfig::max_wait_limit
 //! [`PipelineConfig::movers_every_step`]: super::config::PipelineConfig::movers_every_step
 
 use rustc_hash::FxHashMap;
@@ -92,6 +100,41 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, max_wait: u32) -> (Vec<b
     (chosen, spent)
 }
 
+/// The bound on waiting for the step after one whose points that had
+/// reached `bound` (overdue, traced whatever the budget) cost `forced`
+/// rays under a budget of `budget`, and after which the longest wait is
+/// `oldest`: a step more when the overdue points cost more than the
+/// budget (demand beyond it: they take the step past its period); a step
+/// less when none was overdue and the longest wait is under half the
+/// bound (the budget goes round the points well within it); within
+/// `[least, limit]`. Under demand beyond the budget the points that wait
+/// go round in about demand / budget steps, so the bound settles between
+/// that and twice it.
+pub fn next_bound(
+    bound: u32,
+    forced: u64,
+    budget: u64,
+    oldest: u32,
+    least: u32,
+    limit: u32,
+) -> u32 {
+    let next = if forced > budget {
+        bound.saturating_add(1)
+    } else if forced == 0 && oldest.saturating_mul(2) < bound {
+        bound.saturating_sub(1)
+    } else {
+        bound
+    };
+    next.clamp(least, limit.max(least))
+}
+
+/// Steps a point with kept ray scores may wait and still be planned ray
+/// by ray while demand has raised the bound on waiting: past them it is
+/// traced in full when its turn comes. Planning tests each of its rays
+/// against the boxes of what moved, every step it waits; with many points
+/// waiting that costs more than the rays it saves.
+pub const REPLAN_WAITS: u32 = 2;
+
 /// The points waiting for a later step, by (instance, point) key: the
 /// steps each has waited, and whether it needs a full trace (it has no
 /// kept scores; else its reached rays are marked stale in the cache).
@@ -148,6 +191,24 @@ mod tests {
 
     fn c(cost: u32, reached: f32, age: u32) -> Candidate {
         Candidate { cost, reached, age }
+    }
+
+    #[test]
+    fn the_wait_bound_follows_demand_within_its_limits() {
+        // Overdue points cost more than the budget: a step more.
+        assert_eq!(next_bound(8, 1000, 999, 8, 8, 60), 9);
+        // At the limit it stays.
+        assert_eq!(next_bound(60, 1000, 10, 60, 8, 60), 60);
+        // Overdue points within the budget: unchanged.
+        assert_eq!(next_bound(12, 1000, 1000, 12, 8, 60), 12);
+        // None overdue but points near the bound: unchanged.
+        assert_eq!(next_bound(12, 0, 1000, 6, 8, 60), 12);
+        // None overdue and the longest wait under half: a step back,
+        // never below the least.
+        assert_eq!(next_bound(12, 0, 1000, 5, 8, 60), 11);
+        assert_eq!(next_bound(8, 0, 1000, 0, 8, 60), 8);
+        // A fixed bound (limit = least) never moves.
+        assert_eq!(next_bound(8, 1 << 40, 0, 8, 8, 8), 8);
     }
 
     #[test]

@@ -135,9 +135,22 @@ pub struct PipelineConfig {
     /// it may put off other points than the CPU tracer would, and its
     /// frames then differ from the CPU's; unbudgeted, they are the same.
     pub budget: RayBudget,
-    /// Under a budget, the most steps a point waits: one that waited this
-    /// long is traced whatever the budget (8).
+    /// Under a budget, the most steps a point waits while the budget
+    /// affords it: one that waited this long is traced whatever the
+    /// budget (8). The bound in force rises above it, up to
+    /// [`max_wait_limit`](Self::max_wait_limit), when the points that
+    /// reached it alone cost more rays than a step's budget.
     pub max_wait: u32,
+    /// Under a budget, the most steps the bound on waiting may rise to
+    /// when demand exceeds the budget (60: a second at 60 Hz). The bound
+    /// in force (`FrameReport::wait_bound`) goes up by a step each step
+    /// whose overdue points alone cost more than its budget, and back down
+    /// towards [`max_wait`](Self::max_wait) each step whose overdue points
+    /// cost less than half of it: no point waits longer than it, and the
+    /// server keeps its rate unless even this limit's overdue points cost
+    /// more than a period. Equal to `max_wait`: a fixed bound, whatever
+    /// the rate.
+    pub max_wait_limit: u32,
     /// Under a budget, a moving or deforming instance's own points are
     /// traced in every step it moves, whatever the budget (which then
     /// holds only the static points motion reaches), instead of waiting
@@ -226,6 +239,7 @@ impl Default for PipelineConfig {
             ray_cache_bytes: 64 << 20,
             budget: RayBudget::Unlimited,
             max_wait: 8,
+            max_wait_limit: 60,
             movers_every_step: false,
             early: None,
             lead: 0.0,

@@ -10,7 +10,7 @@ use psao_codec::{SentPoint, Thresholds};
 use rayon::prelude::*;
 
 use super::Pipeline;
-use super::budget::{Candidate, RayBudget, select};
+use super::budget::{Candidate, REPLAN_WAITS, RayBudget, next_bound, select};
 use super::early::{Kept, trace_early};
 use super::ray_cache::key;
 use super::reach::{MotionBoxes, RayMask, reached_rays};
@@ -183,6 +183,8 @@ impl Pipeline {
                 })
             }
         };
+        // The bound on waiting in force for this step.
+        let bound = self.wait_bound;
         // The points to trace, as budget candidates.
         let (mut at, mut cands) = (Vec::new(), Vec::new());
         let mut unreached = 0u64;
@@ -190,6 +192,12 @@ impl Pipeline {
             let (cost, reached) = match plan {
                 Plan::Skip => {
                     unreached += 1;
+                    // Remembered while the envelope holds, if nothing
+                    // else can change its plan (kept scores, a wait).
+                    let key = key(batch.owner[b].0, batch.owner[b].1);
+                    if self.ray_cache.get(key).is_none() && self.waiting.get(key).is_none() {
+                        self.unreached.insert(key);
+                    }
                     continue;
                 }
                 Plan::Full { reached } => (rays, *reached),
@@ -213,7 +221,7 @@ impl Pipeline {
             // A mover's own point traced every step it moves, if so
             // configured: as one that waited its longest.
             let age = match self.config.movers_every_step && motion.changed[i] {
-                true => self.config.max_wait,
+                true => bound,
                 false => self.waiting.get(key(i, k)).map_or(0, |w| w.0),
             };
             cands.push(Candidate {
@@ -222,15 +230,12 @@ impl Pipeline {
                 age,
             });
         }
-        let (chosen, _) = select(&cands, budget, self.config.max_wait);
-        let overdue = if budget.is_some() {
-            cands
-                .iter()
-                .filter(|c| c.age >= self.config.max_wait)
-                .count() as u64
-        } else {
-            0
-        };
+        let (chosen, _) = select(&cands, budget, bound);
+        let (overdue, forced) = cands
+            .iter()
+            .filter(|c| budget.is_some() && c.age >= bound)
+            .fold((0u64, 0u64), |(n, r), c| (n + 1, r + c.cost as u64));
+
         let mut take = Vec::new();
         for (&b, &go) in at.iter().zip(&chosen) {
             let (i, k) = batch.owner[b];
@@ -240,8 +245,12 @@ impl Pipeline {
                 take.push(b);
                 continue;
             }
+            // Planned again next step, unless demand has raised the bound
+            // and it has waited a while already.
+            let waited = self.waiting.get(key).map_or(0, |w| w.0);
+            let replan = bound <= self.config.max_wait || waited < REPLAN_WAITS;
             match &plans[b] {
-                Plan::Rays { reached, .. } => {
+                Plan::Rays { reached, .. } if replan => {
                     self.ray_cache.mark_stale(key, reached);
                     self.waiting.wait(key, false);
                 }
@@ -250,6 +259,11 @@ impl Pipeline {
                     self.waiting.wait(key, true);
                 }
             }
+        }
+        if let Some(b) = budget {
+            let (least, limit) = (self.config.max_wait, self.config.max_wait_limit);
+            let oldest = self.waiting.oldest();
+            self.wait_bound = next_bound(bound, forced, b, oldest, least, limit);
         }
         let sub = batch.select(&take);
         let sub_plans: Vec<&Plan> = take.iter().map(|&b| &plans[b]).collect();
@@ -433,6 +447,7 @@ impl Pipeline {
         let reuse = self.config.ray_reuse && self.config.skip;
         let cache = reuse && self.backend.is_none();
         let (waiting_list, ray_cache) = (&self.waiting, &self.ray_cache);
+        let unreached = &self.unreached;
         let rested = &self.early_rested;
         let unlimited = self.config.budget == RayBudget::Unlimited;
         (0..batch.ids.len())
@@ -448,6 +463,10 @@ impl Pipeline {
                 if entry.is_none() && waiting.is_some() {
                     // Waiting for a full trace: nothing to test.
                     return Plan::Full { reached: rays };
+                }
+                if entry.is_none() && waiting.is_none() && unreached.contains(&key) {
+                    // No ray reached the envelope, which still holds.
+                    return Plan::Skip;
                 }
                 let reached =
                     match PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao) {

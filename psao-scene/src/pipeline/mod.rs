@@ -256,6 +256,16 @@ pub struct Pipeline {
     /// points, encoding), a running mean: what an automatic budget keeps
     /// aside.
     tail_s: f64,
+    /// The bound on waiting in force under a budget: from
+    /// [`PipelineConfig::max_wait`] up to
+    /// [`PipelineConfig::max_wait_limit`], following demand.
+    wait_bound: u32,
+    /// The boxes of what moves, held from step to step while motion stays
+    /// inside them: what points plan their rays against.
+    envelope: reach::Envelope,
+    /// Points without kept scores none of whose rays reaches the
+    /// envelope: not tested again while it holds (cleared with a new one).
+    unreached: rustc_hash::FxHashSet<u64>,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -401,6 +411,13 @@ impl Pipeline {
             1.0,
             u32::MAX as f64,
             "at least 1 step",
+        )?;
+        check_param(
+            "max_wait_limit",
+            config.max_wait_limit as f64,
+            config.max_wait as f64,
+            u32::MAX as f64,
+            "at least max_wait",
         )?;
         if let Some(e) = &config.early {
             check_param("early.z", e.z as f64, 0.0, 100.0, "in [0, 100]")?;
@@ -558,6 +575,7 @@ impl Pipeline {
         let skin_groups = skin_groups(&scene, &dynamic);
         let ray_cache = ray_cache::RayCache::new(config.ao.rays, config.ray_cache_bytes);
         let (config_rays, config_cache_bytes) = (config.ao.rays, config.ray_cache_bytes);
+        let config_wait = config.max_wait;
         let mut pipeline = Pipeline {
             scene,
             backend,
@@ -584,6 +602,9 @@ impl Pipeline {
             last_traced: Vec::new(),
             ray_ns: 0.0,
             tail_s: 0.0,
+            wait_bound: config_wait,
+            envelope: reach::Envelope::default(),
+            unreached: Default::default(),
         };
         if pipeline.config.fill_buried {
             pipeline.find_buried(progress)?;

@@ -162,6 +162,53 @@ impl MotionBoxes {
     }
 }
 
+/// The boxes of what moves, held a little larger than they are from one
+/// step to the next: while each step's boxes stay inside them, the
+/// envelope is the same, and a point none of whose rays reaches it needs
+/// no test in the next step either (its rays are fixed, and so are the
+/// boxes tested). A rotating wheel's box barely moves, so the points
+/// around it are tested once, not every step. Testing against larger
+/// boxes only reaches more rays: a ray re-cast where nothing moved scores
+/// what it did, so frames are the same.
+#[derive(Clone, Debug, Default)]
+pub struct Envelope {
+    boxes: Vec<(Vec3, Vec3)>,
+}
+
+/// How much an envelope box is larger than the box it was made for, as a
+/// share of that box's diagonal, on every side.
+pub const ENVELOPE_MARGIN: f32 = 0.05;
+
+impl Envelope {
+    /// Takes a step's boxes (one per moving instance, in instance order):
+    /// keeps the envelope if there are as many as before and each lies
+    /// inside its own, else makes a new one, each box grown by
+    /// [`ENVELOPE_MARGIN`]. Returns whether it changed.
+    pub fn cover(&mut self, boxes: &[(Vec3, Vec3)]) -> bool {
+        let inside = boxes.len() == self.boxes.len()
+            && boxes
+                .iter()
+                .zip(&self.boxes)
+                .all(|(b, e)| b.0.cmpge(e.0).all() && b.1.cmple(e.1).all());
+        if inside {
+            return false;
+        }
+        self.boxes = boxes
+            .iter()
+            .map(|&(lo, hi)| {
+                let m = Vec3::splat(ENVELOPE_MARGIN * (hi - lo).length());
+                (lo - m, hi + m)
+            })
+            .collect();
+        true
+    }
+
+    /// The envelope's boxes.
+    pub fn boxes(&self) -> &[(Vec3, Vec3)] {
+        &self.boxes
+    }
+}
+
 /// The rays of a point (`rays`, its `count` rays) that `motion` can
 /// reach. With `scores` (the rays' scores of the last trace, closest-hit
 /// estimator), a ray that enters the boxes only beyond what it hit then
@@ -222,6 +269,23 @@ pub fn reached_rays(
 mod tests {
     use super::*;
     use crate::trace::ao::AoParams;
+
+    #[test]
+    fn an_envelope_holds_while_boxes_stay_inside_it() {
+        let mut e = Envelope::default();
+        let b = (Vec3::ZERO, Vec3::ONE);
+        assert!(e.cover(&[b]), "the first boxes make one");
+        let m = ENVELOPE_MARGIN * 3f32.sqrt();
+        assert!((e.boxes()[0].0 - Vec3::splat(-m)).abs().max_element() < 1e-6);
+        // A box that moved less than the margin: the same envelope.
+        let nudged = (Vec3::splat(0.01), Vec3::splat(1.01));
+        assert!(!e.cover(&[nudged]));
+        // Out of it, or another count of boxes: a new one.
+        assert!(e.cover(&[(Vec3::splat(0.5), Vec3::splat(1.5))]));
+        assert!(e.cover(&[b, b]));
+        assert!(e.cover(&[]));
+        assert!(!e.cover(&[]), "no boxes again: the same (empty) envelope");
+    }
 
     #[test]
     fn masks_count_and_combine() {

@@ -30,9 +30,15 @@ pub struct FrameReport {
     /// The longest any of them has waited, in steps.
     pub oldest_wait: u32,
     /// Points traced whatever the budget because they had waited
-    /// [`PipelineConfig::max_wait`](crate::PipelineConfig::max_wait)
-    /// steps: a budget too small for the motion.
+    /// `wait_bound` steps: a budget too small for the motion.
     pub overdue: u64,
+    /// Under a budget, the bound on waiting this step enforced: no point
+    /// waits longer (`oldest_wait` is at most this). It is
+    /// [`PipelineConfig::max_wait`](crate::PipelineConfig::max_wait)
+    /// while the budget affords it and rises with demand up to
+    /// [`PipelineConfig::max_wait_limit`](crate::PipelineConfig::max_wait_limit).
+    /// 0 without a budget.
+    pub wait_bound: u32,
     /// Points of moving instances that stopped casting rays early, their
     /// AO known to stay within the send threshold of what clients hold
     /// ([`PipelineConfig::early`](crate::PipelineConfig::early)); counted
@@ -70,7 +76,7 @@ pub struct FrameReport {
 impl FrameReport {
     /// Adds `other`'s counts and times to this one (`points` is kept as the
     /// larger of the two, `waiting` is `other`'s, the later one's, and
-    /// `oldest_wait` the larger).
+    /// `oldest_wait` and `wait_bound` the larger).
     pub fn accumulate(&mut self, other: &FrameReport) {
         self.points = self.points.max(other.points);
         self.traced += other.traced;
@@ -86,6 +92,7 @@ impl FrameReport {
         };
         self.waiting = other.waiting;
         self.oldest_wait = self.oldest_wait.max(other.oldest_wait);
+        self.wait_bound = self.wait_bound.max(other.wait_bound);
         self.updated += other.updated;
         self.settled += other.settled;
         self.transforms += other.transforms;

@@ -9,6 +9,7 @@ use glam::Vec3;
 use psao_codec::EncodedFrame;
 
 use super::blocks::{inside_any, overlaps};
+use super::budget::RayBudget;
 use super::config::{ViewerCull, Views};
 use super::dirty::StepMotion;
 use super::reach::MotionBoxes;
@@ -97,9 +98,17 @@ impl Pipeline {
         report.t_bvh = t2.elapsed();
         let t3 = Instant::now();
         let mut after_cast = std::time::Duration::ZERO;
+        if self.config.budget != RayBudget::Unlimited {
+            report.wait_bound = self.wait_bound;
+        }
         if anything || self.waiting.len() > 0 {
+            // Points plan their rays against the envelope of what moves:
+            // those it did not reach before need no test while it holds.
+            if self.envelope.cover(&motion.boxes) {
+                self.unreached.clear();
+            }
             let step = StepMotion {
-                boxes: MotionBoxes::new(motion.boxes.iter().copied(), 4.0 * RAY_LEAD),
+                boxes: MotionBoxes::new(self.envelope.boxes().iter().copied(), 4.0 * RAY_LEAD),
                 changed: motion.changed.clone(),
                 period: dt as f64,
                 elapsed: t0.elapsed(),
