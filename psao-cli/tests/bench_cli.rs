@@ -134,6 +134,8 @@ fn a_ray_budget_adds_budgeted_rows_beside_the_others() {
             "64",
             "--max-wait",
             "3",
+            "--max-wait-limit",
+            "5",
             "--image-frames",
             "0",
             "--out",
@@ -158,7 +160,9 @@ fn a_ray_budget_adds_budgeted_rows_beside_the_others() {
     let md = std::fs::read_to_string(out.join("bench.md")).unwrap();
     assert!(md.contains("| PSAO-16 @60 Hz budget |"), "{md}");
     // The verdict compares it with the unbudgeted server and states the
-    // longest wait, which the budget's max_wait bounds.
+    // longest wait, which the bound on waiting keeps within
+    // --max-wait-limit (a 64-ray budget is far below the demand, so the
+    // bound may rise from --max-wait to it).
     let verdict = md
         .lines()
         .find(|l| l.starts_with("- PSAO-16 @60 Hz budget: server"))
@@ -169,7 +173,7 @@ fn a_ray_budget_adds_budgeted_rows_beside_the_others() {
         .and_then(|t| t.split(' ').next())
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("{verdict}"));
-    assert!(waited <= 3, "{verdict}");
+    assert!(waited <= 5, "{verdict}");
     let _ = std::fs::remove_dir_all(&out);
 }
 

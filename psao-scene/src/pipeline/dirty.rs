@@ -187,6 +187,9 @@ impl Pipeline {
         let bound = self.wait_bound;
         // The points to trace, as budget candidates.
         let (mut at, mut cands) = (Vec::new(), Vec::new());
+        // Per candidate, whether it really waited (a mover's point traced
+        // every step counts as overdue without having waited).
+        let mut waited_really = Vec::new();
         let mut unreached = 0u64;
         for (b, plan) in plans.iter().enumerate() {
             let (cost, reached) = match plan {
@@ -220,10 +223,12 @@ impl Pipeline {
             at.push(b);
             // A mover's own point traced every step it moves, if so
             // configured: as one that waited its longest.
-            let age = match self.config.movers_every_step && motion.changed[i] {
+            let every_step = self.config.movers_every_step && motion.changed[i];
+            let age = match every_step {
                 true => bound,
                 false => self.waiting.get(key(i, k)).map_or(0, |w| w.0),
             };
+            waited_really.push(!every_step);
             cands.push(Candidate {
                 cost,
                 reached: reached as f32 / rays.max(1) as f32,
@@ -231,10 +236,15 @@ impl Pipeline {
             });
         }
         let (chosen, _) = select(&cands, budget, bound);
+        // Overdue points, and the rays of those that waited the bound: what
+        // moves the bound.
         let (overdue, forced) = cands
             .iter()
-            .filter(|c| budget.is_some() && c.age >= bound)
-            .fold((0u64, 0u64), |(n, r), c| (n + 1, r + c.cost as u64));
+            .zip(&waited_really)
+            .filter(|(c, _)| budget.is_some() && c.age >= bound)
+            .fold((0u64, 0u64), |(n, r), (c, &w)| {
+                (n + 1, r + if w { c.cost as u64 } else { 0 })
+            });
 
         let mut take = Vec::new();
         for (&b, &go) in at.iter().zip(&chosen) {

@@ -172,6 +172,8 @@ impl MotionBoxes {
 /// what it did, so frames are the same.
 #[derive(Clone, Debug, Default)]
 pub struct Envelope {
+    /// The instances that moved, ascending, one box each.
+    moving: Vec<usize>,
     boxes: Vec<(Vec3, Vec3)>,
 }
 
@@ -180,12 +182,15 @@ pub struct Envelope {
 pub const ENVELOPE_MARGIN: f32 = 0.05;
 
 impl Envelope {
-    /// Takes a step's boxes (one per moving instance, in instance order):
-    /// keeps the envelope if there are as many as before and each lies
+    /// Takes a step's boxes, one per instance in `moving` (ascending):
+    /// keeps the envelope if the same instances move and each box lies
     /// inside its own, else makes a new one, each box grown by
-    /// [`ENVELOPE_MARGIN`]. Returns whether it changed.
-    pub fn cover(&mut self, boxes: &[(Vec3, Vec3)]) -> bool {
-        let inside = boxes.len() == self.boxes.len()
+    /// [`ENVELOPE_MARGIN`]. Returns whether it changed. (Another instance
+    /// moving makes a new one: a point of an instance that moved has
+    /// other rays, and what was found against the last no longer holds.)
+    pub fn cover(&mut self, moving: &[usize], boxes: &[(Vec3, Vec3)]) -> bool {
+        let inside = moving == self.moving
+            && boxes.len() == self.boxes.len()
             && boxes
                 .iter()
                 .zip(&self.boxes)
@@ -193,6 +198,7 @@ impl Envelope {
         if inside {
             return false;
         }
+        self.moving = moving.to_vec();
         self.boxes = boxes
             .iter()
             .map(|&(lo, hi)| {
@@ -274,17 +280,22 @@ mod tests {
     fn an_envelope_holds_while_boxes_stay_inside_it() {
         let mut e = Envelope::default();
         let b = (Vec3::ZERO, Vec3::ONE);
-        assert!(e.cover(&[b]), "the first boxes make one");
+        assert!(e.cover(&[3], &[b]), "the first boxes make one");
         let m = ENVELOPE_MARGIN * 3f32.sqrt();
         assert!((e.boxes()[0].0 - Vec3::splat(-m)).abs().max_element() < 1e-6);
         // A box that moved less than the margin: the same envelope.
         let nudged = (Vec3::splat(0.01), Vec3::splat(1.01));
-        assert!(!e.cover(&[nudged]));
+        assert!(!e.cover(&[3], &[nudged]));
+        // The same box, but another instance moves in it: a new one.
+        assert!(e.cover(&[4], &[nudged]));
         // Out of it, or another count of boxes: a new one.
-        assert!(e.cover(&[(Vec3::splat(0.5), Vec3::splat(1.5))]));
-        assert!(e.cover(&[b, b]));
-        assert!(e.cover(&[]));
-        assert!(!e.cover(&[]), "no boxes again: the same (empty) envelope");
+        assert!(e.cover(&[4], &[(Vec3::splat(0.5), Vec3::splat(1.5))]));
+        assert!(e.cover(&[3, 4], &[b, b]));
+        assert!(e.cover(&[], &[]));
+        assert!(
+            !e.cover(&[], &[]),
+            "nothing moving again: the same (empty) envelope"
+        );
     }
 
     #[test]
