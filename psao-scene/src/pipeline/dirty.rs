@@ -24,6 +24,9 @@ use psao_codec::wire::point::{dequantize_ao, quantize_ao};
 pub(super) struct StepMotion {
     /// Where what moved was, before and after the step.
     pub boxes: MotionBoxes,
+    /// The envelope of what moves (`reach::Envelope`): a point none of
+    /// whose rays reaches it is not tested again while it holds.
+    pub envelope: MotionBoxes,
     /// Per instance, whether it moved or deformed: its points are traced
     /// in full.
     pub changed: Vec<bool>,
@@ -195,10 +198,17 @@ impl Pipeline {
             let (cost, reached) = match plan {
                 Plan::Skip => {
                     unreached += 1;
-                    // Remembered while the envelope holds, if nothing
-                    // else can change its plan (kept scores, a wait).
+                    // Remembered while the envelope holds, if no ray
+                    // reaches it either and nothing else can change its
+                    // plan (kept scores, a wait).
                     let key = key(batch.owner[b].0, batch.owner[b].1);
-                    if self.ray_cache.get(key).is_none() && self.waiting.get(key).is_none() {
+                    if self.ray_cache.get(key).is_none()
+                        && self.waiting.get(key).is_none()
+                        && !self.unreached.contains(&key)
+                        && self.near_envelope.insert(key)
+                        && self.misses_envelope(&batch, b, &motion.envelope)
+                    {
+                        self.near_envelope.remove(&key);
                         self.unreached.insert(key);
                     }
                     continue;
@@ -512,6 +522,18 @@ impl Pipeline {
                 }
             })
             .collect()
+    }
+
+    /// Whether no ray of point `b` of `batch` reaches `envelope`.
+    fn misses_envelope(&self, batch: &Batch, b: usize, envelope: &MotionBoxes) -> bool {
+        let ao = self.config.ao;
+        match PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao) {
+            Some(r) => {
+                reached_rays(&r, ao.rays, envelope, ao.estimator, ao.radius, None, true).is_empty()
+            }
+            // No rays at all: nothing can reach them.
+            None => true,
+        }
     }
 
     /// Checks the last step's early decisions

@@ -261,11 +261,14 @@ pub struct Pipeline {
     /// [`PipelineConfig::max_wait_limit`], following demand.
     wait_bound: u32,
     /// The boxes of what moves, held from step to step while motion stays
-    /// inside them: what points plan their rays against.
+    /// inside them.
     envelope: reach::Envelope,
     /// Points without kept scores none of whose rays reaches the
     /// envelope: not tested again while it holds (cleared with a new one).
     unreached: rustc_hash::FxHashSet<u64>,
+    /// Points whose rays reach the envelope but not what moved: tested
+    /// against the envelope once while it holds (cleared with a new one).
+    near_envelope: rustc_hash::FxHashSet<u64>,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -605,6 +608,7 @@ impl Pipeline {
             wait_bound: config_wait,
             envelope: reach::Envelope::default(),
             unreached: Default::default(),
+            near_envelope: Default::default(),
         };
         if pipeline.config.fill_buried {
             pipeline.find_buried(progress)?;

@@ -163,13 +163,13 @@ impl MotionBoxes {
 }
 
 /// The boxes of what moves, held a little larger than they are from one
-/// step to the next: while each step's boxes stay inside them, the
-/// envelope is the same, and a point none of whose rays reaches it needs
-/// no test in the next step either (its rays are fixed, and so are the
-/// boxes tested). A rotating wheel's box barely moves, so the points
-/// around it are tested once, not every step. Testing against larger
-/// boxes only reaches more rays: a ray re-cast where nothing moved scores
-/// what it did, so frames are the same.
+/// step to the next: while each step's boxes stay inside them (and the
+/// same instances move), the envelope is the same. Points still plan
+/// their rays against the step's own boxes; a point none of whose rays
+/// reaches even the envelope needs no test in the steps after while it
+/// holds (its rays are fixed, and what moves stays inside). A rotating
+/// wheel's box barely moves, so the points around it are tested once, not
+/// every step.
 #[derive(Clone, Debug, Default)]
 pub struct Envelope {
     /// The instances that moved, ascending, one box each.

@@ -98,21 +98,23 @@ impl Pipeline {
         report.t_bvh = t2.elapsed();
         let t3 = Instant::now();
         let mut after_cast = std::time::Duration::ZERO;
-        // Points plan their rays against the envelope of what moves: those
-        // it did not reach before need no test while it holds. Taken every
-        // step, so that motion in a step that traces nothing still counts.
+        // The envelope of what moves: points whose rays miss it need no
+        // test while it holds. Taken every step, so that motion in a step
+        // that traces nothing still counts.
         let moving: Vec<usize> = (0..motion.changed.len())
             .filter(|&i| motion.changed[i])
             .collect();
         if self.envelope.cover(&moving, &motion.boxes) {
             self.unreached.clear();
+            self.near_envelope.clear();
         }
         if self.config.budget != RayBudget::Unlimited {
             report.wait_bound = self.wait_bound;
         }
         if anything || self.waiting.len() > 0 {
             let step = StepMotion {
-                boxes: MotionBoxes::new(self.envelope.boxes().iter().copied(), 4.0 * RAY_LEAD),
+                boxes: MotionBoxes::new(motion.boxes.iter().copied(), 4.0 * RAY_LEAD),
+                envelope: MotionBoxes::new(self.envelope.boxes().iter().copied(), 4.0 * RAY_LEAD),
                 changed: motion.changed.clone(),
                 period: dt as f64,
                 elapsed: t0.elapsed(),
