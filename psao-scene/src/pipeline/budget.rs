@@ -3,8 +3,8 @@
 //!
 //! Points are taken in order of priority until the budget is spent:
 //! first every point that has waited the bound in force (so none starves,
-//! and none lags a full re-trace by more than that many steps), then by the share of their rays motion reached (a moving
-//! instance's points and those right beside what moves first: the most
+//! and none lags a full re-trace by more than that many steps), then by
+//! the share of their rays motion reached (a moving instance's points and those right beside what moves first: the most
 //! their AO can change) times the steps they have waited plus one (so
 //! the budget goes round the points rather than to the same ones each
 //! step), then the longest waiting, then in point order. A point that does
@@ -41,8 +41,8 @@ pub enum RayBudget {
     /// No limit: every point that motion reached is traced in its step
     /// (the baseline).
     Unlimited,
-    /// At most this many rays per step (points that waited
-    /// `max_wait` steps are traced beyond it).
+    /// At most this many rays per step (points that waited the bound in
+    /// force are traced beyond it).
     Rays(u64),
     /// The rays that `share` of the step's period affords at the cost of
     /// a ray measured over the last steps (from setup's trace at first),
@@ -65,9 +65,10 @@ pub struct Candidate {
 }
 
 /// Which candidates are traced this step under `budget` rays (`None`: all
-/// of them), in the order of the module's rules; `chosen[i]` for
-/// candidate `i`. Returns the choices and the rays they cost.
-pub fn select(cands: &[Candidate], budget: Option<u64>, max_wait: u32) -> (Vec<bool>, u64) {
+/// of them), those that waited `bound` steps whatever the budget, in the
+/// order of the module's rules; `chosen[i]` for candidate `i`. Returns the
+/// choices and the rays they cost.
+pub fn select(cands: &[Candidate], budget: Option<u64>, bound: u32) -> (Vec<bool>, u64) {
     let Some(budget) = budget else {
         return (
             vec![true; cands.len()],
@@ -82,8 +83,8 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, max_wait: u32) -> (Vec<b
     let weight = |c: &Candidate| c.reached.max(1e-3) * (c.age as f32 + 1.0);
     order.sort_by(|&a, &b| {
         let (x, y) = (&cands[a], &cands[b]);
-        (y.age >= max_wait)
-            .cmp(&(x.age >= max_wait))
+        (y.age >= bound)
+            .cmp(&(x.age >= bound))
             .then(weight(y).total_cmp(&weight(x)))
             .then(y.age.cmp(&x.age))
             .then(a.cmp(&b))
@@ -92,7 +93,7 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, max_wait: u32) -> (Vec<b
     let mut spent = 0u64;
     for i in order {
         let c = &cands[i];
-        if c.age >= max_wait || spent + c.cost as u64 <= budget {
+        if c.age >= bound || spent + c.cost as u64 <= budget {
             chosen[i] = true;
             spent += c.cost as u64;
         }

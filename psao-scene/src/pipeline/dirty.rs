@@ -198,19 +198,7 @@ impl Pipeline {
             let (cost, reached) = match plan {
                 Plan::Skip => {
                     unreached += 1;
-                    // Remembered while the envelope holds, if no ray
-                    // reaches it either and nothing else can change its
-                    // plan (kept scores, a wait).
-                    let key = key(batch.owner[b].0, batch.owner[b].1);
-                    if self.ray_cache.get(key).is_none()
-                        && self.waiting.get(key).is_none()
-                        && !self.unreached.contains(&key)
-                        && self.near_envelope.insert(key)
-                        && self.misses_envelope(&batch, b, &motion.envelope)
-                    {
-                        self.near_envelope.remove(&key);
-                        self.unreached.insert(key);
-                    }
+                    self.remember_unreached(&batch, b, &motion.envelope);
                     continue;
                 }
                 Plan::Full { reached } => (rays, *reached),
@@ -255,7 +243,6 @@ impl Pipeline {
             .fold((0u64, 0u64), |(n, r), (c, &w)| {
                 (n + 1, r + if w { c.cost as u64 } else { 0 })
             });
-
         let mut take = Vec::new();
         for (&b, &go) in at.iter().zip(&chosen) {
             let (i, k) = batch.owner[b];
@@ -524,15 +511,31 @@ impl Pipeline {
             .collect()
     }
 
-    /// Whether no ray of point `b` of `batch` reaches `envelope`.
-    fn misses_envelope(&self, batch: &Batch, b: usize, envelope: &MotionBoxes) -> bool {
+    /// After point `b` of `batch` planned no ray: remembers it as one
+    /// that needs no test while the envelope holds, if none of its rays
+    /// reaches `envelope` either and nothing else can change its plan (kept
+    /// scores, a wait). A point whose rays do reach the envelope is tested
+    /// against it once while it holds (`near_envelope`).
+    fn remember_unreached(&mut self, batch: &Batch, b: usize, envelope: &MotionBoxes) {
+        let key = key(batch.owner[b].0, batch.owner[b].1);
+        if self.ray_cache.get(key).is_some()
+            || self.waiting.get(key).is_some()
+            || self.unreached.contains(&key)
+            || !self.near_envelope.insert(key)
+        {
+            return;
+        }
         let ao = self.config.ao;
-        match PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao) {
+        let misses = match PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao) {
             Some(r) => {
                 reached_rays(&r, ao.rays, envelope, ao.estimator, ao.radius, None, true).is_empty()
             }
             // No rays at all: nothing can reach them.
             None => true,
+        };
+        if misses {
+            self.near_envelope.remove(&key);
+            self.unreached.insert(key);
         }
     }
 

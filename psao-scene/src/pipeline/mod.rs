@@ -765,6 +765,9 @@ impl Pipeline {
             + self.ray_cache.memory_bytes()
             + self.kept_scores.memory_bytes()
             + self.waiting.memory_bytes()
+            // The two key sets of the envelope: a key and a control byte
+            // a slot.
+            + (self.unreached.capacity() + self.near_envelope.capacity()) as u64 * 9
     }
 
     /// Static points whose ray scores are kept for partial re-traces
