@@ -33,7 +33,7 @@
 //! [`PipelineConfig::max_wait_limit`]: super::config::PipelineConfig::max_wait_limit
 //! [`PipelineConfig::movers_every_step`]: super::config::PipelineConfig::movers_every_step
 
-use rustc_hash::FxHashMap;
+use super::slots::PointSlots;
 
 /// How many rays one step may trace.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -75,28 +75,66 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, bound: u32) -> (Vec<bool
             cands.iter().map(|c| c.cost as u64).sum(),
         );
     };
-    let mut order: Vec<usize> = (0..cands.len()).collect();
+    // Those that waited the bound go first, whatever they cost.
+    let mut chosen = vec![false; cands.len()];
+    let mut spent = 0u64;
+    let mut rest = Vec::with_capacity(cands.len());
+    for (i, c) in cands.iter().enumerate() {
+        if c.age >= bound {
+            chosen[i] = true;
+            spent += c.cost as u64;
+        } else {
+            rest.push(i);
+        }
+    }
     // The share reached, weighed by the steps waited: what motion
     // reached most goes first, and a point gains on the others with every
     // step it waits, so the budget goes round instead of to the same
-    // points every step.
+    // points every step. A total order (ties go by index).
     let weight = |c: &Candidate| c.reached.max(1e-3) * (c.age as f32 + 1.0);
-    order.sort_by(|&a, &b| {
+    let order = |&a: &usize, &b: &usize| {
         let (x, y) = (&cands[a], &cands[b]);
-        (y.age >= bound)
-            .cmp(&(x.age >= bound))
-            .then(weight(y).total_cmp(&weight(x)))
+        weight(y)
+            .total_cmp(&weight(x))
             .then(y.age.cmp(&x.age))
             .then(a.cmp(&b))
-    });
-    let mut chosen = vec![false; cands.len()];
-    let mut spent = 0u64;
-    for i in order {
-        let c = &cands[i];
-        if c.age >= bound || spent + c.cost as u64 <= budget {
+    };
+    // In that order, each that fits what is left. A point costs a ray or
+    // more, so no more than `left` of them fit: only that many are sorted
+    // first, then of the others only those that still fit after them
+    // (what is left only shrinks), in the same order. The choice is the
+    // one a sort of all of them gives, whatever the costs (a test checks
+    // it).
+    if spent > budget {
+        // Nothing else fits, not even a point of no rays.
+        return (chosen, spent);
+    }
+    let mut left = budget - spent;
+    let head = rest.len().min(usize::try_from(left).unwrap_or(usize::MAX));
+    if head < rest.len() {
+        rest.select_nth_unstable_by(head, order);
+    }
+    let (first, others) = rest.split_at_mut(head);
+    first.sort_unstable_by(order);
+    let mut take = |i: usize, left: &mut u64| {
+        let cost = cands[i].cost as u64;
+        if cost <= *left {
             chosen[i] = true;
-            spent += c.cost as u64;
+            *left -= cost;
+            spent += cost;
         }
+    };
+    for &i in first.iter() {
+        take(i, &mut left);
+    }
+    let mut others: Vec<usize> = others
+        .iter()
+        .copied()
+        .filter(|&i| cands[i].cost as u64 <= left)
+        .collect();
+    others.sort_unstable_by(order);
+    for i in others {
+        take(i, &mut left);
     }
     (chosen, spent)
 }
@@ -141,48 +179,72 @@ pub const REPLAN_WAITS: u32 = 2;
 /// kept scores; else its reached rays are marked stale in the cache).
 #[derive(Clone, Debug, Default)]
 pub struct Waiting {
-    points: FxHashMap<u64, (u32, bool)>,
+    /// Per point: 0 while it does not wait, else the steps it has waited
+    /// times 2, plus 1 when it needs a full trace.
+    state: PointSlots,
+    /// The keys of the points that wait, in no order, and of some that no
+    /// longer do or twice (tidied by [`keys`](Self::keys)).
+    list: Vec<u64>,
+    /// Points waiting.
+    count: usize,
 }
 
 impl Waiting {
     /// A waiting point's age and whether it needs a full trace.
     pub fn get(&self, key: u64) -> Option<(u32, bool)> {
-        self.points.get(&key).copied()
+        let s = self.state.get(key);
+        (s != 0).then_some((s >> 1, s & 1 == 1))
     }
 
     /// Keeps `key` waiting one step more (`full`: it needs a full trace,
     /// which stays so once set).
     pub fn wait(&mut self, key: u64, full: bool) {
-        let e = self.points.entry(key).or_insert((0, false));
-        e.0 += 1;
-        e.1 |= full;
+        let s = self.state.get(key);
+        if s == 0 {
+            self.list.push(key);
+            self.count += 1;
+        }
+        let age = ((s >> 1) + 1).min(u32::MAX >> 1);
+        let full = s & 1 == 1 || full;
+        self.state.set(key, (age << 1) | full as u32);
     }
 
     /// Takes `key` off the list (it was traced).
     pub fn done(&mut self, key: u64) {
-        self.points.remove(&key);
+        if self.state.get(key) != 0 {
+            self.state.set(key, 0);
+            self.count -= 1;
+        }
     }
 
     /// The waiting keys, ascending.
-    pub fn keys(&self) -> Vec<u64> {
-        let mut k: Vec<u64> = self.points.keys().copied().collect();
-        k.sort_unstable();
-        k
+    pub fn keys(&mut self) -> Vec<u64> {
+        let state = &self.state;
+        self.list.retain(|&k| state.get(k) != 0);
+        // Mostly ascending runs (each step adds its keys in order): the
+        // stable sort merges them.
+        self.list.sort();
+        self.list.dedup();
+        self.list.clone()
     }
 
     /// Points waiting.
     pub fn len(&self) -> usize {
-        self.points.len()
+        self.count
     }
 
     /// The longest wait, in steps.
     pub fn oldest(&self) -> u32 {
-        self.points.values().map(|v| v.0).max().unwrap_or(0)
+        self.list
+            .iter()
+            .map(|&k| self.state.get(k) >> 1)
+            .max()
+            .unwrap_or(0)
     }
 
     /// Bytes held (capacity).
     pub fn memory_bytes(&self) -> u64 {
-        self.points.capacity() as u64 * 24
+        self.state.memory_bytes() + self.list.capacity() as u64 * 8
     }
 }
 
@@ -251,6 +313,56 @@ mod tests {
         assert_eq!(ch, vec![false, true]);
     }
 
+    /// `select` as its rules say it, sorting every candidate.
+    fn select_by_sorting_all(cands: &[Candidate], budget: u64, bound: u32) -> (Vec<bool>, u64) {
+        let weight = |c: &Candidate| c.reached.max(1e-3) * (c.age as f32 + 1.0);
+        let mut order: Vec<usize> = (0..cands.len()).collect();
+        order.sort_by(|&a, &b| {
+            let (x, y) = (&cands[a], &cands[b]);
+            (y.age >= bound)
+                .cmp(&(x.age >= bound))
+                .then(weight(y).total_cmp(&weight(x)))
+                .then(y.age.cmp(&x.age))
+                .then(a.cmp(&b))
+        });
+        let (mut chosen, mut spent) = (vec![false; cands.len()], 0u64);
+        for i in order {
+            let c = &cands[i];
+            if c.age >= bound || spent + c.cost as u64 <= budget {
+                chosen[i] = true;
+                spent += c.cost as u64;
+            }
+        }
+        (chosen, spent)
+    }
+
+    #[test]
+    fn choosing_sorts_only_what_can_fit_and_chooses_as_a_full_sort() {
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = |m: u64| {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 33) % m
+        };
+        for round in 0..300 {
+            let n = next(200) as usize;
+            let cands: Vec<Candidate> = (0..n)
+                .map(|_| {
+                    let cost = next(40) as u32; // 0 too, which no plan gives
+                    c(cost, next(9) as f32 / 8.0, next(12) as u32)
+                })
+                .collect();
+            let budget = next(2000);
+            let bound = 1 + next(12) as u32;
+            assert_eq!(
+                select(&cands, Some(budget), bound),
+                select_by_sorting_all(&cands, budget, bound),
+                "round {round}"
+            );
+        }
+    }
+
     #[test]
     fn nothing_waits_past_max_wait() {
         let cands = [c(32, 1.0, 0), c(8, 0.25, 8)];
@@ -271,5 +383,17 @@ mod tests {
         w.done(5);
         assert_eq!(w.len(), 1);
         assert_eq!(w.get(5), None);
+        assert_eq!(w.keys(), vec![2]);
+        // Back on the list: one key, a fresh age.
+        w.wait(5, false);
+        w.done(5);
+        w.wait(5, false);
+        w.done(2);
+        w.done(2);
+        assert_eq!(w.keys(), vec![5]);
+        assert_eq!((w.len(), w.get(5), w.oldest()), (1, Some((1, false)), 1));
+        // Keys of other instances too.
+        w.wait(super::super::ray_cache::key(3, 1), true);
+        assert_eq!(w.keys(), vec![5, 3 << 32 | 1]);
     }
 }

@@ -12,8 +12,9 @@ use rayon::prelude::*;
 use super::Pipeline;
 use super::budget::{Candidate, REPLAN_WAITS, RayBudget, next_bound, select};
 use super::early::{Kept, trace_early};
+use super::plan::{Learnt, Plan};
 use super::ray_cache::key;
-use super::reach::{MotionBoxes, RayMask, reached_rays};
+use super::reach::MotionBoxes;
 use crate::error::SceneError;
 use crate::model::pose::normal_matrix;
 use crate::morton::morton_order;
@@ -47,8 +48,9 @@ pub(super) struct StepTrace {
     pub overdue: u64,
     pub settled: u64,
     pub early: u64,
-    /// Time from the end of casting to the end of the trace phase.
-    pub after_cast: Duration,
+    /// Time the trace phase took after the budget was set, less the
+    /// casting: choosing the points, and after casting.
+    pub outside_cast: Duration,
 }
 
 /// What [`Pipeline::settle_left`] did.
@@ -59,37 +61,25 @@ pub(super) struct Settled {
     pub updated: u64,
 }
 
-/// How one point is traced this step.
-#[derive(Clone, Debug)]
-enum Plan {
-    /// Motion reaches none of its rays and nothing waits: not traced.
-    Skip,
-    /// Every ray; `reached` counts those motion reached (all of a moving
-    /// instance's), which ranks it under a budget.
-    Full { reached: u32 },
-    /// Only `need` (motion's `reached` ones and those it reached while
-    /// the point waited), the others' scores kept.
-    Rays { need: RayMask, reached: RayMask },
-}
-
 /// Points of every instance traced together, in world space.
 #[derive(Default)]
-struct Batch {
+pub(super) struct Batch {
     /// Stable ids: instance `i`'s points are numbered after the points of
     /// the instances before it.
-    ids: Vec<u32>,
+    pub ids: Vec<u32>,
     /// World positions.
-    points: Vec<Vec3>,
+    pub points: Vec<Vec3>,
     /// World normals.
-    normals: Vec<Vec3>,
+    pub normals: Vec<Vec3>,
     /// (instance, point) of each traced point.
-    owner: Vec<(usize, u32)>,
+    pub owner: Vec<(usize, u32)>,
     /// What clients hold of each (cells numbered across instances).
-    sent: Vec<SentPoint>,
+    pub sent: Vec<SentPoint>,
 }
 
 impl Batch {
-    /// The entries at `at` (ascending), in that order.
+    /// The entries at `at` (ascending), in that order (`sent` too where
+    /// it is looked up).
     fn select(&self, at: &[usize]) -> Batch {
         let mut out = Batch::default();
         for &b in at {
@@ -97,7 +87,9 @@ impl Batch {
             out.points.push(self.points[b]);
             out.normals.push(self.normals[b]);
             out.owner.push(self.owner[b]);
-            out.sent.push(self.sent[b]);
+            if let Some(&h) = self.sent.get(b) {
+                out.sent.push(h);
+            }
         }
         out
     }
@@ -147,20 +139,47 @@ impl Pipeline {
         motion: &StepMotion,
     ) -> Result<StepTrace, SceneError> {
         let mut lists = self.traced_only(which).unwrap_or_else(|| which.to_vec());
+        let rays = self.config.ao.rays;
+        // Waiting points that need a full trace, of instances that did not
+        // move and with no kept scores, are not planned again: their plan
+        // is a full trace with every ray reached, and they are candidates
+        // of their own (`apart`, ascending). With many points waiting,
+        // that is most of them.
+        let cache = self.config.ray_reuse && self.config.skip && self.backend.is_none();
+        let is_apart = |this: &Self, key: u64| {
+            this.waiting.get(key).is_some_and(|w| w.1)
+                && !motion
+                    .changed
+                    .get((key >> 32) as usize)
+                    .copied()
+                    .unwrap_or(true)
+                && !(cache && this.ray_cache.get(key).is_some())
+        };
+        let mut apart = Vec::new();
+        let mut touched: Vec<bool> = lists.iter().map(|w| !w.is_empty()).collect();
         for k in self.waiting.keys() {
             let (i, p) = ((k >> 32) as usize, k as u32);
-            if let Some(l) = lists.get_mut(i) {
+            if let Some(t) = touched.get_mut(i) {
+                *t = true;
+            }
+            if is_apart(self, k) {
+                apart.push(k);
+            } else if let Some(l) = lists.get_mut(i) {
                 l.push(p);
             }
         }
-        for l in &mut lists {
-            l.sort_unstable();
+        for (i, l) in lists.iter_mut().enumerate() {
+            // Two ascending runs: the stable sort merges them.
+            l.sort();
             l.dedup();
+            l.retain(|&p| !is_apart(self, key(i, p)));
         }
         let started = std::time::Instant::now();
-        let batch = self.batch(&lists, false);
-        let plans = self.plan(&batch, motion);
-        let rays = self.config.ao.rays;
+        // What clients hold is looked up for the points traced only.
+        let batch = self.batch_unheld(&lists);
+        let (plans, learnt): (Vec<Plan>, Vec<Learnt>) =
+            self.plan(&batch, motion).into_iter().unzip();
+        self.remember_envelope(&batch, learnt);
         let (moving_cost, max_stops) = match self.early_decisions() {
             Some(e) => (
                 (self.early_cost.ceil() as u32).clamp(1, rays.max(1)),
@@ -173,8 +192,8 @@ impl Pipeline {
             RayBudget::Rays(n) => Some(n),
             RayBudget::Auto { share } => {
                 // What is left of the share once the step so far, the
-                // planning and what the step does after casting (as it
-                // took in the last steps) are paid for.
+                // planning and what the step does besides casting from
+                // here on (as it took in the last steps) are paid for.
                 let left = share as f64 * motion.period
                     - motion.elapsed.as_secs_f64()
                     - started.elapsed().as_secs_f64()
@@ -186,6 +205,9 @@ impl Pipeline {
                 })
             }
         };
+        // From here to casting (choosing, the waiting list, what clients
+        // hold) is paid for with the step's tail.
+        let budgeted = std::time::Instant::now();
         // The bound on waiting in force for this step.
         let bound = self.wait_bound;
         // The points to trace, as budget candidates.
@@ -198,7 +220,6 @@ impl Pipeline {
             let (cost, reached) = match plan {
                 Plan::Skip => {
                     unreached += 1;
-                    self.remember_unreached(&batch, b, &motion.envelope);
                     continue;
                 }
                 Plan::Full { reached } => (rays, *reached),
@@ -233,6 +254,15 @@ impl Pipeline {
                 age,
             });
         }
+        // The waiting points apart: a full trace each.
+        for &k in &apart {
+            cands.push(Candidate {
+                cost: rays,
+                reached: rays as f32 / rays.max(1) as f32,
+                age: self.waiting.get(k).map_or(0, |w| w.0),
+            });
+            waited_really.push(true);
+        }
         let (chosen, _) = select(&cands, budget, bound);
         // Overdue points, and the rays of those that waited the bound: what
         // moves the bound.
@@ -244,7 +274,17 @@ impl Pipeline {
                 (n + 1, r + if w { c.cost as u64 } else { 0 })
             });
         let mut take = Vec::new();
-        for (&b, &go) in at.iter().zip(&chosen) {
+        let (chosen, chosen_apart) = chosen.split_at(at.len());
+        let mut take_apart = Vec::new();
+        for (&k, &go) in apart.iter().zip(chosen_apart) {
+            if go {
+                self.waiting.done(k);
+                take_apart.push(k);
+            } else {
+                self.waiting.wait(k, true);
+            }
+        }
+        for (&b, &go) in at.iter().zip(chosen) {
             let (i, k) = batch.owner[b];
             let key = key(i, k);
             if go {
@@ -272,8 +312,41 @@ impl Pipeline {
             let oldest = self.waiting.oldest();
             self.wait_bound = next_bound(bound, forced, b, oldest, least, limit);
         }
-        let sub = batch.select(&take);
-        let sub_plans: Vec<&Plan> = take.iter().map(|&b| &plans[b]).collect();
+        // The chosen points, planned and apart, in (instance, point) order.
+        let full = Plan::Full { reached: rays };
+        let (mut sub, sub_plans) = if take_apart.is_empty() {
+            let sub_plans: Vec<&Plan> = take.iter().map(|&b| &plans[b]).collect();
+            (batch.select(&take), sub_plans)
+        } else {
+            let mut chosen_lists = vec![Vec::new(); self.instances.len()];
+            for (i, p) in take
+                .iter()
+                .map(|&b| batch.owner[b])
+                .chain(take_apart.iter().map(|&k| ((k >> 32) as usize, k as u32)))
+            {
+                chosen_lists[i].push(p);
+            }
+            for l in &mut chosen_lists {
+                l.sort();
+            }
+            let sub = self.batch_unheld(&chosen_lists);
+            // Both ascending: a planned point is the next of `take` or else
+            // one apart.
+            let mut next = take.iter().peekable();
+            let sub_plans: Vec<&Plan> = sub
+                .owner
+                .iter()
+                .map(|&o| match next.peek() {
+                    Some(&&b) if batch.owner[b] == o => {
+                        next.next();
+                        &plans[b]
+                    }
+                    _ => &full,
+                })
+                .collect();
+            (sub, sub_plans)
+        };
+        self.look_up_held(&mut sub);
         let casting = std::time::Instant::now();
         let th = self.config.thresholds;
         let settling = self.config.settle_steps > 0;
@@ -311,7 +384,6 @@ impl Pipeline {
             .sum();
         self.apply(&sub.owner, &result)?;
         let settle = self.settle_left(&sub.owner)?;
-        let mut touched: Vec<bool> = lists.iter().map(|w| !w.is_empty()).collect();
         for (t, s) in touched.iter_mut().zip(&settle.touched) {
             *t |= *s;
         }
@@ -330,7 +402,7 @@ impl Pipeline {
             budget,
             overdue,
             early: self.last_early.len() as u64,
-            after_cast: t_after.elapsed(),
+            outside_cast: casting.duration_since(budgeted) + t_after.elapsed(),
         })
     }
 
@@ -439,104 +511,6 @@ impl Pipeline {
             }
         }
         Ok(out)
-    }
-
-    /// How each point of `batch` is traced this step: in full for a moving
-    /// instance (or without ray reuse); for a static one only the rays
-    /// motion reaches (and those it reached while the point waited), with
-    /// the other rays' scores kept where the CPU tracer keeps them, in
-    /// full where it has none; not at all when none is reached and the
-    /// point does not wait.
-    fn plan(&self, batch: &Batch, motion: &StepMotion) -> Vec<Plan> {
-        let ao = self.config.ao;
-        let rays = ao.rays;
-        // Without skipping every point is traced in full (the baseline).
-        let reuse = self.config.ray_reuse && self.config.skip;
-        let cache = reuse && self.backend.is_none();
-        let (waiting_list, ray_cache) = (&self.waiting, &self.ray_cache);
-        let unreached = &self.unreached;
-        let rested = &self.early_rested;
-        let unlimited = self.config.budget == RayBudget::Unlimited;
-        (0..batch.ids.len())
-            .into_par_iter()
-            .map(|b| {
-                let (i, k) = batch.owner[b];
-                let key = key(i, k);
-                if !reuse || motion.changed[i] || rested.binary_search(&key).is_ok() {
-                    return Plan::Full { reached: rays };
-                }
-                let waiting = waiting_list.get(key);
-                let entry = if cache { ray_cache.get(key) } else { None };
-                if entry.is_none() && waiting.is_some() {
-                    // Waiting for a full trace: nothing to test.
-                    return Plan::Full { reached: rays };
-                }
-                if entry.is_none() && waiting.is_none() && unreached.contains(&key) {
-                    // No ray reached the envelope, which still holds.
-                    return Plan::Skip;
-                }
-                let reached =
-                    match PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao) {
-                        Some(r) => reached_rays(
-                            &r,
-                            rays,
-                            &motion.boxes,
-                            ao.estimator,
-                            ao.radius,
-                            entry.map(|e| (&e.scores[..], &e.rays[..])),
-                            // Traced in full anyway without kept scores:
-                            // the first reached ray decides, unless a
-                            // budget ranks by the share reached.
-                            entry.is_none() && unlimited,
-                        ),
-                        // Nothing to trace from: a full trace is cheap (open).
-                        None => RayMask::all(rays),
-                    };
-                match entry {
-                    Some(e) if !waiting.is_some_and(|w| w.1) => {
-                        let mut need = reached.clone();
-                        need.union(&e.stale);
-                        if need.is_empty() {
-                            Plan::Skip
-                        } else {
-                            Plan::Rays { need, reached }
-                        }
-                    }
-                    _ if reached.is_empty() && waiting.is_none() => Plan::Skip,
-                    _ => Plan::Full {
-                        reached: reached.count(),
-                    },
-                }
-            })
-            .collect()
-    }
-
-    /// After point `b` of `batch` planned no ray: remembers it as one
-    /// that needs no test while the envelope holds, if none of its rays
-    /// reaches `envelope` either and nothing else can change its plan (kept
-    /// scores, a wait). A point whose rays do reach the envelope is tested
-    /// against it once while it holds (`near_envelope`).
-    fn remember_unreached(&mut self, batch: &Batch, b: usize, envelope: &MotionBoxes) {
-        let key = key(batch.owner[b].0, batch.owner[b].1);
-        if self.ray_cache.get(key).is_some()
-            || self.waiting.get(key).is_some()
-            || self.unreached.contains(&key)
-            || !self.near_envelope.insert(key)
-        {
-            return;
-        }
-        let ao = self.config.ao;
-        let misses = match PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao) {
-            Some(r) => {
-                reached_rays(&r, ao.rays, envelope, ao.estimator, ao.radius, None, true).is_empty()
-            }
-            // No rays at all: nothing can reach them.
-            None => true,
-        };
-        if misses {
-            self.near_envelope.remove(&key);
-            self.unreached.insert(key);
-        }
     }
 
     /// Checks the last step's early decisions
@@ -710,48 +684,71 @@ impl Pipeline {
     /// The listed points of each instance in world space, with what clients
     /// hold of them (nothing with `force`).
     fn batch(&self, which: &[Vec<u32>], force: bool) -> Batch {
+        let mut batch = self.batch_unheld(which);
+        if force {
+            batch.sent = vec![SentPoint::not_held(Vec3::ZERO); batch.ids.len()];
+        } else {
+            self.look_up_held(&mut batch);
+        }
+        batch
+    }
+
+    /// The listed points of every instance, as [`batch`](Self::batch)
+    /// gives them, without what clients hold (`sent` empty).
+    fn batch_unheld(&self, which: &[Vec<u32>]) -> Batch {
         let (mut ids, mut pts, mut nrm) = (Vec::new(), Vec::new(), Vec::new());
-        // (instance, point) of each traced point, and what clients hold.
-        let (mut owner, mut sent) = (Vec::new(), Vec::new());
-        // Cells are numbered across instances: instance i's start after
-        // the pools of those before it.
-        let (mut base, mut cell_base) = (0u32, 0u32);
+        // (instance, point) of each traced point.
+        let mut owner = Vec::new();
+        let mut base = 0u32;
         for (i, (s, list)) in self.instances.iter().zip(which).enumerate() {
             if list.is_empty() {
                 base += s.points.len() as u32;
-                cell_base = cell_base.saturating_add(s.table.def().cell_pool);
                 continue;
             }
             let nm = normal_matrix(&s.transform);
-            // Traced where the points are now; compared where the table
-            // stores them (bind space for a bind-space instance).
+            // Traced where the points are now.
             let (positions, normals) = s.now();
-            let (stored_p, stored_n) = s.stored();
             for &k in list {
                 let (p, n) = (positions[k as usize], normals[k as usize]);
                 ids.push(base + k);
                 pts.push(s.transform.transform_point3(p));
                 nrm.push((nm * n).normalize_or_zero());
                 owner.push((i, k));
-                sent.push(if force {
-                    SentPoint::not_held(Vec3::ZERO)
-                } else {
-                    let (p, n) = (stored_p[k as usize], stored_n[k as usize]);
-                    let mut held = s.table.sent(k, p, n);
-                    held.cell = held.cell.saturating_add(cell_base);
-                    held
-                });
             }
             base += s.points.len() as u32;
-            cell_base = cell_base.saturating_add(s.table.def().cell_pool);
         }
         Batch {
             ids,
             points: pts,
             normals: nrm,
             owner,
-            sent,
+            sent: Vec::new(),
         }
+    }
+
+    /// Sets `batch.sent` to what clients hold of each of its points:
+    /// compared where the table stores them (bind space for a bind-space
+    /// instance), cells numbered across instances (instance i's after the
+    /// pools of those before it).
+    fn look_up_held(&self, batch: &mut Batch) {
+        let mut cell_base = Vec::with_capacity(self.instances.len());
+        let mut next = 0u32;
+        for s in &self.instances {
+            cell_base.push(next);
+            next = next.saturating_add(s.table.def().cell_pool);
+        }
+        batch.sent = batch
+            .owner
+            .iter()
+            .map(|&(i, k)| {
+                let s = &self.instances[i];
+                let (stored_p, stored_n) = s.stored();
+                let (p, n) = (stored_p[k as usize], stored_n[k as usize]);
+                let mut held = s.table.sent(k, p, n);
+                held.cell = held.cell.saturating_add(cell_base[i]);
+                held
+            })
+            .collect();
     }
 
     /// Traces `batch` and keeps the points past the thresholds against what

@@ -36,9 +36,11 @@ mod bvh;
 pub(crate) mod config;
 mod dirty;
 pub(crate) mod early;
+mod plan;
 mod ray_cache;
 mod reach;
 pub(crate) mod report;
+mod slots;
 mod step;
 
 use std::sync::Arc;
@@ -252,9 +254,9 @@ pub struct Pipeline {
     /// Nanoseconds a ray costs, measured over the last steps (from setup's
     /// trace at first): what an automatic budget divides by.
     ray_ns: f64,
-    /// Seconds a step takes after casting its rays (tables, buried
-    /// points, encoding), a running mean: what an automatic budget keeps
-    /// aside.
+    /// Seconds a step takes besides casting once its budget is set
+    /// (choosing the points, the waiting list, then tables, buried points,
+    /// encoding), a running mean: what an automatic budget keeps aside.
     tail_s: f64,
     /// The bound on waiting in force under a budget: from
     /// [`PipelineConfig::max_wait`] up to
@@ -263,12 +265,16 @@ pub struct Pipeline {
     /// The boxes of what moves, held from step to step while motion stays
     /// inside them.
     envelope: reach::Envelope,
-    /// Points without kept scores none of whose rays reaches the
-    /// envelope: not tested again while it holds (cleared with a new one).
-    unreached: rustc_hash::FxHashSet<u64>,
-    /// Points whose rays reach the envelope but not what moved: tested
-    /// against the envelope once while it holds (cleared with a new one).
-    near_envelope: rustc_hash::FxHashSet<u64>,
+    /// Per static point, what is known of its rays against the envelope
+    /// (cleared with a new one): 0 nothing, 1 that it was planned once
+    /// under it, `n + 2` that the rays of it that reach the envelope are
+    /// `envelope_masks[n]` (found the second time it was planned). Only
+    /// those are tested against a step's boxes, which lie inside it; a
+    /// point with none needs no test while it holds (unless it waits or
+    /// has stale rays).
+    envelope_rays: slots::PointSlots,
+    /// The masks `envelope_rays` points to, with the rays' directions.
+    envelope_masks: Vec<plan::EnvelopeRays>,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -607,8 +613,8 @@ impl Pipeline {
             tail_s: 0.0,
             wait_bound: config_wait,
             envelope: reach::Envelope::default(),
-            unreached: Default::default(),
-            near_envelope: Default::default(),
+            envelope_rays: Default::default(),
+            envelope_masks: Vec::new(),
         };
         if pipeline.config.fill_buried {
             pipeline.find_buried(progress)?;
@@ -765,9 +771,12 @@ impl Pipeline {
             + self.ray_cache.memory_bytes()
             + self.kept_scores.memory_bytes()
             + self.waiting.memory_bytes()
-            // The two key sets of the envelope: a key and a control byte
-            // a slot.
-            + (self.unreached.capacity() + self.near_envelope.capacity()) as u64 * 9
+            // What is known against the envelope: a slot a point, the
+            // masks and their words.
+            + self.envelope_rays.memory_bytes()
+            + self.envelope_masks.capacity() as u64
+                * std::mem::size_of::<plan::EnvelopeRays>() as u64
+            + self.envelope_masks.iter().map(|m| m.heap_bytes()).sum::<u64>()
     }
 
     /// Static points whose ray scores are kept for partial re-traces

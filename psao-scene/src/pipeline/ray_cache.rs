@@ -10,10 +10,9 @@
 //! wait (the ray budget) keeps its scores and remembers which rays motion
 //! reached meanwhile (`stale`); a point put aside by culling loses them.
 
-use glam::Vec4;
-use rustc_hash::FxHashMap;
-
 use super::reach::RayMask;
+use super::slots::PointSlots;
+use glam::Vec4;
 
 /// One point's kept scores.
 #[derive(Clone, Debug)]
@@ -35,10 +34,14 @@ pub struct Entry {
 pub struct RayCache {
     rays: u32,
     max_entries: usize,
-    entries: FxHashMap<u64, Entry>,
+    /// Per point, its entry's index plus one (0: none).
+    slots: PointSlots,
+    /// The entries, those at `free` unused (kept for the next point).
+    entries: Vec<Entry>,
+    free: Vec<u32>,
 }
 
-/// Bytes one entry of `rays` rays takes, with the map's share.
+/// Bytes one entry of `rays` rays takes, with its slot's share.
 fn entry_bytes(rays: u32) -> u64 {
     rays as u64 * 20 + (rays as u64).div_ceil(64) * 8 + 64
 }
@@ -53,26 +56,36 @@ impl RayCache {
     pub fn new(rays: u32, max_bytes: u64) -> RayCache {
         RayCache {
             rays,
-            max_entries: (max_bytes / entry_bytes(rays)) as usize,
-            entries: FxHashMap::default(),
+            max_entries: (max_bytes / entry_bytes(rays)).min(u32::MAX as u64 - 1) as usize,
+            slots: PointSlots::default(),
+            entries: Vec::new(),
+            free: Vec::new(),
         }
     }
 
     /// A point's entry.
     pub fn get(&self, key: u64) -> Option<&Entry> {
-        self.entries.get(&key)
+        match self.slots.get(key) {
+            0 => None,
+            n => self.entries.get(n as usize - 1),
+        }
     }
 
     /// Whether a new point would be stored (the cache is not full).
     pub fn has_room(&self) -> bool {
-        self.entries.len() < self.max_entries
+        self.len() < self.max_entries
     }
 
     /// Stores a point's fresh scores (its stale rays cleared), with its
     /// rays (`rays()` is called only for a point not held yet). A new point
     /// is not stored once the cache is full; returns whether it is held.
     pub fn store(&mut self, key: u64, scores: &[f32], rays: impl FnOnce() -> Vec<Vec4>) -> bool {
-        if let Some(e) = self.entries.get_mut(&key) {
+        if let Some(e) = self
+            .slots
+            .get(key)
+            .checked_sub(1)
+            .map(|n| &mut self.entries[n as usize])
+        {
             e.scores.copy_from_slice(scores);
             e.stale = RayMask::none(self.rays);
             return true;
@@ -84,42 +97,56 @@ impl RayCache {
         if rays.len() != scores.len() {
             return false;
         }
-        self.entries.insert(
-            key,
-            Entry {
-                scores: scores.into(),
-                stale: RayMask::none(self.rays),
-                rays: rays.into(),
-            },
-        );
+        let entry = Entry {
+            scores: scores.into(),
+            stale: RayMask::none(self.rays),
+            rays: rays.into(),
+        };
+        let at = match self.free.pop() {
+            Some(n) => {
+                self.entries[n as usize] = entry;
+                n
+            }
+            None => {
+                self.entries.push(entry);
+                self.entries.len() as u32 - 1
+            }
+        };
+        self.slots.set(key, at + 1);
         true
     }
 
     /// Marks rays of a waiting point as reached by motion. Returns whether
     /// the point has an entry.
     pub fn mark_stale(&mut self, key: u64, reached: &RayMask) -> bool {
-        match self.entries.get_mut(&key) {
-            Some(e) => {
-                e.stale.union(reached);
+        match self.slots.get(key) {
+            0 => false,
+            n => {
+                self.entries[n as usize - 1].stale.union(reached);
                 true
             }
-            None => false,
         }
     }
 
     /// Forgets a point's scores (it will be traced in full).
     pub fn forget(&mut self, key: u64) {
-        self.entries.remove(&key);
+        let n = self.slots.get(key);
+        if n != 0 {
+            self.slots.set(key, 0);
+            self.free.push(n - 1);
+        }
     }
 
     /// Points held.
     pub fn len(&self) -> usize {
-        self.entries.len()
+        self.entries.len() - self.free.len()
     }
 
     /// Bytes held (capacity).
     pub fn memory_bytes(&self) -> u64 {
         self.entries.capacity() as u64 * entry_bytes(self.rays)
+            + self.free.capacity() as u64 * 4
+            + self.slots.memory_bytes()
     }
 }
 
@@ -150,6 +177,14 @@ mod tests {
         assert!(c.get(key(1, 1)).unwrap().stale.is_empty(), "traced again");
         c.forget(key(1, 1));
         assert_eq!(c.len(), 1);
+        assert!(c.get(key(1, 1)).is_none());
+        // Its place goes to the next point.
+        assert!(c.store(key(4, 9), &[0.75; 4], || vec![Vec4::ZERO; 4]));
+        assert_eq!(c.get(key(4, 9)).unwrap().scores[..], [0.75; 4]);
+        assert_eq!(c.get(key(4, 9)).unwrap().rays[..], [Vec4::ZERO; 4]);
+        assert!(c.get(key(4, 9)).unwrap().stale.is_empty());
+        assert_eq!(c.get(key(0, 1)).unwrap().scores[..], [0.25; 4]);
+        c.forget(key(4, 9));
         assert!(
             !c.store(key(0, 2), &[0.5; 3], || vec![Vec4::ONE; 3]),
             "wrong ray count"

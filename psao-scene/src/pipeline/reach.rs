@@ -73,6 +73,26 @@ impl RayMask {
     pub fn is_empty(&self) -> bool {
         self.words.iter().all(|&w| w == 0)
     }
+
+    /// The rays in the set, ascending.
+    pub fn iter(&self) -> impl Iterator<Item = u32> + '_ {
+        self.words.iter().enumerate().flat_map(|(w, &bits)| {
+            let mut bits = bits;
+            std::iter::from_fn(move || {
+                if bits == 0 {
+                    return None;
+                }
+                let b = bits.trailing_zeros();
+                bits &= bits - 1;
+                Some(w as u32 * 64 + b)
+            })
+        })
+    }
+
+    /// Bytes its words take on the heap.
+    pub fn heap_bytes(&self) -> u64 {
+        self.words.capacity() as u64 * 8
+    }
 }
 
 /// The world boxes a step's motion occupied: per moving or deforming
@@ -165,11 +185,11 @@ impl MotionBoxes {
 /// The boxes of what moves, held a little larger than they are from one
 /// step to the next: while each step's boxes stay inside them (and the
 /// same instances move), the envelope is the same. Points still plan
-/// their rays against the step's own boxes; a point none of whose rays
-/// reaches even the envelope needs no test in the steps after while it
-/// holds (its rays are fixed, and what moves stays inside). A rotating
-/// wheel's box barely moves, so the points around it are tested once, not
-/// every step.
+/// their rays against the step's own boxes, but only the rays that reach
+/// the envelope (found once while it holds: a static point's rays are
+/// fixed, and what moves stays inside); a point none of whose rays
+/// reaches it needs no test at all. A rotating wheel's box barely moves,
+/// so the points around it test all their rays once, not every step.
 #[derive(Clone, Debug, Default)]
 pub struct Envelope {
     /// The instances that moved, ascending, one box each.
@@ -215,30 +235,85 @@ impl Envelope {
     }
 }
 
+/// What [`reached_rays`] knows of a point beyond its rays, and how far it
+/// searches.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ReachQuery<'a> {
+    /// The rays' directions and lengths (`w`) when they are kept (else
+    /// they are drawn from the point's [`PointRays`]).
+    pub dirs: Option<&'a [Vec4]>,
+    /// The rays' scores of the last trace (closest-hit estimator): a ray
+    /// that enters the boxes only beyond what it hit then is not reached,
+    /// the hit being static and still nearer. Without them a ray is
+    /// reached if its whole length enters a box.
+    pub scores: Option<&'a [f32]>,
+    /// Only these rays can be reached (those that reach boxes holding
+    /// the ones tested, say the envelope's): the others are not tested.
+    pub among: Option<Among<'a>>,
+    /// Stop at the first reached ray (all that matters when every ray is
+    /// traced anyway).
+    pub first_only: bool,
+}
+
+/// The only rays of a point that can be reached ([`ReachQuery::among`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Among<'a> {
+    /// The rays.
+    pub mask: &'a RayMask,
+    /// Their directions and lengths (`w`), in the mask's order, when they
+    /// are kept (else from [`ReachQuery::dirs`] or drawn).
+    pub dirs: Option<&'a [Vec4]>,
+}
+
 /// The rays of a point (`rays`, its `count` rays) that `motion` can
-/// reach. With `scores` (the rays' scores of the last trace, closest-hit
-/// estimator), a ray that enters the boxes only beyond what it hit then
-/// is not reached either: the hit is static and still nearer. Without
-/// them, a ray is reached if its whole length enters a box. With
-/// `first_only`, the search stops at the first reached ray (all that
-/// matters when every ray is traced anyway). `kept` are the rays'
-/// directions and lengths when they are kept (else they are drawn from
-/// `rays`), and `scores` their scores of the last trace.
+/// reach, with what `query` knows of them.
 pub fn reached_rays(
     rays: &PointRays,
     count: u32,
     motion: &MotionBoxes,
     estimator: Estimator,
     radius: f32,
-    kept: Option<(&[f32], &[Vec4])>,
-    first_only: bool,
+    query: ReachQuery<'_>,
 ) -> RayMask {
-    let (scores, dirs) = match kept {
-        Some((s, d)) => (Some(s), Some(d)),
-        None => (None, None),
-    };
+    let ReachQuery {
+        dirs,
+        scores,
+        among,
+        first_only,
+    } = query;
     let mut mask = RayMask::none(count);
     if motion.is_empty() {
+        return mask;
+    }
+    // Whether ray `k` (its direction and length) is reached.
+    let reached = |motion: &MotionBoxes, k: u32, (dir, len): (Vec3A, f32)| {
+        let Some(t_in) = motion.entry(rays.origin(), dir, len) else {
+            return false;
+        };
+        let hit_before = match (estimator, scores.and_then(|s| s.get(k as usize))) {
+            // The last trace hit at `score * R` (less the lead the tracer
+            // takes off): a box entered beyond it changes nothing.
+            (Estimator::ClosestHit, Some(&s)) if s < 1.0 => t_in > s * radius + 2.0 * RAY_LEAD,
+            _ => false,
+        };
+        !hit_before
+    };
+    let ray =
+        |k: u32, kept: Option<&Vec4>| match kept.or_else(|| dirs.and_then(|d| d.get(k as usize))) {
+            Some(d) => (Vec3A::from(d.truncate()), d.w),
+            None => rays.ray(k),
+        };
+    if let Some(among) = among {
+        // Few rays: each against every box (a ray enters no box its
+        // hemisphere or length cannot reach).
+        for (j, k) in among.mask.iter().enumerate() {
+            if reached(motion, k, ray(k, among.dirs.and_then(|d| d.get(j)))) {
+                mask.set(k);
+                if first_only {
+                    break;
+                }
+            }
+        }
         return mask;
     }
     // Only the boxes its hemisphere can reach (closest-hit rays and
@@ -248,20 +323,7 @@ pub fn reached_rays(
         return mask;
     }
     for k in 0..count {
-        let (dir, len) = match dirs.and_then(|d| d.get(k as usize)) {
-            Some(d) => (Vec3A::from(d.truncate()), d.w),
-            None => rays.ray(k),
-        };
-        let Some(t_in) = motion.entry(rays.origin(), dir, len) else {
-            continue;
-        };
-        let hit_before = match (estimator, scores.and_then(|s| s.get(k as usize))) {
-            // The last trace hit at `score * R` (less the lead the tracer
-            // takes off): a box entered beyond it changes nothing.
-            (Estimator::ClosestHit, Some(&s)) if s < 1.0 => t_in > s * radius + 2.0 * RAY_LEAD,
-            _ => false,
-        };
-        if !hit_before {
+        if reached(motion, k, ray(k, None)) {
             mask.set(k);
             if first_only {
                 break;
@@ -307,6 +369,7 @@ mod tests {
         m.set(70); // past the end: ignored
         assert_eq!(m.count(), 2);
         assert!(m.has(69) && !m.has(4));
+        assert_eq!(m.iter().collect::<Vec<_>>(), vec![3, 69]);
         let mut all = RayMask::all(70);
         assert_eq!(all.count(), 70);
         all.union(&m);
@@ -329,8 +392,16 @@ mod tests {
             0.0,
         );
         let far = MotionBoxes::new([(Vec3::splat(5.0), Vec3::splat(6.0))], 0.0);
-        let r =
-            |m: &MotionBoxes| reached_rays(&rays, 64, m, Estimator::ClosestHit, 0.6, None, false);
+        let r = |m: &MotionBoxes| {
+            reached_rays(
+                &rays,
+                64,
+                m,
+                Estimator::ClosestHit,
+                0.6,
+                ReachQuery::default(),
+            )
+        };
         let up = r(&above);
         assert!(up.count() > 10 && up.count() < 64, "{}", up.count());
         assert!(r(&below).is_empty(), "the hemisphere faces away");
@@ -355,8 +426,11 @@ mod tests {
             &above,
             Estimator::ClosestHit,
             0.6,
-            Some((&scores, &dirs)),
-            false,
+            ReachQuery {
+                dirs: Some(&dirs),
+                scores: Some(&scores),
+                ..ReachQuery::default()
+            },
         );
         assert!(kept.is_empty(), "{}", kept.count());
         let open = vec![1.0f32; 64];
@@ -366,12 +440,64 @@ mod tests {
             &above,
             Estimator::ClosestHit,
             0.6,
-            Some((&open, &dirs)),
-            false,
+            ReachQuery {
+                dirs: Some(&dirs),
+                scores: Some(&open),
+                ..ReachQuery::default()
+            },
         );
         assert_eq!(again, up);
+        // Among some rays only: the reached ones of those.
+        let mut half = RayMask::none(64);
+        for k in (0..64).step_by(2) {
+            half.set(k);
+        }
+        let among = reached_rays(
+            &rays,
+            64,
+            &above,
+            Estimator::ClosestHit,
+            0.6,
+            ReachQuery {
+                among: Some(Among {
+                    mask: &half,
+                    dirs: None,
+                }),
+                ..ReachQuery::default()
+            },
+        );
+        for k in 0..64 {
+            assert_eq!(among.has(k), up.has(k) && k % 2 == 0, "ray {k}");
+        }
+        // The same with their directions kept, in the mask's order.
+        let half_dirs: Vec<Vec4> = half.iter().map(|k| dirs[k as usize]).collect();
+        let kept_among = reached_rays(
+            &rays,
+            64,
+            &above,
+            Estimator::ClosestHit,
+            0.6,
+            ReachQuery {
+                among: Some(Among {
+                    mask: &half,
+                    dirs: Some(&half_dirs),
+                }),
+                ..ReachQuery::default()
+            },
+        );
+        assert_eq!(kept_among, among);
         // The first reached ray only.
-        let first = reached_rays(&rays, 64, &above, Estimator::ClosestHit, 0.6, None, true);
+        let first = reached_rays(
+            &rays,
+            64,
+            &above,
+            Estimator::ClosestHit,
+            0.6,
+            ReachQuery {
+                first_only: true,
+                ..ReachQuery::default()
+            },
+        );
         assert_eq!(first.count(), 1);
         assert!((0..64).find(|&k| up.has(k)).is_some_and(|k| first.has(k)));
         // A box behind the tangent plane, within the radius: not in the

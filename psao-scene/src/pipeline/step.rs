@@ -97,7 +97,7 @@ impl Pipeline {
         let tracer = self.update_bvhs(&motion, anything);
         report.t_bvh = t2.elapsed();
         let t3 = Instant::now();
-        let mut after_cast = std::time::Duration::ZERO;
+        let mut outside_cast = std::time::Duration::ZERO;
         // The envelope of what moves: points whose rays miss it need no
         // test while it holds. Taken every step, so that motion in a step
         // that traces nothing still counts.
@@ -105,8 +105,8 @@ impl Pipeline {
             .filter(|&i| motion.changed[i])
             .collect();
         if self.envelope.cover(&moving, &motion.boxes) {
-            self.unreached.clear();
-            self.near_envelope.clear();
+            self.envelope_rays.clear();
+            self.envelope_masks.clear();
         }
         if self.config.budget != RayBudget::Unlimited {
             report.wait_bound = self.wait_bound;
@@ -135,7 +135,7 @@ impl Pipeline {
             report.overdue = done.overdue;
             report.settled = done.settled;
             report.early = done.early;
-            after_cast = done.after_cast;
+            outside_cast = done.outside_cast;
         } else if !self.last_traced.is_empty() {
             // Nothing to trace: the points the last step traced settle.
             let settle = self.settle_left(&[])?;
@@ -154,8 +154,9 @@ impl Pipeline {
         let t4 = Instant::now();
         let frame = self.encode(&motion.moved, &mut report)?;
         report.t_encode = t4.elapsed();
-        // What a step takes after casting, for an automatic budget.
-        let tail = (after_cast + report.t_encode).as_secs_f64();
+        // What a step takes besides casting once its budget is set, for
+        // an automatic budget.
+        let tail = (outside_cast + report.t_encode).as_secs_f64();
         self.tail_s = 0.7 * self.tail_s + 0.3 * tail;
         Ok((frame, report))
     }
