@@ -130,9 +130,9 @@ fn turning_cross() -> Scene {
 fn a_part_turning_in_place_keeps_its_envelope_and_reused_rays_stay_exact() {
     // Planning learns, point by point, which rays reach the envelope of
     // what turns (and which hit the static block first); from then on it
-    // tests only those. Frames must not change, with or without a budget
-    // (a budget of rays per step makes points wait, the others are traced
-    // in full).
+    // tests only those. Frames must not change; under a budget of rays per
+    // step (points wait, some are traced in full), what clients hold of
+    // the static instances must catch up with a full trace.
     let scene = turning_cross();
     let c = config(Estimator::ClosestHit);
     let (a, ra) = run(&scene, c.clone(), 45);

@@ -138,6 +138,8 @@ impl Pipeline {
         which: &[Vec<u32>],
         motion: &StepMotion,
     ) -> Result<StepTrace, SceneError> {
+        // The budget pays for what follows, the waiting list included.
+        let started = std::time::Instant::now();
         let mut lists = self.traced_only(which).unwrap_or_else(|| which.to_vec());
         let rays = self.config.ao.rays;
         // Waiting points that need a full trace, of instances that did not
@@ -174,7 +176,6 @@ impl Pipeline {
             l.dedup();
             l.retain(|&p| !is_apart(self, key(i, p)));
         }
-        let started = std::time::Instant::now();
         // What clients hold is looked up for the points traced only.
         let batch = self.batch_unheld(&lists);
         let (plans, learnt): (Vec<Plan>, Vec<Learnt>) =
@@ -255,28 +256,58 @@ impl Pipeline {
             });
         }
         // The waiting points apart: a full trace each.
-        for &k in &apart {
-            cands.push(Candidate {
+        let apart_cands: Vec<Candidate> = apart
+            .iter()
+            .map(|&k| Candidate {
                 cost: rays,
                 reached: rays as f32 / rays.max(1) as f32,
                 age: self.waiting.get(k).map_or(0, |w| w.0),
-            });
-            waited_really.push(true);
+            })
+            .collect();
+        // Both in (instance, point) order, merged so (`select` breaks ties
+        // by position): (apart, index) of each.
+        let mut merged = Vec::with_capacity(at.len() + apart.len());
+        let (mut x, mut y) = (0, 0);
+        while x < at.len() || y < apart.len() {
+            let planned_first = y >= apart.len()
+                || (x < at.len() && {
+                    let (i, k) = batch.owner[at[x]];
+                    key(i, k) < apart[y]
+                });
+            if planned_first {
+                merged.push((false, x));
+                x += 1;
+            } else {
+                merged.push((true, y));
+                y += 1;
+            }
         }
-        let (chosen, _) = select(&cands, budget, bound);
+        let all: Vec<Candidate> = merged
+            .iter()
+            .map(|&(a, j)| if a { apart_cands[j] } else { cands[j] })
+            .collect();
+        let (chosen_all, _) = select(&all, budget, bound);
         // Overdue points, and the rays of those that waited the bound: what
         // moves the bound.
-        let (overdue, forced) = cands
+        let (overdue, forced) = merged
             .iter()
-            .zip(&waited_really)
-            .filter(|(c, _)| budget.is_some() && c.age >= bound)
-            .fold((0u64, 0u64), |(n, r), (c, &w)| {
-                (n + 1, r + if w { c.cost as u64 } else { 0 })
+            .zip(&all)
+            .filter(|(_, c)| budget.is_some() && c.age >= bound)
+            .fold((0u64, 0u64), |(n, r), (&(a, j), c)| {
+                let really = a || waited_really[j];
+                (n + 1, r + if really { c.cost as u64 } else { 0 })
             });
+        let (mut chosen, mut chosen_apart) = (vec![false; at.len()], vec![false; apart.len()]);
+        for (&(a, j), &go) in merged.iter().zip(&chosen_all) {
+            if a {
+                chosen_apart[j] = go;
+            } else {
+                chosen[j] = go;
+            }
+        }
         let mut take = Vec::new();
-        let (chosen, chosen_apart) = chosen.split_at(at.len());
         let mut take_apart = Vec::new();
-        for (&k, &go) in apart.iter().zip(chosen_apart) {
+        for (&k, &go) in apart.iter().zip(&chosen_apart) {
             if go {
                 self.waiting.done(k);
                 take_apart.push(k);
@@ -284,7 +315,7 @@ impl Pipeline {
                 self.waiting.wait(k, true);
             }
         }
-        for (&b, &go) in at.iter().zip(chosen) {
+        for (&b, &go) in at.iter().zip(&chosen) {
             let (i, k) = batch.owner[b];
             let key = key(i, k);
             if go {

@@ -43,8 +43,13 @@ pub(super) enum Learnt {
 /// their directions and lengths (`w`) in the mask's order.
 #[derive(Clone, Debug)]
 pub(super) struct EnvelopeRays {
+    /// The rays.
     pub mask: RayMask,
+    /// Their directions and lengths, in the mask's order.
     pub dirs: Box<[Vec4]>,
+    /// Whether rays whose kept hit lies before the envelope were left out:
+    /// the mask then holds while the point's scores are kept.
+    pub with_scores: bool,
 }
 
 impl EnvelopeRays {
@@ -89,7 +94,12 @@ impl Pipeline {
                     return full;
                 }
                 let state = envelope_rays.get(key);
-                let known = state.checked_sub(2).and_then(|n| masks.get(n as usize));
+                let stored = state.checked_sub(2).and_then(|n| masks.get(n as usize));
+                // A mask that left out rays by their kept hits holds while
+                // the scores are kept; without them the point learns its
+                // rays again, as one that never had scores.
+                let known = stored.filter(|e| !e.with_scores || entry.is_some());
+                let relearn = stored.is_some() && known.is_none();
                 if entry.is_none() && waiting.is_none() && known.is_some_and(|e| e.mask.is_empty())
                 {
                     // No ray reaches the envelope, which still holds.
@@ -103,7 +113,7 @@ impl Pipeline {
                             // its rays reach it, for this step and the next.
                             let learnt = match known {
                                 Some(_) => Learnt::Nothing,
-                                None if state == 1 => {
+                                None if state == 1 || relearn => {
                                     // A ray whose kept hit lies before the
                                     // envelope hits something static there
                                     // while it holds: never reached. Not
@@ -141,7 +151,11 @@ impl Pipeline {
                                             }
                                         })
                                         .collect();
-                                    Learnt::Rays(EnvelopeRays { mask, dirs })
+                                    Learnt::Rays(EnvelopeRays {
+                                        mask,
+                                        dirs,
+                                        with_scores: entry.is_some(),
+                                    })
                                 }
                                 None => Learnt::Seen,
                             };
@@ -207,11 +221,20 @@ impl Pipeline {
             match l {
                 Learnt::Nothing => {}
                 Learnt::Seen => self.envelope_rays.set(key, 1),
-                Learnt::Rays(m) => {
-                    self.envelope_masks.push(m);
-                    let n = self.envelope_masks.len() as u32 + 1;
-                    self.envelope_rays.set(key, n);
-                }
+                Learnt::Rays(m) => match self
+                    .envelope_rays
+                    .get(key)
+                    .checked_sub(2)
+                    .and_then(|n| self.envelope_masks.get_mut(n as usize))
+                {
+                    // Learnt again: in the same place.
+                    Some(e) => *e = m,
+                    None => {
+                        self.envelope_masks.push(m);
+                        let n = self.envelope_masks.len() as u32 + 1;
+                        self.envelope_rays.set(key, n);
+                    }
+                },
             }
         }
     }
