@@ -392,16 +392,10 @@ mod tests {
             0.0,
         );
         let far = MotionBoxes::new([(Vec3::splat(5.0), Vec3::splat(6.0))], 0.0);
-        let r = |m: &MotionBoxes| {
-            reached_rays(
-                &rays,
-                64,
-                m,
-                Estimator::ClosestHit,
-                0.6,
-                ReachQuery::default(),
-            )
+        let reach = |m: &MotionBoxes, q: ReachQuery<'_>| {
+            reached_rays(&rays, 64, m, Estimator::ClosestHit, 0.6, q)
         };
+        let r = |m: &MotionBoxes| reach(m, ReachQuery::default());
         let up = r(&above);
         assert!(up.count() > 10 && up.count() < 64, "{}", up.count());
         assert!(r(&below).is_empty(), "the hemisphere faces away");
@@ -420,12 +414,8 @@ mod tests {
             })
             .collect();
         let scores = vec![0.1f32; 64]; // hits at 6 cm, the box at 10 cm and up
-        let kept = reached_rays(
-            &rays,
-            64,
+        let kept = reach(
             &above,
-            Estimator::ClosestHit,
-            0.6,
             ReachQuery {
                 dirs: Some(&dirs),
                 scores: Some(&scores),
@@ -434,12 +424,8 @@ mod tests {
         );
         assert!(kept.is_empty(), "{}", kept.count());
         let open = vec![1.0f32; 64];
-        let again = reached_rays(
-            &rays,
-            64,
+        let again = reach(
             &above,
-            Estimator::ClosestHit,
-            0.6,
             ReachQuery {
                 dirs: Some(&dirs),
                 scores: Some(&open),
@@ -452,12 +438,8 @@ mod tests {
         for k in (0..64).step_by(2) {
             half.set(k);
         }
-        let among = reached_rays(
-            &rays,
-            64,
+        let among = reach(
             &above,
-            Estimator::ClosestHit,
-            0.6,
             ReachQuery {
                 among: Some(Among {
                     mask: &half,
@@ -471,12 +453,8 @@ mod tests {
         }
         // The same with their directions kept, in the mask's order.
         let half_dirs: Vec<Vec4> = half.iter().map(|k| dirs[k as usize]).collect();
-        let kept_among = reached_rays(
-            &rays,
-            64,
+        let kept_among = reach(
             &above,
-            Estimator::ClosestHit,
-            0.6,
             ReachQuery {
                 among: Some(Among {
                     mask: &half,
@@ -487,12 +465,8 @@ mod tests {
         );
         assert_eq!(kept_among, among);
         // The first reached ray only.
-        let first = reached_rays(
-            &rays,
-            64,
+        let first = reach(
             &above,
-            Estimator::ClosestHit,
-            0.6,
             ReachQuery {
                 first_only: true,
                 ..ReachQuery::default()
