@@ -83,7 +83,7 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}; {}; {}; {}; {}; {}); client times are the AO work per frame on {} threads.\n",
+        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}; {}; {}; {}; {}; {}); client times are the AO work per frame on {} threads, the median of {} runs back to back.\n",
         s.width,
         s.height,
         s.frames,
@@ -126,7 +126,8 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
                 "points whose AO stopped changing sent {n} or more steps (1/255) from what clients hold"
             ),
         },
-        std::thread::available_parallelism().map_or(1, |n| n.get())
+        std::thread::available_parallelism().map_or(1, |n| n.get()),
+        super::measure::TIMED_RUNS
     );
     for r in results {
         let _ = writeln!(

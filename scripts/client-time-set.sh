@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# Client time of PSAO against SAO on every scene of the bench set
+# (scripts/bench-set.sh's groups, each at its densest N and its radius),
+# with psao-eval's client_time example: many images per scene, medians.
+# Usage: scripts/client-time-set.sh [extra client_time options...]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+shared=../shared/scenes
+cargo build --release -p psao-eval --example client_time
+ct=target/release/examples/client_time
+for s in default cesium-man; do "$ct" --scene "$s" --density 1024 --radius 0.6 "$@"; done
+for m in AnimatedMorphCube/AnimatedMorphCube.glb AnimatedTriangle/AnimatedTriangle.gltf \
+         BoxAnimated/BoxAnimated.glb Cameras/Cameras.gltf CesiumMilkTruck/CesiumMilkTruck.gltf \
+         MorphPrimitivesTest/MorphPrimitivesTest.gltf NegativeScaleTest/NegativeScaleTest.gltf \
+         RiggedFigure/RiggedFigure.glb RiggedSimple/RiggedSimple.glb SimpleSkin/SimpleSkin.gltf; do
+  "$ct" --gltf "$shared/$m" --density 1024 --radius 0.6 "$@"
+done
+"$ct" --scene hall --density 256 --radius 0.6 "$@"
+"$ct" --gltf "$shared/FlightHelmet/FlightHelmet.gltf" --density 65536 --radius 0.05 "$@"
+"$ct" --gltf "$shared/Fox/Fox.glb" --density 0.2 --radius 15 "$@"
+"$ct" --gltf "$shared/CornellBox/CornellBox.glb" --density 0.04 --radius 60 "$@"
+"$ct" --gltf "$shared/ToyCar/ToyCar.gltf" --density 4000000 --radius 0.005 "$@"
+"$ct" --gltf "$shared/MetalRoughSpheresNoTextures/MetalRoughSpheresNoTextures.gltf" --density 400000000 --radius 0.0005 "$@"
