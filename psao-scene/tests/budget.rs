@@ -640,3 +640,49 @@ fn a_wait_limit_below_max_wait_is_refused_by_name() {
     let e = Pipeline::new(sliding_box().0, c).unwrap_err().to_string();
     assert!(e.contains("max_wait_limit"), "{e}");
 }
+
+/// Rays cast and points sent over `ticks` steps of 1/60 s of the default
+/// scene (the stream example's step), 32 rays a point.
+fn default_scene_run(ray_reuse: bool, budget: RayBudget, ticks: u32) -> (u64, u64) {
+    let c = PipelineConfig {
+        density: 256.0,
+        ray_reuse,
+        budget,
+        ao: AoParams {
+            rays: 32,
+            ..AoParams::default()
+        },
+        ..PipelineConfig::default()
+    };
+    let mut p = Pipeline::new(default_scene(), c).unwrap();
+    let (mut rays, mut sent) = (0, 0);
+    for _ in 0..ticks {
+        let (_, r) = p.step(1.0 / 60.0).unwrap();
+        rays += r.rays;
+        sent += r.updated;
+    }
+    (rays, sent)
+}
+
+#[test]
+fn a_quarter_of_a_full_retrace_sends_nearly_every_point_it_sends() {
+    // Issue 20: rays at a quarter of a full re-trace's, at equal points
+    // sent. The budget goes where a ray is likeliest to send (each
+    // point's trend): the points left waiting are mostly those whose AO
+    // would have stayed within the threshold anyway.
+    let ticks = 60;
+    let (full, _) = default_scene_run(false, RayBudget::Unlimited, ticks);
+    let (_, sent) = default_scene_run(true, RayBudget::Unlimited, ticks);
+    let quarter = full / ticks as u64 / 4;
+    let (rays, budgeted) = default_scene_run(true, RayBudget::Rays(quarter), ticks);
+    assert!(sent > 0 && rays > 0);
+    // Points that waited their longest go past the budget: at most a few.
+    assert!(
+        rays <= full / 4 + full / 40,
+        "{rays} rays against a full re-trace's {full}"
+    );
+    assert!(
+        budgeted * 10 >= sent * 9,
+        "{budgeted} points sent under a quarter of the rays against {sent} unbudgeted"
+    );
+}

@@ -4,11 +4,18 @@
 //! Points are taken in order of priority until the budget is spent:
 //! first every point that has waited the bound in force (so none starves,
 //! and none lags a full re-trace by more than that many steps), then by
-//! the share of their rays motion reached (a moving instance's points and those right beside what moves first: the most
-//! their AO can change) times the steps they have waited plus one (so
-//! the budget goes round the points rather than to the same ones each
-//! step), then the longest waiting, then in point order. A point that does
-//! not fit is passed over for smaller ones. With
+//! what a ray spent on them is likely to send, then the longest waiting,
+//! then in point order. A point that does not fit is passed over for
+//! smaller ones. The likelihood is a point's *urgency* (how near its AO
+//! probably is to the send threshold from what clients hold: the distance
+//! its last trace left plus the pace its AO moved at between its last two
+//! traces, times the steps since, as a share of the threshold, at most
+//! [`MAX_URGENCY`]) plus [`REACH_PRIOR`] times the share of its rays
+//! motion reached (what tells points with no trend yet apart: a moving
+//! instance's points and those right beside what moves first), times the
+//! steps it has waited plus one (so the budget goes round the points
+//! rather than to the same ones each step), over the rays it costs. Where
+//! every candidate fits, the order changes nothing. With
 //! [`PipelineConfig::movers_every_step`] a moving instance's own points
 //! count as having waited their longest: traced whatever the budget.
 //!
@@ -34,6 +41,14 @@
 //! [`PipelineConfig::movers_every_step`]: super::config::PipelineConfig::movers_every_step
 
 use super::slots::PointSlots;
+
+/// The weight of the share of a point's rays motion reached in its
+/// priority, beside its urgency (see the module).
+pub const REACH_PRIOR: f32 = 0.25;
+
+/// The most urgency counts in a point's priority: past the threshold, a
+/// point is as likely to be sent as it gets.
+pub const MAX_URGENCY: f32 = 1.5;
 
 /// How many rays one step may trace.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -62,6 +77,10 @@ pub struct Candidate {
     pub reached: f32,
     /// Steps it has waited.
     pub age: u32,
+    /// How far its AO probably is from what clients hold now, as a share
+    /// of the send threshold, from its trend (see the module; 0 where none
+    /// is known).
+    pub urgency: f32,
 }
 
 /// Which candidates are traced this step under `budget` rays (`None`: all
@@ -87,11 +106,14 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, bound: u32) -> (Vec<bool
             rest.push(i);
         }
     }
-    // The share reached, weighed by the steps waited: what motion
-    // reached most goes first, and a point gains on the others with every
-    // step it waits, so the budget goes round instead of to the same
-    // points every step. A total order (ties go by index).
-    let weight = |c: &Candidate| c.reached.max(1e-3) * (c.age as f32 + 1.0);
+    // What a ray spent on the point is likely to send (its urgency, with
+    // the share motion reached as a prior), weighed by the steps waited
+    // so that the budget goes round instead of to the same points every
+    // step. A total order (ties go by index).
+    let weight = |c: &Candidate| {
+        (c.reached.max(1e-3) * REACH_PRIOR + c.urgency.min(MAX_URGENCY)) * (c.age as f32 + 1.0)
+            / c.cost.max(1) as f32
+    };
     let order = |&a: &usize, &b: &usize| {
         let (x, y) = (&cands[a], &cands[b]);
         weight(y)
@@ -253,7 +275,12 @@ mod tests {
     use super::*;
 
     fn c(cost: u32, reached: f32, age: u32) -> Candidate {
-        Candidate { cost, reached, age }
+        Candidate {
+            cost,
+            reached,
+            age,
+            urgency: 0.0,
+        }
     }
 
     #[test]
@@ -281,17 +308,41 @@ mod tests {
         assert_eq!(spent, 36);
     }
 
+    fn u(cost: u32, reached: f32, age: u32, urgency: f32) -> Candidate {
+        Candidate {
+            urgency,
+            ..c(cost, reached, age)
+        }
+    }
+
     #[test]
-    fn the_budget_goes_to_the_most_reached_and_the_oldest_first() {
+    fn with_no_trend_the_budget_goes_by_reach_per_ray_and_age() {
         let cands = [c(32, 1.0, 0), c(8, 0.25, 0), c(8, 0.25, 3), c(4, 0.5, 0)];
-        // 44 rays: the full trace, the half-reached, then the older of the
-        // two quarter-reached ones.
+        // Per ray: the half-reached 4-ray point and the quarter-reached
+        // one that waited 3 steps rank alike (the older first), then the
+        // full trace and the other quarter-reached one alike (by index).
+        // 44 rays: the first two, then the full trace.
         let (ch, spent) = select(&cands, Some(44), 8);
         assert_eq!(ch, vec![true, false, true, true]);
         assert_eq!(spent, 44);
         // Too little for the full trace: smaller ones still go.
         let (ch, _) = select(&cands, Some(20), 8);
         assert_eq!(ch, vec![false, true, true, true]);
+    }
+
+    #[test]
+    fn the_budget_goes_where_a_ray_is_likeliest_to_send() {
+        // A mover's full trace with no trend, a static point of 4 rays
+        // near the threshold, and a full trace half-way there.
+        let cands = [u(32, 1.0, 0, 0.0), u(4, 0.1, 0, 1.0), u(32, 1.0, 0, 0.5)];
+        let (ch, spent) = select(&cands, Some(36), 8);
+        assert_eq!(ch, vec![false, true, true]);
+        assert_eq!(spent, 36);
+        // Past the threshold counts as at most MAX_URGENCY: a far-gone
+        // point of 32 rays does not outrank the 4-ray one.
+        let cands = [u(32, 1.0, 0, 40.0), u(4, 0.1, 0, 1.0)];
+        let (ch, _) = select(&cands, Some(32), 8);
+        assert_eq!(ch, vec![false, true]);
     }
 
     #[test]
@@ -315,7 +366,10 @@ mod tests {
 
     /// `select` as its rules say it, sorting every candidate.
     fn select_by_sorting_all(cands: &[Candidate], budget: u64, bound: u32) -> (Vec<bool>, u64) {
-        let weight = |c: &Candidate| c.reached.max(1e-3) * (c.age as f32 + 1.0);
+        let weight = |c: &Candidate| {
+            (c.reached.max(1e-3) * REACH_PRIOR + c.urgency.min(MAX_URGENCY)) * (c.age as f32 + 1.0)
+                / c.cost.max(1) as f32
+        };
         let mut order: Vec<usize> = (0..cands.len()).collect();
         order.sort_by(|&a, &b| {
             let (x, y) = (&cands[a], &cands[b]);
@@ -350,7 +404,8 @@ mod tests {
             let cands: Vec<Candidate> = (0..n)
                 .map(|_| {
                     let cost = next(40) as u32; // 0 too, which no plan gives
-                    c(cost, next(9) as f32 / 8.0, next(12) as u32)
+                    let urgency = next(5) as f32 / 2.0;
+                    u(cost, next(9) as f32 / 8.0, next(12) as u32, urgency)
                 })
                 .collect();
             let budget = next(2000);

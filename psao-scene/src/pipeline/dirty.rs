@@ -253,15 +253,20 @@ impl Pipeline {
                 cost,
                 reached: reached as f32 / rays.max(1) as f32,
                 age,
+                urgency: self.urgency(i, k),
             });
         }
         // The waiting points apart: a full trace each.
         let apart_cands: Vec<Candidate> = apart
             .iter()
-            .map(|&k| Candidate {
-                cost: rays,
-                reached: rays as f32 / rays.max(1) as f32,
-                age: self.waiting.get(k).map_or(0, |w| w.0),
+            .map(|&k| {
+                let age = self.waiting.get(k).map_or(0, |w| w.0);
+                Candidate {
+                    cost: rays,
+                    reached: rays as f32 / rays.max(1) as f32,
+                    age,
+                    urgency: self.urgency((k >> 32) as usize, k as u32),
+                }
             })
             .collect();
         // Both in (instance, point) order, merged so (`select` breaks ties
@@ -381,7 +386,9 @@ impl Pipeline {
         let casting = std::time::Instant::now();
         let th = self.config.thresholds;
         let settling = self.config.settle_steps > 0;
-        let (result, settled) = if self.backend.is_some() && !settling {
+        // Under a budget every value comes back for the points' trends.
+        let every_value = settling || budget.is_some();
+        let (result, settled) = if self.backend.is_some() && !every_value {
             // Compared where it was traced.
             (self.trace_batch(tracer, &sub, false, &th)?, 0)
         } else {
@@ -452,6 +459,7 @@ impl Pipeline {
         batch: &Batch,
     ) -> Result<(ChangedPoints, u64), SceneError> {
         let th = self.config.thresholds;
+        self.note_trend(values, batch);
         let steps = self.config.settle_steps;
         if steps == 0 {
             // Nothing settles: no last trace to keep.
@@ -482,6 +490,32 @@ impl Pipeline {
             .filter(|&(&b, &ao)| !batch.sent[b as usize].changed(ao, &th))
             .count() as u64;
         Ok((out, settled))
+    }
+
+    /// A point's urgency for the budget (`Candidate::urgency`, from its
+    /// `Trend`); 0 without a budget (no trends kept).
+    fn urgency(&self, i: usize, k: u32) -> f32 {
+        self.instances
+            .get(i)
+            .and_then(|s| s.trend.get(k as usize))
+            .map_or(0.0, |t| {
+                t.urgency(self.frame as u32, self.config.thresholds.ao_steps)
+            })
+    }
+
+    /// Notes each traced point's `Trend` (kept under a budget only).
+    fn note_trend(&mut self, values: &AoResult, batch: &Batch) {
+        let (th, now) = (self.config.thresholds.ao_steps, self.frame as u32);
+        for (b, (&(i, k), &ao)) in batch.owner.iter().zip(&values.ao).enumerate() {
+            if let Some(t) = self.instances[i].trend.get_mut(k as usize) {
+                let held = batch
+                    .sent
+                    .get(b)
+                    .map(|s| s.word)
+                    .filter(|w| w.is_allocated());
+                t.note(quantize_ao(ao), held.map(|w| w.fields().ao), now, th);
+            }
+        }
     }
 
     /// Traces `batch` on the backend (placed first) and reads every AO

@@ -42,6 +42,7 @@ mod reach;
 pub(crate) mod report;
 mod slots;
 mod step;
+mod trend;
 
 use std::sync::Arc;
 
@@ -96,6 +97,9 @@ struct InstanceState {
     /// Each point's AO as its last trace gave it, quantized (what the
     /// settle rule compares with; the held AO after setup).
     last_ao: Vec<u8>,
+    /// Each point's trend, for the ray budget's priority (empty without
+    /// a budget).
+    trend: Vec<trend::Trend>,
     /// Its own BVH in local space (dynamic instances, split BVH): moved by
     /// its transform, refitted when it deforms.
     bvh: Option<Arc<TriangleBvh>>,
@@ -177,6 +181,7 @@ impl InstanceState {
             + self.weights.capacity() as u64 * 4
             + self.pending.capacity() as u64
             + self.last_ao.capacity() as u64
+            + self.trend.capacity() as u64 * std::mem::size_of::<trend::Trend>() as u64
             + self.table.memory_bytes()
             + self.buried.memory_bytes()
             + self.blocks.memory_bytes()
@@ -545,6 +550,10 @@ impl Pipeline {
                     Vec::new()
                 },
                 last_ao: vec![u8::MAX; points.len()],
+                trend: match config.budget {
+                    config::RayBudget::Unlimited => Vec::new(),
+                    _ => vec![trend::Trend::default(); points.len()],
+                },
                 points,
                 positions,
                 normals,
