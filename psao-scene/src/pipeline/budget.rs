@@ -2,8 +2,11 @@
 //! traced now, and which wait for a later step.
 //!
 //! Points are taken in order of priority until the budget is spent:
-//! first every point that has waited the bound in force (so none starves,
-//! and none lags a full re-trace by more than that many steps), then by
+//! first every point that has waited its due (so none starves, and none
+//! lags a full re-trace by more than the bound in force: a point's due is
+//! that bound less under half of it, spread by a hash of the point, so
+//! that points that began to wait together do not all come due in one
+//! step; see [`due`]), then by
 //! what a ray spent on them is likely to send, then the longest waiting,
 //! then in point order. A point that does not fit is passed over for
 //! smaller ones. The likelihood is a point's *urgency* (how near its AO
@@ -77,10 +80,36 @@ pub struct Candidate {
     pub reached: f32,
     /// Steps it has waited.
     pub age: u32,
+    /// The steps of waiting after which it is traced whatever the budget:
+    /// at most the bound in force (see [`due`]).
+    pub due: u32,
     /// How far its AO probably is from what clients hold now, as a share
     /// of the send threshold, from its trend (see the module; 0 where none
     /// is known).
     pub urgency: f32,
+}
+
+impl Candidate {
+    /// Whether it has waited its due, or the `bound` in force: traced
+    /// whatever the budget.
+    pub fn overdue(&self, bound: u32) -> bool {
+        self.age >= self.due.min(bound)
+    }
+}
+
+/// The steps of waiting after which point `key` is traced whatever the
+/// budget, under the bound `bound`: the bound less a share of it (under
+/// half) that a hash of the key spreads. Points that began to wait in the
+/// same step (all those a moving part left behind at once) then come due
+/// over half the bound's steps, not all in one step that would run far
+/// past the period; none waits longer than the bound.
+pub fn due(key: u64, bound: u32) -> u32 {
+    let spread = (bound / 2).max(1) as u64;
+    let mut h = key.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    h ^= h >> 31;
+    bound - (h % spread) as u32 * (bound > 1) as u32
 }
 
 /// Which candidates are traced this step under `budget` rays (`None`: all
@@ -99,7 +128,7 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, bound: u32) -> (Vec<bool
     let mut spent = 0u64;
     let mut rest = Vec::with_capacity(cands.len());
     for (i, c) in cands.iter().enumerate() {
-        if c.age >= bound {
+        if c.overdue(bound) {
             chosen[i] = true;
             spent += c.cost as u64;
         } else {
@@ -279,6 +308,7 @@ mod tests {
             cost,
             reached,
             age,
+            due: u32::MAX,
             urgency: 0.0,
         }
     }
@@ -373,8 +403,8 @@ mod tests {
         let mut order: Vec<usize> = (0..cands.len()).collect();
         order.sort_by(|&a, &b| {
             let (x, y) = (&cands[a], &cands[b]);
-            (y.age >= bound)
-                .cmp(&(x.age >= bound))
+            y.overdue(bound)
+                .cmp(&x.overdue(bound))
                 .then(weight(y).total_cmp(&weight(x)))
                 .then(y.age.cmp(&x.age))
                 .then(a.cmp(&b))
@@ -382,7 +412,7 @@ mod tests {
         let (mut chosen, mut spent) = (vec![false; cands.len()], 0u64);
         for i in order {
             let c = &cands[i];
-            if c.age >= bound || spent + c.cost as u64 <= budget {
+            if c.overdue(bound) || spent + c.cost as u64 <= budget {
                 chosen[i] = true;
                 spent += c.cost as u64;
             }
@@ -416,6 +446,38 @@ mod tests {
                 "round {round}"
             );
         }
+    }
+
+    #[test]
+    fn points_that_wait_together_come_due_over_half_the_bound() {
+        assert_eq!(due(7, 0), 0);
+        assert_eq!(due(7, 1), 1);
+        for bound in [2u32, 3, 8, 60] {
+            let mut count = vec![0u32; bound as usize + 1];
+            for key in 0..10_000u64 {
+                let d = due(key << 32 | (key * 7919 % 1000), bound);
+                assert!(d <= bound && d > bound / 2, "due {d} under bound {bound}");
+                count[d as usize] += 1;
+            }
+            // Every due in the range is taken, none by more than twice
+            // its share.
+            let range = (bound / 2).max(1);
+            for d in bound + 1 - range..=bound {
+                let n = count[d as usize];
+                assert!(
+                    n > 0 && n < 2 * 10_000 / range,
+                    "{n} of 10000 due at {d} under {bound}"
+                );
+            }
+        }
+        // A candidate due before the bound goes whatever the budget.
+        let early = Candidate {
+            due: 5,
+            ..c(32, 1.0, 5)
+        };
+        let (ch, spent) = select(&[early, c(8, 1.0, 0)], Some(0), 8);
+        assert_eq!(ch, vec![true, false]);
+        assert_eq!(spent, 32);
     }
 
     #[test]

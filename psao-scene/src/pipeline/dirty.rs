@@ -10,7 +10,7 @@ use psao_codec::{SentPoint, Thresholds};
 use rayon::prelude::*;
 
 use super::Pipeline;
-use super::budget::{Candidate, REPLAN_WAITS, RayBudget, next_bound, select};
+use super::budget::{Candidate, REPLAN_WAITS, RayBudget, due, next_bound, select};
 use super::early::{Kept, trace_early};
 use super::plan::{Learnt, Plan};
 use super::ray_cache::key;
@@ -253,6 +253,7 @@ impl Pipeline {
                 cost,
                 reached: reached as f32 / rays.max(1) as f32,
                 age,
+                due: due(key(i, k), bound),
                 urgency: self.urgency(i, k),
             });
         }
@@ -265,6 +266,7 @@ impl Pipeline {
                     cost: rays,
                     reached: rays as f32 / rays.max(1) as f32,
                     age,
+                    due: due(k, bound),
                     urgency: self.urgency((k >> 32) as usize, k as u32),
                 }
             })
@@ -297,7 +299,7 @@ impl Pipeline {
         let (overdue, forced) = merged
             .iter()
             .zip(&all)
-            .filter(|(_, c)| budget.is_some() && c.age >= bound)
+            .filter(|(_, c)| budget.is_some() && c.overdue(bound))
             .fold((0u64, 0u64), |(n, r), (&(a, j), c)| {
                 let really = a || waited_really[j];
                 (n + 1, r + if really { c.cost as u64 } else { 0 })
