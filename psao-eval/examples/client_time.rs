@@ -5,18 +5,20 @@
 //!
 //! ```sh
 //! cargo run --release -p psao-eval --example client_time -- [--gltf FILE | --scene default|cesium-man|hall] \
-//!     [--density N] [--radius R] [--width W] [--height H] [--views V] [--rounds K] [--evict-mib M]
+//!     [--density N] [--radius R] [--width W] [--height H] [--views V] [--rounds K] [--ticks T] [--evict-mib M]
 //! ```
 //!
 //! `--density` is the paper's N (points kept per square metre, the bench's
 //! `--densities`), 1024 by default; the server streams its keyframe and
-//! `--ticks` (60) ticks to the in-process client, which then draws `--views`
+//! `--ticks` (60) ticks to the in-process client (16 rays a point: the
+//! AO's values do not change the client's work), which then draws `--views`
 //! (8) views spread over the camera path, `--rounds` (5) times each, every
 //! method alternating: warm (the method's own data in cache from its run
 //! before, as a client drawing frame after frame) and cold (`--evict-mib`
-//! (64) MiB written first, as after other work). Printed: the median
-//! milliseconds per image of each method, warm and cold, and PSAO over
-//! SAO.
+//! (64) MiB written first, as after other work; on a processor whose
+//! last-level cache holds more than that, raise it, or cold is warm).
+//! Printed: the median milliseconds per image of each method, warm and
+//! cold, and PSAO over SAO.
 
 use std::time::Instant;
 
@@ -77,6 +79,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
         }
     };
+    if views == 0 || rounds == 0 {
+        return Err("--views and --rounds take 1 or more".into());
+    }
     let camera = scene.camera.clone().ok_or("the scene has no camera path")?;
     let name = if gltf.is_empty() {
         embedded.clone()

@@ -6,19 +6,23 @@
 //! lags a full re-trace by more than the bound in force: a point's due is
 //! that bound less under half of it, spread by a hash of the point, so
 //! that points that began to wait together do not all come due in one
-//! step; see [`due`]), then by
-//! what a ray spent on them is likely to send, then the longest waiting,
-//! then in point order. A point that does not fit is passed over for
-//! smaller ones. The likelihood is a point's *urgency* (how near its AO
-//! probably is to the send threshold from what clients hold: the distance
+//! step; see [`due`]), then by what a ray spent on them is likely to
+//! send, then the longest waiting, then in point order. A point that does
+//! not fit is passed over for smaller ones.
+//!
+//! The likelihood is a point's *urgency* (`trend`): how near its AO
+//! probably is to the send threshold from what clients hold, the distance
 //! its last trace left plus the pace its AO moved at between its last two
-//! traces, times the steps since, as a share of the threshold, at most
-//! [`MAX_URGENCY`]) plus [`REACH_PRIOR`] times the share of its rays
-//! motion reached (what tells points with no trend yet apart: a moving
-//! instance's points and those right beside what moves first), times the
-//! steps it has waited plus one (so the budget goes round the points
-//! rather than to the same ones each step), over the rays it costs. Where
-//! every candidate fits, the order changes nothing. With
+//! traces times the steps it has waited plus one, as a share of the
+//! threshold, at most [`MAX_URGENCY`]. To it is added [`REACH_PRIOR`]
+//! times the share of its rays motion reached, a prior for points whose
+//! pace is not known yet. The sum, times the steps waited plus one (so
+//! the budget goes round the points rather than to the same ones each
+//! step), is divided by the rays the point costs. So with no trend every
+//! reached ray counts alike: a mover's full trace and a static point's
+//! few reached rays rank by age, not by kind. Every point's trend starts
+//! from setup's trace. Where every candidate fits, the order changes
+//! nothing. With
 //! [`PipelineConfig::movers_every_step`] a moving instance's own points
 //! count as having waited their longest: traced whatever the budget.
 //!
@@ -59,7 +63,7 @@ pub enum RayBudget {
     /// No limit: every point that motion reached is traced in its step
     /// (the baseline).
     Unlimited,
-    /// At most this many rays per step (points that waited the bound in
+    /// At most this many rays per step (points that waited their due in
     /// force are traced beyond it).
     Rays(u64),
     /// The rays that `share` of the step's period affords at the cost of
@@ -104,12 +108,17 @@ impl Candidate {
 /// over half the bound's steps, not all in one step that would run far
 /// past the period; none waits longer than the bound.
 pub fn due(key: u64, bound: u32) -> u32 {
-    let spread = (bound / 2).max(1) as u64;
+    if bound <= 1 {
+        return bound;
+    }
+    let spread = (bound / 2) as u128;
     let mut h = key.wrapping_add(0x9e37_79b9_7f4a_7c15);
     h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
     h ^= h >> 31;
-    bound - (h % spread) as u32 * (bound > 1) as u32
+    // The hash's place in [0, 1) scaled to the spread: a point keeps its
+    // place among the others when the bound moves.
+    bound - ((h as u128 * spread) >> 64) as u32
 }
 
 /// Which candidates are traced this step under `budget` rays (`None`: all
@@ -123,7 +132,7 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, bound: u32) -> (Vec<bool
             cands.iter().map(|c| c.cost as u64).sum(),
         );
     };
-    // Those that waited the bound go first, whatever they cost.
+    // Those that waited their due go first, whatever they cost.
     let mut chosen = vec![false; cands.len()];
     let mut spent = 0u64;
     let mut rest = Vec::with_capacity(cands.len());

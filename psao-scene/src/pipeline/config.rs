@@ -134,17 +134,21 @@ pub struct PipelineConfig {
     /// scores, so each point it traces costs all its rays: under a budget
     /// it may put off other points than the CPU tracer would, and its
     /// frames then differ from the CPU's; unbudgeted, they are the same.
+    /// Under a budget a backend reads every traced point's AO back (not
+    /// only the changed ones), for the points' trends that rank them.
     pub budget: RayBudget,
     /// Under a budget, the most steps a point waits while the budget
-    /// affords it: one that waited this long is traced whatever the
-    /// budget (8). The bound in force rises above it, up to
+    /// affords it (8): one that waited its due, this long less under half
+    /// of it (spread over the points, so that points that began to wait
+    /// together do not all come due in one step), is traced whatever the
+    /// budget. The bound in force rises above it, up to
     /// [`max_wait_limit`](Self::max_wait_limit), when the points that
     /// reached it alone cost more rays than a step's budget.
     pub max_wait: u32,
     /// Under a budget, the most steps the bound on waiting may rise to
     /// when demand exceeds the budget (60: a second at 60 Hz). The bound
     /// in force (`FrameReport::wait_bound`) goes up by a step each step
-    /// whose points that waited it alone cost more than its budget, and
+    /// whose points that came due alone cost more than its budget, and
     /// back down towards [`max_wait`](Self::max_wait) each step with none
     /// of those and no wait beyond half of it: no point waits longer than it, and the
     /// server keeps its rate unless even this limit's overdue points cost

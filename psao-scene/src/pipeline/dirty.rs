@@ -10,7 +10,7 @@ use psao_codec::{SentPoint, Thresholds};
 use rayon::prelude::*;
 
 use super::Pipeline;
-use super::budget::{Candidate, REPLAN_WAITS, RayBudget, due, next_bound, select};
+use super::budget::{next_bound, select};
 use super::early::{Kept, trace_early};
 use super::plan::{Learnt, Plan};
 use super::ray_cache::key;
@@ -80,7 +80,7 @@ pub(super) struct Batch {
 impl Batch {
     /// The entries at `at` (ascending), in that order (`sent` too where
     /// it is looked up).
-    fn select(&self, at: &[usize]) -> Batch {
+    pub(super) fn select(&self, at: &[usize]) -> Batch {
         let mut out = Batch::default();
         for &b in at {
             out.ids.push(self.ids[b]);
@@ -142,209 +142,33 @@ impl Pipeline {
         let started = std::time::Instant::now();
         let mut lists = self.traced_only(which).unwrap_or_else(|| which.to_vec());
         let rays = self.config.ao.rays;
-        // Waiting points that need a full trace, of instances that did not
-        // move and with no kept scores, are not planned again: their plan
-        // is a full trace with every ray reached, and they are candidates
-        // of their own (`apart`, ascending). With many points waiting,
-        // that is most of them.
-        let cache = self.config.ray_reuse && self.config.skip && self.backend.is_none();
-        let is_apart = |this: &Self, key: u64| {
-            this.waiting.get(key).is_some_and(|w| w.1)
-                && !motion
-                    .changed
-                    .get((key >> 32) as usize)
-                    .copied()
-                    .unwrap_or(true)
-                && !(cache && this.ray_cache.get(key).is_some())
-        };
-        let mut apart = Vec::new();
-        let mut touched: Vec<bool> = lists.iter().map(|w| !w.is_empty()).collect();
-        for k in self.waiting.keys() {
-            let (i, p) = ((k >> 32) as usize, k as u32);
-            if let Some(t) = touched.get_mut(i) {
-                *t = true;
-            }
-            if is_apart(self, k) {
-                apart.push(k);
-            } else if let Some(l) = lists.get_mut(i) {
-                l.push(p);
-            }
-        }
-        for (i, l) in lists.iter_mut().enumerate() {
-            // Two ascending runs: the stable sort merges them.
-            l.sort();
-            l.dedup();
-            l.retain(|&p| !is_apart(self, key(i, p)));
-        }
+        let (apart, mut touched) = self.split_waiting(&mut lists, motion);
         // What clients hold is looked up for the points traced only.
         let batch = self.batch_unheld(&lists);
         let (plans, learnt): (Vec<Plan>, Vec<Learnt>) =
             self.plan(&batch, motion).into_iter().unzip();
         self.remember_envelope(&batch, learnt);
-        let (moving_cost, max_stops) = match self.early_decisions() {
-            Some(e) => (
-                (self.early_cost.ceil() as u32).clamp(1, rays.max(1)),
-                e.max_stops,
-            ),
-            None => (rays, 0),
-        };
-        let budget = match self.config.budget {
-            RayBudget::Unlimited => None,
-            RayBudget::Rays(n) => Some(n),
-            RayBudget::Auto { share } => {
-                // What is left of the share once the step so far, the
-                // planning and what the step does besides casting from
-                // here on (as it took in the last steps) are paid for.
-                let left = share as f64 * motion.period
-                    - motion.elapsed.as_secs_f64()
-                    - started.elapsed().as_secs_f64()
-                    - self.tail_s;
-                Some(if self.ray_ns > 0.0 {
-                    (left.max(0.0) * 1e9 / self.ray_ns) as u64
-                } else {
-                    u64::MAX
-                })
-            }
-        };
+        let budget = self.step_budget(motion, started);
         // From here to casting (choosing, the waiting list, what clients
         // hold) is paid for with the step's tail.
         let budgeted = std::time::Instant::now();
         // The bound on waiting in force for this step.
         let bound = self.wait_bound;
-        // The points to trace, as budget candidates.
-        let (mut at, mut cands) = (Vec::new(), Vec::new());
-        // Per candidate, whether it really waited (a mover's point traced
-        // every step counts as overdue without having waited).
-        let mut waited_really = Vec::new();
-        let mut unreached = 0u64;
-        for (b, plan) in plans.iter().enumerate() {
-            let (cost, reached) = match plan {
-                Plan::Skip => {
-                    unreached += 1;
-                    continue;
-                }
-                Plan::Full { reached } => (rays, *reached),
-                Plan::Rays { need, reached } => (need.count(), reached.count()),
-            };
-            let (i, k) = batch.owner[b];
-            // A moving point that may stop early costs what such points
-            // cast on average; one that will trace in full (nothing kept
-            // yet, or stopped its most times in a row) all its rays.
-            let cost = match plan {
-                Plan::Full { .. }
-                    if self.instances[i].dynamic
-                        && motion.changed[i]
-                        && self.kept_scores.may_stop(key(i, k), max_stops) =>
-                {
-                    moving_cost
-                }
-                _ => cost,
-            };
-            at.push(b);
-            // A mover's own point traced every step it moves, if so
-            // configured: as one that waited its longest.
-            let every_step = self.config.movers_every_step && motion.changed[i];
-            let age = match every_step {
-                true => bound,
-                false => self.waiting.get(key(i, k)).map_or(0, |w| w.0),
-            };
-            waited_really.push(!every_step);
-            cands.push(Candidate {
-                cost,
-                reached: reached as f32 / rays.max(1) as f32,
-                age,
-                due: due(key(i, k), bound),
-                urgency: self.urgency(i, k),
-            });
-        }
-        // The waiting points apart: a full trace each.
-        let apart_cands: Vec<Candidate> = apart
-            .iter()
-            .map(|&k| {
-                let age = self.waiting.get(k).map_or(0, |w| w.0);
-                Candidate {
-                    cost: rays,
-                    reached: rays as f32 / rays.max(1) as f32,
-                    age,
-                    due: due(k, bound),
-                    urgency: self.urgency((k >> 32) as usize, k as u32),
-                }
-            })
-            .collect();
-        // Both in (instance, point) order, merged so (`select` breaks ties
-        // by position): (apart, index) of each.
-        let mut merged = Vec::with_capacity(at.len() + apart.len());
-        let (mut x, mut y) = (0, 0);
-        while x < at.len() || y < apart.len() {
-            let planned_first = y >= apart.len()
-                || (x < at.len() && {
-                    let (i, k) = batch.owner[at[x]];
-                    key(i, k) < apart[y]
-                });
-            if planned_first {
-                merged.push((false, x));
-                x += 1;
-            } else {
-                merged.push((true, y));
-                y += 1;
-            }
-        }
-        let all: Vec<Candidate> = merged
-            .iter()
-            .map(|&(a, j)| if a { apart_cands[j] } else { cands[j] })
-            .collect();
-        let (chosen_all, _) = select(&all, budget, bound);
-        // Overdue points, and the rays of those that waited the bound: what
+        let cands = self.candidates(&batch, &plans, &apart, motion, bound);
+        let (chosen, _) = select(&cands.all, budget, bound);
+        // Overdue points, and the rays of those that really waited: what
         // moves the bound.
-        let (overdue, forced) = merged
+        let (overdue, forced) = cands
+            .merged
             .iter()
-            .zip(&all)
+            .zip(&cands.all)
             .filter(|(_, c)| budget.is_some() && c.overdue(bound))
             .fold((0u64, 0u64), |(n, r), (&(a, j), c)| {
-                let really = a || waited_really[j];
+                let really = a || cands.waited_really[j];
                 (n + 1, r + if really { c.cost as u64 } else { 0 })
             });
-        let (mut chosen, mut chosen_apart) = (vec![false; at.len()], vec![false; apart.len()]);
-        for (&(a, j), &go) in merged.iter().zip(&chosen_all) {
-            if a {
-                chosen_apart[j] = go;
-            } else {
-                chosen[j] = go;
-            }
-        }
-        let mut take = Vec::new();
-        let mut take_apart = Vec::new();
-        for (&k, &go) in apart.iter().zip(&chosen_apart) {
-            if go {
-                self.waiting.done(k);
-                take_apart.push(k);
-            } else {
-                self.waiting.wait(k, true);
-            }
-        }
-        for (&b, &go) in at.iter().zip(&chosen) {
-            let (i, k) = batch.owner[b];
-            let key = key(i, k);
-            if go {
-                self.waiting.done(key);
-                take.push(b);
-                continue;
-            }
-            // Planned again next step, unless demand has raised the bound
-            // and it has waited a while already.
-            let waited = self.waiting.get(key).map_or(0, |w| w.0);
-            let replan = bound <= self.config.max_wait || waited < REPLAN_WAITS;
-            match &plans[b] {
-                Plan::Rays { reached, .. } if replan => {
-                    self.ray_cache.mark_stale(key, reached);
-                    self.waiting.wait(key, false);
-                }
-                _ => {
-                    self.ray_cache.forget(key);
-                    self.waiting.wait(key, true);
-                }
-            }
-        }
+        let (take, take_apart) =
+            self.record_choices(&batch, &plans, &apart, &cands, &chosen, bound);
         if let Some(b) = budget {
             let (least, limit) = (self.config.max_wait, self.config.max_wait_limit);
             let oldest = self.waiting.oldest();
@@ -352,38 +176,7 @@ impl Pipeline {
         }
         // The chosen points, planned and apart, in (instance, point) order.
         let full = Plan::Full { reached: rays };
-        let (mut sub, sub_plans) = if take_apart.is_empty() {
-            let sub_plans: Vec<&Plan> = take.iter().map(|&b| &plans[b]).collect();
-            (batch.select(&take), sub_plans)
-        } else {
-            let mut chosen_lists = vec![Vec::new(); self.instances.len()];
-            for (i, p) in take
-                .iter()
-                .map(|&b| batch.owner[b])
-                .chain(take_apart.iter().map(|&k| ((k >> 32) as usize, k as u32)))
-            {
-                chosen_lists[i].push(p);
-            }
-            for l in &mut chosen_lists {
-                l.sort();
-            }
-            let sub = self.batch_unheld(&chosen_lists);
-            // Both ascending: a planned point is the next of `take` or else
-            // one apart.
-            let mut next = take.iter().peekable();
-            let sub_plans: Vec<&Plan> = sub
-                .owner
-                .iter()
-                .map(|&o| match next.peek() {
-                    Some(&&b) if batch.owner[b] == o => {
-                        next.next();
-                        &plans[b]
-                    }
-                    _ => &full,
-                })
-                .collect();
-            (sub, sub_plans)
-        };
+        let (mut sub, sub_plans) = self.chosen_batch(&batch, &plans, &take, &take_apart, &full);
         self.look_up_held(&mut sub);
         let casting = std::time::Instant::now();
         let th = self.config.thresholds;
@@ -437,7 +230,7 @@ impl Pipeline {
             rays: rays_cast,
             updated: result.changed.len() as u64 + settle.updated + filled,
             settled: settled + settle.updated,
-            unreached,
+            unreached: cands.unreached,
             rays_kept: (traced * rays as u64).saturating_sub(planned),
             budget,
             overdue,
@@ -461,11 +254,12 @@ impl Pipeline {
         batch: &Batch,
     ) -> Result<(ChangedPoints, u64), SceneError> {
         let th = self.config.thresholds;
-        self.note_trend(values, batch);
         let steps = self.config.settle_steps;
         if steps == 0 {
             // Nothing settles: no last trace to keep.
-            return Ok((ChangedPoints::compare(values, &batch.sent, &th)?, 0));
+            let out = ChangedPoints::compare(values, &batch.sent, &th)?;
+            self.note_trend(values, batch, &out.changed);
+            return Ok((out, 0));
         }
         let mut settle = th;
         settle.ao_steps = th.ao_steps.min(steps - 1);
@@ -491,31 +285,49 @@ impl Pipeline {
             .zip(&out.ao)
             .filter(|&(&b, &ao)| !batch.sent[b as usize].changed(ao, &th))
             .count() as u64;
+        self.note_trend(values, batch, &out.changed);
         Ok((out, settled))
     }
 
     /// A point's urgency for the budget (`Candidate::urgency`, from its
-    /// `Trend`); 0 without a budget (no trends kept).
-    fn urgency(&self, i: usize, k: u32) -> f32 {
+    /// `Trend`) once it has waited `age` steps; 0 without a budget (no
+    /// trends kept).
+    pub(super) fn urgency(&self, i: usize, k: u32, age: u32) -> f32 {
         self.instances
             .get(i)
             .and_then(|s| s.trend.get(k as usize))
-            .map_or(0.0, |t| {
-                t.urgency(self.frame as u32, self.config.thresholds.ao_steps)
-            })
+            .map_or(0.0, |t| t.urgency(age, self.config.thresholds.ao_steps))
     }
 
-    /// Notes each traced point's `Trend` (kept under a budget only).
-    fn note_trend(&mut self, values: &AoResult, batch: &Batch) {
-        let (th, now) = (self.config.thresholds.ao_steps, self.frame as u32);
+    /// Notes the `Trend` of each point of `batch` (kept under a budget
+    /// only) from the AO `values` traced, `changed` (ascending indices)
+    /// those that went out. A point that stopped early (its value is what
+    /// clients hold, not a trace) keeps its trend.
+    fn note_trend(&mut self, values: &AoResult, batch: &Batch, changed: &[u32]) {
+        if self.instances.iter().all(|s| s.trend.is_empty()) {
+            return;
+        }
+        let now = self.frame as u32;
+        let mut went = vec![false; batch.owner.len()];
+        for &c in changed {
+            if let Some(w) = went.get_mut(c as usize) {
+                *w = true;
+            }
+        }
         for (b, (&(i, k), &ao)) in batch.owner.iter().zip(&values.ao).enumerate() {
+            let went_out = went[b];
+            if self.instances[i].trend.is_empty()
+                || self.last_early.binary_search(&key(i, k)).is_ok()
+            {
+                continue;
+            }
+            let held = batch
+                .sent
+                .get(b)
+                .map(|s| s.word)
+                .filter(|w| w.is_allocated());
             if let Some(t) = self.instances[i].trend.get_mut(k as usize) {
-                let held = batch
-                    .sent
-                    .get(b)
-                    .map(|s| s.word)
-                    .filter(|w| w.is_allocated());
-                t.note(quantize_ao(ao), held.map(|w| w.fields().ao), now, th);
+                t.note(quantize_ao(ao), held.map(|w| w.fields().ao), now, went_out);
             }
         }
     }
@@ -762,7 +574,7 @@ impl Pipeline {
 
     /// The listed points of every instance, as [`batch`](Self::batch)
     /// gives them, without what clients hold (`sent` empty).
-    fn batch_unheld(&self, which: &[Vec<u32>]) -> Batch {
+    pub(super) fn batch_unheld(&self, which: &[Vec<u32>]) -> Batch {
         let (mut ids, mut pts, mut nrm) = (Vec::new(), Vec::new(), Vec::new());
         // (instance, point) of each traced point.
         let mut owner = Vec::new();

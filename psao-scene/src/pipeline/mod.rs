@@ -33,6 +33,7 @@ mod blocks;
 pub(crate) mod budget;
 mod buried;
 mod bvh;
+mod choose;
 pub(crate) mod config;
 mod dirty;
 pub(crate) mod early;
@@ -695,17 +696,21 @@ impl Pipeline {
             s.table.shrink_to_fit();
             // The first trace set every point: what it gave is held.
             let (positions, normals) = s.stored();
-            let held: Vec<u8> = (0..positions.len())
+            let held: Vec<Option<u8>> = (0..positions.len())
                 .map(|k| {
                     let w = s.table.sent(k as u32, positions[k], normals[k]).word;
-                    if w.is_allocated() {
-                        w.fields().ao
-                    } else {
-                        u8::MAX
-                    }
+                    w.is_allocated().then(|| w.fields().ao)
                 })
                 .collect();
-            s.last_ao = held;
+            if !s.trend.is_empty() {
+                // Under a budget each point's trend starts from this trace.
+                for (t, q) in s.trend.iter_mut().zip(&held) {
+                    if let Some(q) = *q {
+                        *t = trend::Trend::seeded(q, 0);
+                    }
+                }
+            }
+            s.last_ao = held.iter().map(|q| q.unwrap_or(u8::MAX)).collect();
         }
         Ok(pipeline)
     }

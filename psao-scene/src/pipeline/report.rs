@@ -29,8 +29,9 @@ pub struct FrameReport {
     pub waiting: u64,
     /// The longest any of them has waited, in steps.
     pub oldest_wait: u32,
-    /// Points traced whatever the budget because they had waited
-    /// `wait_bound` steps: a budget too small for the motion.
+    /// Points traced whatever the budget because they had waited their
+    /// due (`wait_bound` steps less under half of it, spread over the
+    /// points): a budget too small for the motion.
     pub overdue: u64,
     /// Under a budget, the bound on waiting this step enforced: no point
     /// waits longer (`oldest_wait` is at most this). It is

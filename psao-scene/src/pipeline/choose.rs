@@ -1,0 +1,317 @@
+//! Choosing what a step traces: the waiting points split into those
+//! planned ray by ray and those that need a full trace, the step's ray
+//! budget, the budget's candidates, and the batch of the chosen ones
+//! (`select` in `budget` makes the choice).
+
+use std::time::Instant;
+
+use super::Pipeline;
+use super::budget::{Candidate, REPLAN_WAITS, RayBudget, due};
+use super::dirty::{Batch, StepMotion};
+use super::plan::Plan;
+use super::ray_cache::key;
+
+/// A step's budget candidates: the planned points that trace and the
+/// waiting points apart, merged in (instance, point) order.
+pub(super) struct Candidates {
+    /// The batch index of each planned candidate.
+    pub at: Vec<usize>,
+    /// Per planned candidate, whether it really waited (a mover's point
+    /// traced every step counts as overdue without having waited).
+    pub waited_really: Vec<bool>,
+    /// Each candidate in merged order: (apart, index into `at` or into
+    /// the points apart).
+    pub merged: Vec<(bool, usize)>,
+    /// The candidates in merged order.
+    pub all: Vec<Candidate>,
+    /// Planned points that motion reaches with no ray (nothing to trace).
+    pub unreached: u64,
+}
+
+impl Pipeline {
+    /// Adds the waiting points to the step's `lists` (ascending, each
+    /// once), except those that need a full trace, of instances that did
+    /// not move and with no kept scores: their plan is known (every ray,
+    /// all reached), so they are not planned again but returned apart
+    /// (ascending keys). With many points waiting, that is most of them.
+    /// Also returns which instances have points to trace or waiting.
+    pub(super) fn split_waiting(
+        &mut self,
+        lists: &mut [Vec<u32>],
+        motion: &StepMotion,
+    ) -> (Vec<u64>, Vec<bool>) {
+        let cache = self.config.ray_reuse && self.config.skip && self.backend.is_none();
+        let is_apart = |this: &Self, key: u64| {
+            this.waiting.get(key).is_some_and(|w| w.1)
+                && !motion
+                    .changed
+                    .get((key >> 32) as usize)
+                    .copied()
+                    .unwrap_or(true)
+                && !(cache && this.ray_cache.get(key).is_some())
+        };
+        let mut apart = Vec::new();
+        let mut touched: Vec<bool> = lists.iter().map(|w| !w.is_empty()).collect();
+        for k in self.waiting.keys() {
+            let (i, p) = ((k >> 32) as usize, k as u32);
+            if let Some(t) = touched.get_mut(i) {
+                *t = true;
+            }
+            if is_apart(self, k) {
+                apart.push(k);
+            } else if let Some(l) = lists.get_mut(i) {
+                l.push(p);
+            }
+        }
+        for (i, l) in lists.iter_mut().enumerate() {
+            // Two ascending runs: the stable sort merges them.
+            l.sort();
+            l.dedup();
+            l.retain(|&p| !is_apart(self, key(i, p)));
+        }
+        (apart, touched)
+    }
+
+    /// The rays this step may cast (`None`: no limit). An automatic budget
+    /// gets what is left of its share of the period once the step so far
+    /// (from `started` on, planning included) and what it does besides
+    /// casting from here on (as in the last steps) are paid for.
+    pub(super) fn step_budget(&self, motion: &StepMotion, started: Instant) -> Option<u64> {
+        match self.config.budget {
+            RayBudget::Unlimited => None,
+            RayBudget::Rays(n) => Some(n),
+            RayBudget::Auto { share } => {
+                // What is left of the share once the step so far, the
+                // planning and what the step does besides casting from
+                // here on (as it took in the last steps) are paid for.
+                let left = share as f64 * motion.period
+                    - motion.elapsed.as_secs_f64()
+                    - started.elapsed().as_secs_f64()
+                    - self.tail_s;
+                Some(if self.ray_ns > 0.0 {
+                    (left.max(0.0) * 1e9 / self.ray_ns) as u64
+                } else {
+                    u64::MAX
+                })
+            }
+        }
+    }
+
+    /// The budget's candidates of a step: the points of `batch` their
+    /// `plans` trace, each costing the rays it casts, and the waiting
+    /// points `apart` (a full trace each), merged in (instance, point)
+    /// order so that `select` breaks ties by position.
+    pub(super) fn candidates(
+        &self,
+        batch: &Batch,
+        plans: &[Plan],
+        apart: &[u64],
+        motion: &StepMotion,
+        bound: u32,
+    ) -> Candidates {
+        let rays = self.config.ao.rays;
+        // A moving point that may stop early costs what such points cast
+        // on average.
+        let (moving_cost, max_stops) = match self.early_decisions() {
+            Some(e) => (
+                (self.early_cost.ceil() as u32).clamp(1, rays.max(1)),
+                e.max_stops,
+            ),
+            None => (rays, 0),
+        };
+        let (mut at, mut cands) = (Vec::new(), Vec::new());
+        // Per candidate, whether it really waited (a mover's point traced
+        // every step counts as overdue without having waited).
+        let mut waited_really = Vec::new();
+        let mut unreached = 0u64;
+        for (b, plan) in plans.iter().enumerate() {
+            let (cost, reached) = match plan {
+                Plan::Skip => {
+                    unreached += 1;
+                    continue;
+                }
+                Plan::Full { reached } => (rays, *reached),
+                Plan::Rays { need, reached } => (need.count(), reached.count()),
+            };
+            let (i, k) = batch.owner[b];
+            // A moving point that may stop early costs what such points
+            // cast on average; one that will trace in full (nothing kept
+            // yet, or stopped its most times in a row) all its rays.
+            let cost = match plan {
+                Plan::Full { .. }
+                    if self.instances[i].dynamic
+                        && motion.changed[i]
+                        && self.kept_scores.may_stop(key(i, k), max_stops) =>
+                {
+                    moving_cost
+                }
+                _ => cost,
+            };
+            at.push(b);
+            // A mover's own point traced every step it moves, if so
+            // configured: as one that waited its longest.
+            let every_step = self.config.movers_every_step && motion.changed[i];
+            let age = match every_step {
+                true => bound,
+                false => self.waiting.get(key(i, k)).map_or(0, |w| w.0),
+            };
+            waited_really.push(!every_step);
+            cands.push(Candidate {
+                cost,
+                reached: reached as f32 / rays.max(1) as f32,
+                age,
+                due: due(key(i, k), bound),
+                urgency: self.urgency(i, k, age),
+            });
+        }
+        // The waiting points apart: a full trace each.
+        let apart_cands: Vec<Candidate> = apart
+            .iter()
+            .map(|&k| {
+                let age = self.waiting.get(k).map_or(0, |w| w.0);
+                Candidate {
+                    cost: rays,
+                    reached: rays as f32 / rays.max(1) as f32,
+                    age,
+                    due: due(k, bound),
+                    urgency: self.urgency((k >> 32) as usize, k as u32, age),
+                }
+            })
+            .collect();
+        // Both in (instance, point) order, merged so (`select` breaks ties
+        // by position): (apart, index) of each.
+        let mut merged = Vec::with_capacity(at.len() + apart.len());
+        let (mut x, mut y) = (0, 0);
+        while x < at.len() || y < apart.len() {
+            let planned_first = y >= apart.len()
+                || (x < at.len() && {
+                    let (i, k) = batch.owner[at[x]];
+                    key(i, k) < apart[y]
+                });
+            if planned_first {
+                merged.push((false, x));
+                x += 1;
+            } else {
+                merged.push((true, y));
+                y += 1;
+            }
+        }
+        let all: Vec<Candidate> = merged
+            .iter()
+            .map(|&(a, j)| if a { apart_cands[j] } else { cands[j] })
+            .collect();
+        Candidates {
+            at,
+            waited_really,
+            merged,
+            all,
+            unreached,
+        }
+    }
+
+    /// The batch of the chosen points, planned (`take`, indices into
+    /// `batch`) and apart (`take_apart`, keys), in (instance, point) order,
+    /// with each one's plan (`full` for those apart); what clients hold is
+    /// not looked up yet.
+    pub(super) fn chosen_batch<'p>(
+        &self,
+        batch: &Batch,
+        plans: &'p [Plan],
+        take: &[usize],
+        take_apart: &[u64],
+        full: &'p Plan,
+    ) -> (Batch, Vec<&'p Plan>) {
+        if take_apart.is_empty() {
+            let sub_plans: Vec<&Plan> = take.iter().map(|&b| &plans[b]).collect();
+            (batch.select(take), sub_plans)
+        } else {
+            let mut chosen_lists = vec![Vec::new(); self.instances.len()];
+            for (i, p) in take
+                .iter()
+                .map(|&b| batch.owner[b])
+                .chain(take_apart.iter().map(|&k| ((k >> 32) as usize, k as u32)))
+            {
+                chosen_lists[i].push(p);
+            }
+            for l in &mut chosen_lists {
+                l.sort();
+            }
+            let sub = self.batch_unheld(&chosen_lists);
+            // Both ascending: a planned point is the next of `take` or else
+            // one apart.
+            let mut next = take.iter().peekable();
+            let sub_plans: Vec<&Plan> = sub
+                .owner
+                .iter()
+                .map(|&o| match next.peek() {
+                    Some(&&b) if batch.owner[b] == o => {
+                        next.next();
+                        &plans[b]
+                    }
+                    _ => full,
+                })
+                .collect();
+            (sub, sub_plans)
+        }
+    }
+
+    /// Records the budget's choice (`chosen`, per candidate of `cands` in
+    /// merged order): a chosen point leaves the waiting list, one not chosen
+    /// waits (planned again next step, or traced in full when its turn
+    /// comes once demand has raised the bound past `max_wait` and it has
+    /// waited [`REPLAN_WAITS`] steps). Returns the chosen planned points
+    /// (indices into `batch`) and the chosen points apart (keys).
+    pub(super) fn record_choices(
+        &mut self,
+        batch: &Batch,
+        plans: &[Plan],
+        apart: &[u64],
+        cands: &Candidates,
+        chosen: &[bool],
+        bound: u32,
+    ) -> (Vec<usize>, Vec<u64>) {
+        let (at, merged) = (&cands.at, &cands.merged);
+        let (mut chosen_at, mut chosen_apart) = (vec![false; at.len()], vec![false; apart.len()]);
+        for (&(a, j), &go) in merged.iter().zip(chosen) {
+            if a {
+                chosen_apart[j] = go;
+            } else {
+                chosen_at[j] = go;
+            }
+        }
+        let mut take = Vec::new();
+        let mut take_apart = Vec::new();
+        for (&k, &go) in apart.iter().zip(&chosen_apart) {
+            if go {
+                self.waiting.done(k);
+                take_apart.push(k);
+            } else {
+                self.waiting.wait(k, true);
+            }
+        }
+        for (&b, &go) in at.iter().zip(&chosen_at) {
+            let (i, k) = batch.owner[b];
+            let key = key(i, k);
+            if go {
+                self.waiting.done(key);
+                take.push(b);
+                continue;
+            }
+            // Planned again next step, unless demand has raised the bound
+            // and it has waited a while already.
+            let waited = self.waiting.get(key).map_or(0, |w| w.0);
+            let replan = bound <= self.config.max_wait || waited < REPLAN_WAITS;
+            match &plans[b] {
+                Plan::Rays { reached, .. } if replan => {
+                    self.ray_cache.mark_stale(key, reached);
+                    self.waiting.wait(key, false);
+                }
+                _ => {
+                    self.ray_cache.forget(key);
+                    self.waiting.wait(key, true);
+                }
+            }
+        }
+        (take, take_apart)
+    }
+}
