@@ -138,10 +138,10 @@ pub struct PipelineConfig {
     /// only the changed ones), for the points' trends that rank them.
     pub budget: RayBudget,
     /// Under a budget, the most steps a point waits while the budget
-    /// affords it (8): one that waited its due, this long less under half
-    /// of it (spread over the points, so that points that began to wait
-    /// together do not all come due in one step), is traced whatever the
-    /// budget. The bound in force rises above it, up to
+    /// affords it (8): one that waited its due, this long less a few
+    /// steps (under half of it, at most 8, spread over the points, so that
+    /// points that began to wait together do not all come due in one
+    /// step), is traced whatever the budget. The bound in force rises above it, up to
     /// [`max_wait_limit`](Self::max_wait_limit), when the points that
     /// reached it alone cost more rays than a step's budget.
     pub max_wait: u32,

@@ -30,8 +30,8 @@ pub struct FrameReport {
     /// The longest any of them has waited, in steps.
     pub oldest_wait: u32,
     /// Points traced whatever the budget because they had waited their
-    /// due (`wait_bound` steps less under half of it, spread over the
-    /// points): a budget too small for the motion.
+    /// due (`wait_bound` steps less a few, spread over the points): a
+    /// budget too small for the motion.
     pub overdue: u64,
     /// Under a budget, the bound on waiting this step enforced: no point
     /// waits longer (`oldest_wait` is at most this). It is
