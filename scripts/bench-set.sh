@@ -17,11 +17,9 @@ run() {
   "$psao" bench "${common[@]}" --out "$out/$group" "$@"
 }
 # Metre-sized scenes, the paper's radius.
+source scripts/bench-set-scenes.sh
 metre=()
-for m in AnimatedMorphCube/AnimatedMorphCube.glb AnimatedTriangle/AnimatedTriangle.gltf \
-         BoxAnimated/BoxAnimated.glb Cameras/Cameras.gltf CesiumMilkTruck/CesiumMilkTruck.gltf \
-         MorphPrimitivesTest/MorphPrimitivesTest.gltf NegativeScaleTest/NegativeScaleTest.gltf \
-         RiggedFigure/RiggedFigure.glb RiggedSimple/RiggedSimple.glb SimpleSkin/SimpleSkin.gltf; do
+for m in "${metre_models[@]}"; do
   metre+=(--gltf "$shared/$m")
 done
 run metre --scenes default,cesium-man --densities 256,1024 --radius 0.6 "${metre[@]}" "$@"

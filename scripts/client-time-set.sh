@@ -9,10 +9,8 @@ shared=../shared/scenes
 cargo build --release -p psao-eval --example client_time
 ct=target/release/examples/client_time
 for s in default cesium-man; do "$ct" --scene "$s" --density 1024 --radius 0.6 "$@"; done
-for m in AnimatedMorphCube/AnimatedMorphCube.glb AnimatedTriangle/AnimatedTriangle.gltf \
-         BoxAnimated/BoxAnimated.glb Cameras/Cameras.gltf CesiumMilkTruck/CesiumMilkTruck.gltf \
-         MorphPrimitivesTest/MorphPrimitivesTest.gltf NegativeScaleTest/NegativeScaleTest.gltf \
-         RiggedFigure/RiggedFigure.glb RiggedSimple/RiggedSimple.glb SimpleSkin/SimpleSkin.gltf; do
+source scripts/bench-set-scenes.sh
+for m in "${metre_models[@]}"; do
   "$ct" --gltf "$shared/$m" --density 1024 --radius 0.6 "$@"
 done
 "$ct" --scene hall --density 256 --radius 0.6 "$@"

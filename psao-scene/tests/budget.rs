@@ -676,7 +676,7 @@ fn a_quarter_of_a_full_retrace_sends_nearly_every_point_it_sends() {
     let quarter = full / ticks as u64 / 4;
     let (rays, budgeted) = default_scene_run(true, RayBudget::Rays(quarter), ticks);
     assert!(sent > 0 && rays > 0);
-    // Points that waited their longest go past the budget: at most a few.
+    // Points that came due go past the budget: at most a few.
     assert!(
         rays <= full / 4 + full / 40,
         "{rays} rays against a full re-trace's {full}"

@@ -100,6 +100,17 @@ impl Candidate {
     pub fn overdue(&self, bound: u32) -> bool {
         self.age >= self.due.min(bound)
     }
+
+    /// Its priority among those not overdue (see the module): what a ray
+    /// spent on it is likely to send (its urgency, with the share motion
+    /// reached as a prior), weighed by the steps waited so that the
+    /// budget goes round instead of to the same points every step, per
+    /// ray it costs.
+    pub fn priority(&self) -> f32 {
+        (self.reached.max(1e-3) * REACH_PRIOR + self.urgency.min(MAX_URGENCY))
+            * (self.age as f32 + 1.0)
+            / self.cost.max(1) as f32
+    }
 }
 
 /// The most steps a point's due lies before the bound ([`due`]).
@@ -152,18 +163,13 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, bound: u32) -> (Vec<bool
             rest.push(i);
         }
     }
-    // What a ray spent on the point is likely to send (its urgency, with
-    // the share motion reached as a prior), weighed by the steps waited
-    // so that the budget goes round instead of to the same points every
-    // step. A total order (ties go by index).
-    let weight = |c: &Candidate| {
-        (c.reached.max(1e-3) * REACH_PRIOR + c.urgency.min(MAX_URGENCY)) * (c.age as f32 + 1.0)
-            / c.cost.max(1) as f32
-    };
+    // By priority, computed once per candidate, then the longest waiting:
+    // a total order (ties go by index).
+    let weight: Vec<f32> = cands.iter().map(Candidate::priority).collect();
     let order = |&a: &usize, &b: &usize| {
         let (x, y) = (&cands[a], &cands[b]);
-        weight(y)
-            .total_cmp(&weight(x))
+        weight[b]
+            .total_cmp(&weight[a])
             .then(y.age.cmp(&x.age))
             .then(a.cmp(&b))
     };
@@ -413,16 +419,12 @@ mod tests {
 
     /// `select` as its rules say it, sorting every candidate.
     fn select_by_sorting_all(cands: &[Candidate], budget: u64, bound: u32) -> (Vec<bool>, u64) {
-        let weight = |c: &Candidate| {
-            (c.reached.max(1e-3) * REACH_PRIOR + c.urgency.min(MAX_URGENCY)) * (c.age as f32 + 1.0)
-                / c.cost.max(1) as f32
-        };
         let mut order: Vec<usize> = (0..cands.len()).collect();
         order.sort_by(|&a, &b| {
             let (x, y) = (&cands[a], &cands[b]);
             y.overdue(bound)
                 .cmp(&x.overdue(bound))
-                .then(weight(y).total_cmp(&weight(x)))
+                .then(y.priority().total_cmp(&x.priority()))
                 .then(y.age.cmp(&x.age))
                 .then(a.cmp(&b))
         });

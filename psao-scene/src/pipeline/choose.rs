@@ -156,26 +156,14 @@ impl Pipeline {
                 false => self.waiting.get(key(i, k)).map_or(0, |w| w.0),
             };
             waited_really.push(!every_step);
-            cands.push(Candidate {
-                cost,
-                reached: reached as f32 / rays.max(1) as f32,
-                age,
-                due: due(key(i, k), bound),
-                urgency: self.urgency(i, k, age),
-            });
+            cands.push(self.candidate(key(i, k), cost, reached, age, bound));
         }
         // The waiting points apart: a full trace each.
         let apart_cands: Vec<Candidate> = apart
             .iter()
             .map(|&k| {
                 let age = self.waiting.get(k).map_or(0, |w| w.0);
-                Candidate {
-                    cost: rays,
-                    reached: rays as f32 / rays.max(1) as f32,
-                    age,
-                    due: due(k, bound),
-                    urgency: self.urgency((k >> 32) as usize, k as u32, age),
-                }
+                self.candidate(k, rays, rays, age, bound)
             })
             .collect();
         // Both in (instance, point) order, merged so (`select` breaks ties
@@ -206,6 +194,19 @@ impl Pipeline {
             merged,
             all,
             unreached,
+        }
+    }
+
+    /// Point `key`'s candidate: it costs `cost` rays, motion reached
+    /// `reached` of its rays, it has waited `age` steps, under `bound`.
+    fn candidate(&self, key: u64, cost: u32, reached: u32, age: u32, bound: u32) -> Candidate {
+        let rays = self.config.ao.rays.max(1);
+        Candidate {
+            cost,
+            reached: reached as f32 / rays as f32,
+            age,
+            due: due(key, bound),
+            urgency: self.urgency((key >> 32) as usize, key as u32, age),
         }
     }
 

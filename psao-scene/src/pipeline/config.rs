@@ -141,9 +141,9 @@ pub struct PipelineConfig {
     /// affords it (8): one that waited its due, this long less a few
     /// steps (under half of it, at most 8, spread over the points, so that
     /// points that began to wait together do not all come due in one
-    /// step), is traced whatever the budget. The bound in force rises above it, up to
-    /// [`max_wait_limit`](Self::max_wait_limit), when the points that
-    /// reached it alone cost more rays than a step's budget.
+    /// step), is traced whatever the budget. The bound in force rises
+    /// above it, up to [`max_wait_limit`](Self::max_wait_limit), when the
+    /// points that came due alone cost more rays than a step's budget.
     pub max_wait: u32,
     /// Under a budget, the most steps the bound on waiting may rise to
     /// when demand exceeds the budget (60: a second at 60 Hz). The bound

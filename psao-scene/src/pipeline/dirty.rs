@@ -300,8 +300,8 @@ impl Pipeline {
     }
 
     /// Notes the `Trend` of each point of `batch` (kept under a budget
-    /// only) from the AO `values` traced, `changed` (ascending indices)
-    /// those that went out. A point that stopped early (its value is what
+    /// only) from the AO `values` traced, `changed` (indices into
+    /// `batch`) those that went out. A point that stopped early (its value is what
     /// clients hold, not a trace) keeps its trend.
     fn note_trend(&mut self, values: &AoResult, batch: &Batch, changed: &[u32]) {
         if self.instances.iter().all(|s| s.trend.is_empty()) {
