@@ -686,3 +686,103 @@ fn a_quarter_of_a_full_retrace_sends_nearly_every_point_it_sends() {
         "{budgeted} points sent under a quarter of the rays against {sent} unbudgeted"
     );
 }
+
+/// A bar rising out of a well (an open box on a floor), 0.04 m a step,
+/// under a budget of two fifths of what the bar's points need: the rim
+/// sweeps down the bar, turning each point from dark to open in turn.
+/// Returns the mean AO error clients hold on the bar's points that came
+/// out of the well between 2 and 6 steps before (their AO jumped then),
+/// over the steps the bar rises.
+fn bar_out_of_a_well_error() -> f32 {
+    let mut s = Scene::default();
+    s.add(
+        Mesh::quad(Vec3::new(-1.0, 0.0, -1.0), Vec3::Z * 2.0, Vec3::X * 2.0).subdivided(2),
+        Affine3A::IDENTITY,
+    );
+    // The well: four walls 0.8 m high round a 0.5 m square.
+    let (h, w) = (0.8, 0.25);
+    for (corner, along) in [
+        (Vec3::new(-w, 0.0, -w), Vec3::X * 2.0 * w),
+        (Vec3::new(w, 0.0, -w), Vec3::Z * 2.0 * w),
+        (Vec3::new(w, 0.0, w), Vec3::X * -2.0 * w),
+        (Vec3::new(-w, 0.0, w), Vec3::Z * -2.0 * w),
+    ] {
+        s.add(Mesh::quad(corner, Vec3::Y * h, along), Affine3A::IDENTITY);
+    }
+    let node = s.add_node("bar", None, Trs::default());
+    let bar = s.add_on_node(
+        Mesh::cuboid(Vec3::new(-0.15, 0.0, -0.15), Vec3::new(0.15, h, 0.15)),
+        node,
+    );
+    s.animations.push(Animation::translation(
+        "rise",
+        node,
+        &[(0.0, Vec3::ZERO), (2.0 / 3.0, Vec3::Y * h)],
+    ));
+    let c = PipelineConfig {
+        density: 256.0,
+        budget: RayBudget::Rays(0),
+        max_wait: 8,
+        max_wait_limit: 8,
+        ao: AoParams {
+            rays: 24,
+            radius: 0.3,
+            estimator: Estimator::ClosestHit,
+            ..AoParams::default()
+        },
+        ..PipelineConfig::default()
+    };
+    let ao = c.ao;
+    let p = Pipeline::new(s.clone(), c.clone()).unwrap();
+    let bar_points = p.points(bar).unwrap().len() as u64;
+    let base: u32 = (0..bar).map(|i| p.points(i).unwrap().len() as u32).sum();
+    drop(p);
+    let budget = bar_points * ao.rays as u64 * 2 / 5;
+    let mut p = Pipeline::new(
+        s,
+        PipelineConfig {
+            budget: RayBudget::Rays(budget),
+            ..c
+        },
+    )
+    .unwrap();
+    let local: Vec<Vec3> = p.points(bar).unwrap().positions.clone();
+    let (mut sum, mut n) = (0.0f32, 0u32);
+    for t in 1..=20 {
+        let rise = 0.04 * t as f32;
+        p.place_instance(bar, Affine3A::from_translation(Vec3::Y * rise))
+            .unwrap();
+        p.step(1.0 / 30.0).unwrap();
+        let tracer = p.current_tracer();
+        let (pos, nrm) = p.current_points(bar).unwrap();
+        let world: Vec<Vec3> = pos.iter().map(|&q| q + Vec3::Y * rise).collect();
+        let ids: Vec<u32> = (0..pos.len() as u32).map(|k| base + k).collect();
+        let fresh = tracer.trace_ids(&ids, &world, nrm, &ao).unwrap();
+        let table = p.table(bar).unwrap();
+        for (k, q) in local.iter().enumerate() {
+            // Came out of the well 2 to 6 steps ago, on the bar's sides.
+            let out = q.y + rise - h;
+            if !(0.08..=0.24).contains(&out) || q.y > h - 0.01 {
+                continue;
+            }
+            if let psao_codec::Placement::Stored { cell, slot } = table.placement(k as u32) {
+                sum += (PointWord(table.cell(cell)[slot as usize]).ao() - fresh.ao[k]).abs();
+                n += 1;
+            }
+        }
+    }
+    assert!(n > 0, "no point came out");
+    sum / n as f32
+}
+
+#[test]
+fn points_near_a_sweeping_change_are_traced_before_the_rest_waits() {
+    // The bar's points trace about once in two or three steps, those
+    // near the rim first (where their neighbours' AO just jumped: the
+    // `Heat` of the pipeline's `trend`): what clients hold of them is
+    // within 6 steps of 1/255 of a full trace on average. Measured when
+    // this was written: 4.9 steps; 7.2 with the points ranked by their
+    // own trends alone (no heat); 2.1 with no budget.
+    let err = bar_out_of_a_well_error();
+    assert!(err <= 6.0 / 255.0, "off by {} steps", err * 255.0);
+}

@@ -206,7 +206,7 @@ impl Pipeline {
             reached: reached as f32 / rays as f32,
             age,
             due: due(key, bound),
-            urgency: self.urgency((key >> 32) as usize, key as u32, age),
+            urgency: self.urgency((key >> 32) as usize, key as u32, age, reached >= rays),
         }
     }
 

@@ -291,12 +291,33 @@ impl Pipeline {
 
     /// A point's urgency for the budget (`Candidate::urgency`, from its
     /// `Trend`) once it has waited `age` steps; 0 without a budget (no
-    /// trends kept).
-    pub(super) fn urgency(&self, i: usize, k: u32, age: u32) -> f32 {
-        self.instances
-            .get(i)
-            .and_then(|s| s.trend.get(k as usize))
-            .map_or(0.0, |t| t.urgency(age, self.config.thresholds.ao_steps))
+    /// trends kept). A point traced in full (`full`: its share reached is
+    /// 1 whatever motion does, so reach tells nothing of it) of a rigid
+    /// instance is at least as urgent as the fastest pace near it (its
+    /// `Heat` cell's, see `trend`) makes it.
+    pub(super) fn urgency(&self, i: usize, k: u32, age: u32, full: bool) -> f32 {
+        let Some(s) = self.instances.get(i) else {
+            return 0.0;
+        };
+        let threshold = self.config.thresholds.ao_steps.max(1) as f32;
+        let own = s
+            .trend
+            .get(k as usize)
+            .map_or(0.0, |t| t.urgency(age, self.config.thresholds.ao_steps));
+        // A deforming instance's points are not: its pose changes them
+        // all at once, so a neighbour's pace says nothing of a front
+        // sweeping over it, and its points' own paces already say how
+        // fast they move (heat there cost CesiumMan sends and PSNR).
+        let rigid = s.positions.is_empty();
+        if !(full && rigid) {
+            return own;
+        }
+        let near = s
+            .points
+            .positions
+            .get(k as usize)
+            .map_or(0.0, |&p| s.heat.pace(p, self.frame as u32));
+        own.max(near * (age as f32 + 1.0) / threshold)
     }
 
     /// Notes the `Trend` of each point of `batch` (kept under a budget
@@ -326,8 +347,19 @@ impl Pipeline {
                 .get(b)
                 .map(|s| s.word)
                 .filter(|w| w.is_allocated());
-            if let Some(t) = self.instances[i].trend.get_mut(k as usize) {
-                t.note(quantize_ao(ao), held.map(|w| w.fields().ao), now, went_out);
+            let s = &mut self.instances[i];
+            if let Some(t) = s.trend.get_mut(k as usize) {
+                let pace = t.note(quantize_ao(ao), held.map(|w| w.fields().ao), now, went_out);
+                // Only rigid instances' points read the heat (`urgency`).
+                match s.points.positions.get(k as usize) {
+                    Some(&p) if s.positions.is_empty() => s.heat.note(p, pace, now),
+                    _ => {}
+                }
+            }
+        }
+        if now % super::trend::HEAT_STEPS == 0 {
+            for s in &mut self.instances {
+                s.heat.cool(now);
             }
         }
     }

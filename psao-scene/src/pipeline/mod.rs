@@ -101,6 +101,8 @@ struct InstanceState {
     /// Each point's trend, for the ray budget's priority (empty without
     /// a budget).
     trend: Vec<trend::Trend>,
+    /// How fast its points' AO moved lately, by cell (with `trend`).
+    heat: trend::Heat,
     /// Its own BVH in local space (dynamic instances, split BVH): moved by
     /// its transform, refitted when it deforms.
     bvh: Option<Arc<TriangleBvh>>,
@@ -183,6 +185,7 @@ impl InstanceState {
             + self.pending.capacity() as u64
             + self.last_ao.capacity() as u64
             + self.trend.capacity() as u64 * std::mem::size_of::<trend::Trend>() as u64
+            + self.heat.memory_bytes()
             + self.table.memory_bytes()
             + self.buried.memory_bytes()
             + self.blocks.memory_bytes()
@@ -555,6 +558,7 @@ impl Pipeline {
                     config::RayBudget::Unlimited => Vec::new(),
                     _ => vec![trend::Trend::default(); points.len()],
                 },
+                heat: trend::Heat::new(config.ao.radius),
                 points,
                 positions,
                 normals,

@@ -2,6 +2,17 @@
 //! far its last trace left it from what clients hold, and how fast its AO
 //! moved between its last two traces. From these a point's *urgency*
 //! follows: how near the send threshold its AO probably is now.
+//!
+//! A point's own trend knows nothing of a change that has not reached it
+//! yet: the rim of a box sweeping down a bar that slides out of it turns
+//! each point of the bar from dark to open in turn, and a point's last
+//! two traces (both inside) say it holds still. Its neighbours know:
+//! [`Heat`] keeps, per cell of an instance's space, the fastest pace its
+//! points moved at in the last [`HEAT_STEPS`] steps, and a point is
+//! at least as urgent as that pace makes it.
+
+use glam::{IVec3, Vec3};
+use rustc_hash::FxHashMap;
 
 /// A point's trend: whether it has been traced, its last trace quantized,
 /// that trace's distance from what clients hold in 1/255 steps (0 when it
@@ -32,7 +43,8 @@ impl Trend {
     /// Notes a trace at step `now` that gave `q` (quantized), clients
     /// holding `held` (`None`: nothing); `sent`: the trace went out, so
     /// clients hold it now and no gap is left.
-    pub fn note(&mut self, q: u8, held: Option<u8>, now: u32, sent: bool) {
+    /// Returns the pace noted.
+    pub fn note(&mut self, q: u8, held: Option<u8>, now: u32, sent: bool) -> f32 {
         let gap = match (sent, held) {
             (false, Some(h)) => h.abs_diff(q),
             _ => 0,
@@ -49,6 +61,7 @@ impl Trend {
             at: now,
             pace,
         };
+        pace
     }
 
     /// How far from what clients hold the point's AO probably is once it
@@ -61,6 +74,76 @@ impl Trend {
             return 0.0;
         }
         (self.gap as f32 + self.pace * (age as f32 + 1.0)) / threshold.max(1) as f32
+    }
+}
+
+/// Steps a cell stays hot after a point in it moved at its pace.
+pub(super) const HEAT_STEPS: u32 = 8;
+
+/// The fastest pace the points of each cell of one instance's space moved
+/// at lately (see the module): cubes of a side of the AO radius, in the
+/// space the instance's points are stored in (a deforming instance's
+/// bind space, where its points never move).
+#[derive(Debug, Default)]
+pub(super) struct Heat {
+    /// The cells' side.
+    cell: f32,
+    /// Per cell, the step the pace was noted in and the pace.
+    cells: FxHashMap<IVec3, (u32, f32)>,
+}
+
+impl Heat {
+    /// No cell hot yet; cells of side `cell` (a positive length; any
+    /// other keeps no heat).
+    pub fn new(cell: f32) -> Heat {
+        Heat {
+            cell: if cell.is_finite() && cell > 0.0 {
+                cell
+            } else {
+                0.0
+            },
+            cells: FxHashMap::default(),
+        }
+    }
+
+    /// The cell holding `p` (`None`: no cells, or `p` not finite).
+    fn cell_of(&self, p: Vec3) -> Option<IVec3> {
+        (self.cell > 0.0 && p.is_finite()).then(|| (p / self.cell).floor().as_ivec3())
+    }
+
+    /// Notes a point at `p` whose AO moved at `pace` (1/255 steps a
+    /// step), traced at step `now`: its cell keeps the fastest pace of
+    /// the last [`HEAT_STEPS`] steps.
+    pub fn note(&mut self, p: Vec3, pace: f32, now: u32) {
+        if pace <= 0.0 {
+            return;
+        }
+        let Some(c) = self.cell_of(p) else { return };
+        let e = self.cells.entry(c).or_insert((now, 0.0));
+        if now.wrapping_sub(e.0) > HEAT_STEPS || pace >= e.1 {
+            *e = (now, pace);
+        }
+    }
+
+    /// The fastest pace noted in the cell of `p` in the last
+    /// [`HEAT_STEPS`] steps before `now` (0: none).
+    pub fn pace(&self, p: Vec3, now: u32) -> f32 {
+        self.cell_of(p)
+            .and_then(|c| self.cells.get(&c))
+            .filter(|e| now.wrapping_sub(e.0) <= HEAT_STEPS)
+            .map_or(0.0, |e| e.1)
+    }
+
+    /// Forgets the cells that cooled before `now`: the map holds only
+    /// cells noted in the last [`HEAT_STEPS`] steps once this runs.
+    pub fn cool(&mut self, now: u32) {
+        self.cells
+            .retain(|_, e| now.wrapping_sub(e.0) <= HEAT_STEPS);
+    }
+
+    /// Bytes held (capacity).
+    pub fn memory_bytes(&self) -> u64 {
+        self.cells.capacity() as u64 * (std::mem::size_of::<(IVec3, (u32, f32))>() as u64 + 1)
     }
 }
 
@@ -117,6 +200,50 @@ mod tests {
             (4.0 + 2.0) / 8.0,
             "seeded: the pace counts"
         );
+    }
+
+    #[test]
+    fn a_cell_keeps_its_fastest_pace_for_heat_steps_then_cools() {
+        let mut h = Heat::new(0.5);
+        let (a, b, far) = (
+            Vec3::new(0.1, 0.1, 0.1),
+            Vec3::new(0.4, 0.2, 0.3),
+            Vec3::new(0.6, 0.1, 0.1),
+        );
+        h.note(a, 3.0, 10);
+        h.note(b, 1.0, 11);
+        assert_eq!(h.pace(b, 11), 3.0, "the same cell: the fastest pace");
+        assert_eq!(h.pace(far, 11), 0.0, "another cell");
+        assert_eq!(h.pace(a, 10 + HEAT_STEPS), 3.0);
+        assert_eq!(h.pace(a, 11 + HEAT_STEPS), 0.0, "cooled");
+        // Once cooled, a slower pace takes the cell.
+        h.note(b, 1.0, 11 + HEAT_STEPS);
+        assert_eq!(h.pace(a, 11 + HEAT_STEPS), 1.0);
+        // A point that held still heats nothing.
+        h.note(far, 0.0, 20);
+        assert_eq!(h.pace(far, 20), 0.0);
+        h.cool(40);
+        assert_eq!(h.memory_bytes() > 0, h.cells.capacity() > 0);
+        assert!(h.cells.is_empty(), "cool forgets cold cells");
+    }
+
+    #[test]
+    fn heat_ignores_what_has_no_cell() {
+        let mut h = Heat::new(0.5);
+        h.note(Vec3::NAN, 5.0, 1);
+        h.note(Vec3::splat(f32::INFINITY), 5.0, 1);
+        assert!(h.cells.is_empty());
+        assert_eq!(h.pace(Vec3::NAN, 1), 0.0);
+        // No cell size: no heat kept.
+        for bad in [0.0, -1.0, f32::NAN] {
+            let mut h = Heat::new(bad);
+            h.note(Vec3::ZERO, 5.0, 1);
+            assert_eq!(h.pace(Vec3::ZERO, 1), 0.0);
+        }
+        // A far point's cell saturates instead of wrapping.
+        let mut h = Heat::new(1e-3);
+        h.note(Vec3::splat(1e30), 2.0, 1);
+        assert_eq!(h.pace(Vec3::splat(1e30), 1), 2.0);
     }
 
     #[test]
