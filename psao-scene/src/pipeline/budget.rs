@@ -15,12 +15,13 @@
 //! probably is to the send threshold from what clients hold, the distance
 //! its last trace left plus the pace its AO moved at between its last two
 //! traces times the steps it has waited plus one, as a share of the
-//! threshold, at most [`MAX_URGENCY`]. A point traced in full of a rigid
-//! instance (a moving part's own point, or a static one waiting for a
-//! full trace: reach says nothing of either) is at least as urgent as the
-//! fastest pace near it makes it, the pace its cell's points moved at in
-//! the last few steps (`trend::Heat`): a change sweeping over a part (the
-//! rim of a box a bar slides out of) reaches a point's neighbours first.
+//! threshold, at most [`MAX_URGENCY`]. The point of a rigid part that can
+//! move, traced in full (reach says nothing of it), is at least as urgent as
+//! the fastest pace near it makes it, the pace its cell's points moved at
+//! in the last few steps (`trend::Heat`): a change sweeping over a part
+//! (the rim of a box a bar slides out of) reaches a point's neighbours
+//! first. (Not a deforming part's: its pose changes its points all at
+//! once, and their own paces say how fast.)
 //! To it is added [`REACH_PRIOR`]
 //! times the share of its rays motion reached, a prior for points whose
 //! pace is not known yet. The sum, times the steps waited plus one (so

@@ -101,7 +101,8 @@ struct InstanceState {
     /// Each point's trend, for the ray budget's priority (empty without
     /// a budget).
     trend: Vec<trend::Trend>,
-    /// How fast its points' AO moved lately, by cell (with `trend`).
+    /// How fast its points' AO moved lately, by cell (with `trend`, and
+    /// noted only for a rigid instance that can move).
     heat: trend::Heat,
     /// Its own BVH in local space (dynamic instances, split BVH): moved by
     /// its transform, refitted when it deforms.

@@ -8,8 +8,8 @@
 //! each point of the bar from dark to open in turn, and a point's last
 //! two traces (both inside) say it holds still. Its neighbours know:
 //! [`Heat`] keeps, per cell of an instance's space, the fastest pace its
-//! points moved at in the last [`HEAT_STEPS`] steps, and a point is
-//! at least as urgent as that pace makes it.
+//! points moved at lately, and the point of a rigid part that can move,
+//! traced in full, is at least as urgent as that pace makes it.
 
 use glam::{IVec3, Vec3};
 use rustc_hash::FxHashMap;
@@ -80,16 +80,18 @@ impl Trend {
 /// Steps a cell stays hot after a point in it moved at its pace.
 pub(super) const HEAT_STEPS: u32 = 8;
 
-/// The fastest pace the points of each cell of one instance's space moved
-/// at lately (see the module): cubes of a side of the AO radius, in the
-/// space the instance's points are stored in (a deforming instance's
-/// bind space, where its points never move).
-#[derive(Debug, Default)]
+/// The fastest pace the points of each cell of one instance moved at
+/// lately (see the module): cubes of a side of the AO radius in the
+/// instance's local space (`PointSet::positions`; only rigid instances
+/// that can move keep heat, so their points never move there).
+#[derive(Debug)]
 pub(super) struct Heat {
     /// The cells' side.
     cell: f32,
     /// Per cell, the step the pace was noted in and the pace.
     cells: FxHashMap<IVec3, (u32, f32)>,
+    /// The step cold cells were last forgotten in.
+    cooled: u32,
 }
 
 impl Heat {
@@ -103,6 +105,7 @@ impl Heat {
                 0.0
             },
             cells: FxHashMap::default(),
+            cooled: 0,
         }
     }
 
@@ -112,8 +115,9 @@ impl Heat {
     }
 
     /// Notes a point at `p` whose AO moved at `pace` (1/255 steps a
-    /// step), traced at step `now`: its cell keeps the fastest pace of
-    /// the last [`HEAT_STEPS`] steps.
+    /// step), traced at step `now`: its cell keeps the fastest pace noted
+    /// since it was last cold, and goes cold [`HEAT_STEPS`] steps after
+    /// that pace was noted (a slower pace noted meanwhile is not kept).
     pub fn note(&mut self, p: Vec3, pace: f32, now: u32) {
         if pace <= 0.0 {
             return;
@@ -125,8 +129,8 @@ impl Heat {
         }
     }
 
-    /// The fastest pace noted in the cell of `p` in the last
-    /// [`HEAT_STEPS`] steps before `now` (0: none).
+    /// The pace the cell of `p` keeps (see [`Heat::note`]) at step `now`
+    /// (0: the cell is cold).
     pub fn pace(&self, p: Vec3, now: u32) -> f32 {
         self.cell_of(p)
             .and_then(|c| self.cells.get(&c))
@@ -134,9 +138,14 @@ impl Heat {
             .map_or(0.0, |e| e.1)
     }
 
-    /// Forgets the cells that cooled before `now`: the map holds only
-    /// cells noted in the last [`HEAT_STEPS`] steps once this runs.
+    /// Forgets the cold cells at step `now`, once every [`HEAT_STEPS`]
+    /// steps: the map holds only cells noted in the last
+    /// `2 * HEAT_STEPS` steps.
     pub fn cool(&mut self, now: u32) {
+        if now.wrapping_sub(self.cooled) < HEAT_STEPS {
+            return;
+        }
+        self.cooled = now;
         self.cells
             .retain(|_, e| now.wrapping_sub(e.0) <= HEAT_STEPS);
     }
@@ -223,8 +232,12 @@ mod tests {
         h.note(far, 0.0, 20);
         assert_eq!(h.pace(far, 20), 0.0);
         h.cool(40);
-        assert_eq!(h.memory_bytes() > 0, h.cells.capacity() > 0);
         assert!(h.cells.is_empty(), "cool forgets cold cells");
+        // A hot cell stays.
+        h.note(a, 2.0, 41);
+        h.cool(41 + HEAT_STEPS);
+        assert_eq!(h.pace(a, 41 + HEAT_STEPS), 2.0);
+        assert_eq!(h.cells.len(), 1);
     }
 
     #[test]
