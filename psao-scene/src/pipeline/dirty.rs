@@ -306,14 +306,10 @@ impl Pipeline {
             .map_or(0.0, |t| t.urgency(age, self.config.thresholds.ao_steps));
         // Not a deforming instance's points: its pose changes them all
         // at once, so a neighbour's pace says nothing of a front sweeping
-        // over it, and its points' own paces say how fast they move
-        // (with heat there, CesiumMan at a quarter of a full re-trace
-        // sent 180 points a tick instead of 195). Not a static
-        // instance's: reach knows what motion does to its rays (and with
-        // heat there, CesiumMilkTruck at its quarter sent 1,345 points a
-        // tick instead of 1,499).
-        let rigid = s.positions.is_empty();
-        if !(full && rigid && s.dynamic) {
+        // over it, and its points' own paces say how fast they move. Not
+        // a static instance's: reach knows what motion does to its rays.
+        // (BENCHMARKS.md, the ray budget's eighth part, measures both.)
+        if !(full && s.keeps_heat()) {
             return own;
         }
         let near = s
@@ -354,12 +350,9 @@ impl Pipeline {
             let s = &mut self.instances[i];
             if let Some(t) = s.trend.get_mut(k as usize) {
                 let pace = t.note(quantize_ao(ao), held.map(|w| w.fields().ao), now, went_out);
-                // Only rigid instances that can move read the heat
-                // (`urgency`).
-                if let Some(&p) = s.points.positions.get(k as usize) {
-                    if s.dynamic && s.positions.is_empty() {
-                        s.heat.note(p, pace, now);
-                    }
+                match s.points.positions.get(k as usize) {
+                    Some(&p) if s.keeps_heat() => s.heat.note(p, pace, now),
+                    _ => {}
                 }
             }
         }

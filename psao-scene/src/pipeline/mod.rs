@@ -147,6 +147,12 @@ fn skin_groups(scene: &Scene, dynamic: &[bool]) -> Vec<SkinGroup> {
 }
 
 impl InstanceState {
+    /// Whether it keeps and reads `heat`: a rigid instance (its points
+    /// never move in its local space) that can move.
+    fn keeps_heat(&self) -> bool {
+        self.dynamic && self.positions.is_empty()
+    }
+
     /// Positions and normals of the points now (instance-local).
     fn now(&self) -> (&[Vec3], &[Vec3]) {
         if self.positions.is_empty() {
