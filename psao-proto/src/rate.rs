@@ -1,7 +1,7 @@
 //! Whether a server keeps the frame rate its `WELCOME` announced
-//! (spec/session.md section 6, "Rate"): sans-IO, fed the time of each
-//! tick, it says when a `NOTICE` with code 4 is due and what rate to put
-//! in it.
+//! (spec/session.md section 6, "Rate"), sans-IO, fed the time of each
+//! tick: [`RateWatch`] says when a `NOTICE` with code 4 is due and what
+//! rate to put in it, and [`TickSchedule`] says when the next tick is due.
 
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
@@ -76,6 +76,87 @@ impl RateWatch {
     }
 }
 
+/// The longest a server that fell behind its schedule catches up by
+/// stepping without waiting (or one period, if that is longer); further
+/// behind, the schedule starts again from now.
+pub const CATCH_UP: Duration = Duration::from_millis(250);
+
+/// When a server's ticks are due: one period apart from the first, so
+/// that a tick that ran late is made up by the ticks after it (they start
+/// at once until the schedule is met again) rather than lost. Only a
+/// server more than [`CATCH_UP`] (or one period) behind gives ticks up: it
+/// starts a new schedule from now, and counts the ticks it gave up.
+#[derive(Clone, Debug)]
+pub struct TickSchedule {
+    period: Duration,
+    catch_up: Duration,
+    /// When the next tick is due.
+    next: Instant,
+    late: u64,
+    lost: u64,
+    most_behind: Duration,
+}
+
+impl TickSchedule {
+    /// A schedule of `rate` ticks a second (at least 1) whose first tick
+    /// starts at `now`.
+    pub fn new(rate: u16, now: Instant) -> TickSchedule {
+        let period = Duration::from_secs_f64(1.0 / f64::from(rate.max(1)));
+        TickSchedule {
+            period,
+            catch_up: CATCH_UP.max(period),
+            next: now + period,
+            late: 0,
+            lost: 0,
+            most_behind: Duration::ZERO,
+        }
+    }
+
+    /// Called when a tick ended at `now` (times must not go back): how
+    /// long to wait before the next tick starts (zero when it is due
+    /// already).
+    pub fn after_tick(&mut self, now: Instant) -> Duration {
+        let due = self.next;
+        if due > now {
+            self.next += self.period;
+            return due - now;
+        }
+        let behind = now - due;
+        self.most_behind = self.most_behind.max(behind);
+        if behind < self.catch_up {
+            // Late: start now, and keep the schedule.
+            self.next += self.period;
+        } else {
+            // Too far behind to catch up without playing the scene fast
+            // for long: give the missed ticks up.
+            let periods = behind.as_nanos() / self.period.as_nanos().max(1);
+            self.lost += u64::try_from(periods).unwrap_or(u64::MAX);
+            self.next = now + self.period;
+        }
+        if !behind.is_zero() {
+            self.late += 1;
+        }
+        Duration::ZERO
+    }
+
+    /// Ticks that started after the time they were due.
+    pub fn late_ticks(&self) -> u64 {
+        self.late
+    }
+
+    /// Ticks given up because the server fell more than [`CATCH_UP`]
+    /// behind.
+    pub fn lost_ticks(&self) -> u64 {
+        self.lost
+    }
+
+    /// The furthest behind its schedule the server has been when a tick
+    /// ended.
+    pub fn most_behind(&self) -> Duration {
+        self.most_behind
+    }
+}
+
 /// The text of a rate notice: `41.5 of 60 Hz`.
 pub fn rate_text(measured: f64, rate: u16) -> String {
     format!("{measured:.1} of {rate} Hz")
@@ -117,6 +198,73 @@ mod tests {
         assert_eq!(times, vec![2000, 12000, 22000]);
         assert!(n.iter().all(|&(_, hz)| (hz - 25.0).abs() < 0.6), "{n:?}");
         assert_eq!(rate_text(n[0].1, 60), "25.0 of 60 Hz");
+    }
+
+    /// Steps of the given lengths (ms) on a 60 Hz schedule from `t0`:
+    /// when each tick started (ms after `t0`), and the schedule.
+    fn schedule(steps_ms: &[u64]) -> (Vec<u64>, TickSchedule) {
+        let t0 = Instant::now();
+        let mut s = TickSchedule::new(60, t0);
+        let mut now = t0;
+        let mut starts = Vec::new();
+        for &ms in steps_ms {
+            starts.push((now - t0).as_millis() as u64);
+            now += Duration::from_millis(ms);
+            now += s.after_tick(now);
+        }
+        (starts, s)
+    }
+
+    #[test]
+    fn ticks_on_time_start_a_period_apart() {
+        let (starts, s) = schedule(&[5, 10, 16, 1]);
+        // 16.67 ms apart, truncated to whole milliseconds.
+        assert_eq!(starts, vec![0, 16, 33, 50]);
+        assert_eq!((s.late_ticks(), s.lost_ticks()), (0, 0));
+    }
+
+    #[test]
+    fn a_slow_tick_is_made_up_by_the_next_ones() {
+        // A 45 ms step (nearly three periods) among 10 ms ones: the ticks
+        // after it start at once until the schedule is met, and none is
+        // lost.
+        let mut steps = vec![10, 45];
+        steps.extend([10; 10]);
+        let (starts, s) = schedule(&steps);
+        assert_eq!(&starts[..8], &[0, 16, 61, 71, 81, 91, 101, 116]);
+        // Back on the schedule: tick 11 starts at 11 periods (183.3 ms).
+        assert_eq!(starts[11], 183);
+        assert_eq!(s.lost_ticks(), 0);
+        // Ticks 2 to 6 started late, the first by 28.3 ms.
+        assert_eq!(s.late_ticks(), 5);
+        assert_eq!(s.most_behind().as_micros() / 100, 283);
+    }
+
+    #[test]
+    fn a_server_far_behind_gives_ticks_up_and_starts_again() {
+        // A 390 ms step: more than CATCH_UP behind. The next tick starts
+        // at once, on a new schedule, and the 22 other ticks due by then
+        // are lost.
+        let (starts, s) = schedule(&[10, 390, 10, 10]);
+        assert_eq!(starts, vec![0, 16, 406, 423]);
+        assert_eq!(s.lost_ticks(), 22);
+        assert_eq!(s.late_ticks(), 1);
+    }
+
+    #[test]
+    fn a_slow_rate_catches_up_within_one_period() {
+        // At 1 Hz one period (1 s) is longer than CATCH_UP.
+        let t0 = Instant::now();
+        let mut s = TickSchedule::new(1, t0);
+        assert_eq!(
+            s.after_tick(t0 + Duration::from_millis(1500)),
+            Duration::ZERO
+        );
+        assert_eq!(
+            s.after_tick(t0 + Duration::from_millis(1600)),
+            Duration::from_millis(400)
+        );
+        assert_eq!((s.late_ticks(), s.lost_ticks()), (1, 0));
     }
 
     #[test]

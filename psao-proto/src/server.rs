@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 
 use glam::Affine3A;
 use tokio::sync::Notify;
-use tracing::{debug, info, warn};
+use tracing::{debug, info, trace, warn};
 
 use crate::codes::{Close, CloseCode, SessionError};
 use crate::control::NoticeCode;
@@ -133,6 +133,18 @@ pub struct ServerStats {
     pub report: StepReport,
     /// Time spent stepping the source.
     pub step_time: Duration,
+    /// The longest step of the source so far.
+    pub longest_step: Duration,
+    /// Ticks that started after the time their schedule gave them
+    /// ([`rate::TickSchedule`](crate::rate::TickSchedule): the ticks after a
+    /// slow one start at once until the schedule is met again).
+    pub late_ticks: u64,
+    /// Ticks given up because the server fell more than
+    /// [`rate::CATCH_UP`](crate::rate::CATCH_UP) behind its schedule.
+    pub lost_ticks: u64,
+    /// The furthest behind its schedule the server has been (see
+    /// `late_ticks`).
+    pub most_behind: Duration,
     /// Mean of the clients' last frame age (from a frame's send to its
     /// `ACK`), seconds.
     pub frame_age: f64,
@@ -525,8 +537,7 @@ pub async fn serve<S: FrameSource>(
 /// when told to stop.
 fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
     let dt = 1.0 / hub.config.frame_rate as f32;
-    let period = Duration::from_secs_f64(1.0 / hub.config.frame_rate as f64);
-    let mut next = Instant::now() + period;
+    let mut schedule = crate::rate::TickSchedule::new(hub.config.frame_rate, Instant::now());
     let mut watch = crate::rate::RateWatch::new(hub.config.frame_rate);
     // A mirror of the server's own stream, for digests: every frame and
     // keyframe handed to the fan-out is applied to it.
@@ -569,6 +580,7 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
             let mut s = hub.lock();
             s.stats.frames += 1;
             s.stats.step_time += step_time;
+            s.stats.longest_step = s.stats.longest_step.max(step_time);
             s.stats.report.accumulate(&report);
             if let Some(f) = &frame {
                 s.stats.sent_frames += 1;
@@ -618,19 +630,21 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
                 s.notice_all(NoticeCode::BelowRate, &text);
             }
         }
-        if next > now {
-            std::thread::sleep(next - now);
-            next += period;
-        } else if now - next < period {
-            // A tick that ran over: the next starts now, on the old
-            // schedule, which holds when the steps after it are shorter
-            // than the period (a budgeted step's time varies around its
-            // share of the period).
-            next += period;
-        } else {
-            // More than a period behind: do not try to catch up in a
-            // burst.
-            next = now + period;
+        let wait = schedule.after_tick(now);
+        trace!(
+            step_ms = step_time.as_secs_f64() * 1e3,
+            late = schedule.late_ticks(),
+            lost = schedule.lost_ticks(),
+            "tick"
+        );
+        {
+            let mut s = hub.lock();
+            s.stats.late_ticks = schedule.late_ticks();
+            s.stats.lost_ticks = schedule.lost_ticks();
+            s.stats.most_behind = schedule.most_behind();
+        }
+        if !wait.is_zero() {
+            std::thread::sleep(wait);
         }
     }
     source

@@ -270,6 +270,14 @@ async fn summarize(
         end.sent_frames,
         end.keyframes
     );
+    println!(
+        "  schedule            {} ticks started late and were made up, {} given up (more than {} ms behind); at most {:.1} ms behind; longest step {:.1} ms (since the server started)",
+        end.late_ticks - start.late_ticks,
+        end.lost_ticks - start.lost_ticks,
+        psao_proto::rate::CATCH_UP.as_millis(),
+        end.most_behind.as_secs_f64() * 1e3,
+        end.longest_step.as_secs_f64() * 1e3
+    );
     if let Some(cpu) = cpu {
         println!(
             "  process CPU         {cpu:.2} s over {wall:.2} s ({:.0}% of one core; server and {} client(s) together)",

@@ -223,8 +223,10 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, bound: u32) -> (Vec<bool
 /// The bound on waiting for the step after one whose points that had
 /// reached `bound` (overdue, traced whatever the budget) cost `forced`
 /// rays under a budget of `budget`, and after which the longest wait is
-/// `oldest`: a step more when the overdue points cost more than the
-/// budget (demand beyond it: they take the step past its period); a step
+/// `oldest`: more when the overdue points cost more than the budget
+/// (demand beyond it: they take the step past its period), by the bound
+/// times the share of the budget they overran it by (at least a step, at
+/// most doubling); a step
 /// less when none was overdue and the longest wait is under half the
 /// bound (the budget goes round the points well within it); within
 /// `[least, limit]`. Under demand beyond the budget the points that wait
@@ -239,7 +241,14 @@ pub fn next_bound(
     limit: u32,
 ) -> u32 {
     let next = if forced > budget {
-        bound.saturating_add(1)
+        // Up by the bound's share of the overdue cost beyond the budget
+        // (at least a step, at most doubling): demand well beyond the
+        // budget, as when motion starts, raises the bound in a few steps
+        // instead of one step each.
+        let over = (u128::from(bound) * u128::from(forced - budget))
+            .div_ceil(u128::from(budget.max(1)))
+            .clamp(1, u128::from(bound.max(1)));
+        bound.saturating_add(over as u32)
     } else if forced == 0 && oldest.saturating_mul(2) < bound {
         bound.saturating_sub(1)
     } else {
@@ -345,8 +354,15 @@ mod tests {
 
     #[test]
     fn the_wait_bound_follows_demand_within_its_limits() {
-        // Overdue points cost more than the budget: a step more.
+        // Overdue points cost a little more than the budget: a step more.
         assert_eq!(next_bound(8, 1000, 999, 8, 8, 60), 9);
+        // A quarter more: a quarter more steps.
+        assert_eq!(next_bound(16, 1250, 1000, 16, 8, 60), 20);
+        // Far more: the bound doubles, within the limit.
+        assert_eq!(next_bound(8, 5000, 1000, 8, 8, 60), 16);
+        assert_eq!(next_bound(40, 5000, 1000, 40, 8, 60), 60);
+        // No budget at all: doubles.
+        assert_eq!(next_bound(8, 5000, 0, 8, 8, 60), 16);
         // At the limit it stays.
         assert_eq!(next_bound(60, 1000, 10, 60, 8, 60), 60);
         // Overdue points within the budget: unchanged.
