@@ -239,6 +239,11 @@ async fn serve_until<S: FrameSource>(
                             / (s.frames - prev.0.frames).max(1) as f64
                     );
                 }
+                let lost = s.lost_ticks - prev.0.lost_ticks;
+                if lost > 0 {
+                    // More than rate::CATCH_UP behind: ticks given up.
+                    line.push_str(&format!(" | {lost} ticks given up"));
+                }
                 if let (Some(l), Some(p)) = (&link, &prev_link) {
                     let now = l.stats();
                     line.push_str(&format!(
