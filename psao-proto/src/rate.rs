@@ -76,23 +76,34 @@ impl RateWatch {
     }
 }
 
-/// The longest a server that fell behind its schedule catches up by
-/// stepping without waiting (or one period, if that is longer); further
-/// behind, the schedule starts again from now.
+/// How far behind its schedule a server may fall and still catch up (or
+/// one period, if that is longer: [`catch_up_limit`]); further behind, it
+/// gives the missed ticks up and starts a new schedule.
 pub const CATCH_UP: Duration = Duration::from_millis(250);
+
+/// The period of `rate` ticks a second (at least 1).
+fn period_of(rate: u16) -> Duration {
+    Duration::from_secs_f64(1.0 / f64::from(rate.max(1)))
+}
+
+/// How far behind its schedule a server of `rate` ticks a second may fall
+/// and still catch up: [`CATCH_UP`], or one period if that is longer.
+pub fn catch_up_limit(rate: u16) -> Duration {
+    CATCH_UP.max(period_of(rate))
+}
 
 /// When a server's ticks are due: one period apart from the first, so
 /// that a tick that ran late is made up by the ticks after it (they start
 /// at once until the schedule is met again) rather than lost. Only a
-/// server more than [`CATCH_UP`] (or one period) behind gives ticks up: it
-/// starts a new schedule from now, and counts the ticks it gave up.
+/// server more than [`catch_up_limit`] behind gives ticks up: it starts a
+/// new schedule from now, and counts the ticks it gave up.
 #[derive(Clone, Debug)]
 pub struct TickSchedule {
     period: Duration,
     catch_up: Duration,
     /// When the next tick is due.
     next: Instant,
-    late: u64,
+    behind_ticks: u64,
     lost: u64,
     most_behind: Duration,
 }
@@ -101,51 +112,53 @@ impl TickSchedule {
     /// A schedule of `rate` ticks a second (at least 1) whose first tick
     /// starts at `now`.
     pub fn new(rate: u16, now: Instant) -> TickSchedule {
-        let period = Duration::from_secs_f64(1.0 / f64::from(rate.max(1)));
+        let period = period_of(rate);
         TickSchedule {
             period,
-            catch_up: CATCH_UP.max(period),
+            catch_up: catch_up_limit(rate),
             next: now + period,
-            late: 0,
+            behind_ticks: 0,
             lost: 0,
             most_behind: Duration::ZERO,
         }
     }
 
-    /// Called when a tick ended at `now` (times must not go back): how
-    /// long to wait before the next tick starts (zero when it is due
-    /// already).
-    pub fn after_tick(&mut self, now: Instant) -> Duration {
+    /// Called when a tick ended at `now` (times must not go back): when
+    /// the next tick starts, `now` or earlier when it is due already (then
+    /// it starts at once).
+    pub fn after_tick(&mut self, now: Instant) -> Instant {
         let due = self.next;
-        if due > now {
+        if due >= now {
             self.next += self.period;
-            return due - now;
+            return due;
         }
         let behind = now - due;
         self.most_behind = self.most_behind.max(behind);
-        if behind < self.catch_up {
-            // Late: start now, and keep the schedule.
+        self.behind_ticks += 1;
+        if behind <= self.catch_up {
+            // Behind: start at once, and keep the schedule.
             self.next += self.period;
         } else {
             // Too far behind to catch up without playing the scene fast
             // for long: give the missed ticks up.
             let periods = behind.as_nanos() / self.period.as_nanos().max(1);
-            self.lost += u64::try_from(periods).unwrap_or(u64::MAX);
+            self.lost = self
+                .lost
+                .saturating_add(u64::try_from(periods).unwrap_or(u64::MAX));
             self.next = now + self.period;
         }
-        if !behind.is_zero() {
-            self.late += 1;
-        }
-        Duration::ZERO
+        now
     }
 
-    /// Ticks that started after the time they were due.
-    pub fn late_ticks(&self) -> u64 {
-        self.late
+    /// Ticks that started at once, behind their schedule: the tick before
+    /// ended after they were due. Those within [`catch_up_limit`] kept the
+    /// schedule; a server always behind counts every tick here.
+    pub fn behind_ticks(&self) -> u64 {
+        self.behind_ticks
     }
 
-    /// Ticks given up because the server fell more than [`CATCH_UP`]
-    /// behind.
+    /// Ticks given up because the server fell more than
+    /// [`catch_up_limit`] behind.
     pub fn lost_ticks(&self) -> u64 {
         self.lost
     }
@@ -200,19 +213,26 @@ mod tests {
         assert_eq!(rate_text(n[0].1, 60), "25.0 of 60 Hz");
     }
 
-    /// Steps of the given lengths (ms) on a 60 Hz schedule from `t0`:
-    /// when each tick started (ms after `t0`), and the schedule.
-    fn schedule(steps_ms: &[u64]) -> (Vec<u64>, TickSchedule) {
+    /// Steps of the given lengths (µs) on a schedule of `rate` Hz from
+    /// `t0`: when each tick started (µs after `t0`), and the schedule.
+    fn schedule_us(rate: u16, steps_us: &[u64]) -> (Vec<u64>, TickSchedule) {
         let t0 = Instant::now();
-        let mut s = TickSchedule::new(60, t0);
+        let mut s = TickSchedule::new(rate, t0);
         let mut now = t0;
         let mut starts = Vec::new();
-        for &ms in steps_ms {
-            starts.push((now - t0).as_millis() as u64);
-            now += Duration::from_millis(ms);
-            now += s.after_tick(now);
+        for &us in steps_us {
+            starts.push((now - t0).as_micros() as u64);
+            now += Duration::from_micros(us);
+            now = s.after_tick(now).max(now);
         }
         (starts, s)
+    }
+
+    /// The same at 60 Hz in whole milliseconds.
+    fn schedule(steps_ms: &[u64]) -> (Vec<u64>, TickSchedule) {
+        let steps: Vec<u64> = steps_ms.iter().map(|ms| ms * 1000).collect();
+        let (starts, s) = schedule_us(60, &steps);
+        (starts.iter().map(|us| us / 1000).collect(), s)
     }
 
     #[test]
@@ -220,7 +240,17 @@ mod tests {
         let (starts, s) = schedule(&[5, 10, 16, 1]);
         // 16.67 ms apart, truncated to whole milliseconds.
         assert_eq!(starts, vec![0, 16, 33, 50]);
-        assert_eq!((s.late_ticks(), s.lost_ticks()), (0, 0));
+        assert_eq!((s.behind_ticks(), s.lost_ticks()), (0, 0));
+    }
+
+    #[test]
+    fn a_tick_that_ends_when_the_next_is_due_is_not_behind() {
+        let t0 = Instant::now();
+        let mut s = TickSchedule::new(10, t0);
+        let due = t0 + Duration::from_millis(100);
+        assert_eq!(s.after_tick(due), due);
+        assert_eq!(s.after_tick(due), due + Duration::from_millis(100));
+        assert_eq!((s.behind_ticks(), s.most_behind()), (0, Duration::ZERO));
     }
 
     #[test]
@@ -235,9 +265,26 @@ mod tests {
         // Back on the schedule: tick 11 starts at 11 periods (183.3 ms).
         assert_eq!(starts[11], 183);
         assert_eq!(s.lost_ticks(), 0);
-        // Ticks 2 to 6 started late, the first by 28.3 ms.
-        assert_eq!(s.late_ticks(), 5);
+        // Ticks 2 to 6 started behind, the first by 28.3 ms.
+        assert_eq!(s.behind_ticks(), 5);
         assert_eq!(s.most_behind().as_micros() / 100, 283);
+    }
+
+    #[test]
+    fn a_server_exactly_at_the_limit_still_catches_up() {
+        let t0 = Instant::now();
+        let mut s = TickSchedule::new(60, t0);
+        let period = Duration::from_secs_f64(1.0 / 60.0);
+        // The first tick ends CATCH_UP after the second was due.
+        let end = t0 + period + CATCH_UP;
+        assert_eq!(s.after_tick(end), end);
+        assert_eq!((s.lost_ticks(), s.behind_ticks()), (0, 1));
+        assert_eq!(s.most_behind(), CATCH_UP);
+        // A nanosecond more would have given ticks up: the 15 due by
+        // then but the one that starts now.
+        let mut u = TickSchedule::new(60, t0);
+        u.after_tick(end + Duration::from_nanos(1));
+        assert_eq!(u.lost_ticks(), 14);
     }
 
     #[test]
@@ -248,23 +295,44 @@ mod tests {
         let (starts, s) = schedule(&[10, 390, 10, 10]);
         assert_eq!(starts, vec![0, 16, 406, 423]);
         assert_eq!(s.lost_ticks(), 22);
-        assert_eq!(s.late_ticks(), 1);
+        assert_eq!(s.behind_ticks(), 1);
+    }
+
+    #[test]
+    fn a_server_always_behind_steps_every_tick_and_counts_what_it_gave_up() {
+        // Steps of two periods at 60 Hz (33,334 µs) for 600 ticks: each
+        // ends after the next was due, and ticks run plus ticks given up
+        // cover the time, to within one schedule's worth.
+        let (starts, s) = schedule_us(60, &[33_334; 600]);
+        let elapsed = *starts.last().unwrap() + 33_334;
+        let scheduled = elapsed / 16_667;
+        assert_eq!(s.behind_ticks(), 600);
+        assert!(s.most_behind() <= catch_up_limit(60) + Duration::from_micros(33_334));
+        let covered = 600 + s.lost_ticks();
+        assert!(
+            covered <= scheduled && covered + 16 >= scheduled,
+            "{covered} of {scheduled}"
+        );
     }
 
     #[test]
     fn a_slow_rate_catches_up_within_one_period() {
         // At 1 Hz one period (1 s) is longer than CATCH_UP.
+        assert_eq!(catch_up_limit(1), Duration::from_secs(1));
+        assert_eq!(catch_up_limit(60), CATCH_UP);
         let t0 = Instant::now();
         let mut s = TickSchedule::new(1, t0);
-        assert_eq!(
-            s.after_tick(t0 + Duration::from_millis(1500)),
-            Duration::ZERO
-        );
+        let end = t0 + Duration::from_millis(1500);
+        assert_eq!(s.after_tick(end), end);
         assert_eq!(
             s.after_tick(t0 + Duration::from_millis(1600)),
-            Duration::from_millis(400)
+            t0 + Duration::from_secs(2)
         );
-        assert_eq!((s.late_ticks(), s.lost_ticks()), (1, 0));
+        assert_eq!((s.behind_ticks(), s.lost_ticks()), (1, 0));
+        // Over a period behind, it gives up.
+        let mut u = TickSchedule::new(1, t0);
+        u.after_tick(t0 + Duration::from_millis(2500));
+        assert_eq!(u.lost_ticks(), 1);
     }
 
     #[test]

@@ -133,17 +133,21 @@ pub struct ServerStats {
     pub report: StepReport,
     /// Time spent stepping the source.
     pub step_time: Duration,
-    /// The longest step of the source so far.
+    /// The longest step of the source so far (the source's `step` alone:
+    /// keyframes and digests not included).
     pub longest_step: Duration,
-    /// Ticks that started after the time their schedule gave them
-    /// ([`rate::TickSchedule`](crate::rate::TickSchedule): the ticks after a
-    /// slow one start at once until the schedule is met again).
-    pub late_ticks: u64,
+    /// Ticks that started at once, behind their schedule (the tick before
+    /// them ended after they were due: [`rate::TickSchedule`](crate::rate::TickSchedule)).
+    /// Those within [`rate::catch_up_limit`](crate::rate::catch_up_limit)
+    /// kept the schedule, and were made up; a server always behind counts
+    /// every tick here.
+    pub behind_ticks: u64,
     /// Ticks given up because the server fell more than
-    /// [`rate::CATCH_UP`](crate::rate::CATCH_UP) behind its schedule.
+    /// [`rate::catch_up_limit`](crate::rate::catch_up_limit) behind its
+    /// schedule.
     pub lost_ticks: u64,
-    /// The furthest behind its schedule the server has been (see
-    /// `late_ticks`).
+    /// The furthest behind its schedule the server has been when a tick
+    /// ended, since it started (see `behind_ticks`).
     pub most_behind: Duration,
     /// Mean of the clients' last frame age (from a frame's send to its
     /// `ACK`), seconds.
@@ -630,19 +634,21 @@ fn step_loop<S: FrameSource>(mut source: S, hub: &Hub) -> S {
                 s.notice_all(NoticeCode::BelowRate, &text);
             }
         }
-        let wait = schedule.after_tick(now);
+        let start = schedule.after_tick(now);
         trace!(
             step_ms = step_time.as_secs_f64() * 1e3,
-            late = schedule.late_ticks(),
+            behind = schedule.behind_ticks(),
             lost = schedule.lost_ticks(),
             "tick"
         );
         {
             let mut s = hub.lock();
-            s.stats.late_ticks = schedule.late_ticks();
+            s.stats.behind_ticks = schedule.behind_ticks();
             s.stats.lost_ticks = schedule.lost_ticks();
             s.stats.most_behind = schedule.most_behind();
         }
+        // Until the next tick's start, whatever the time taken since.
+        let wait = start.saturating_duration_since(Instant::now());
         if !wait.is_zero() {
             std::thread::sleep(wait);
         }

@@ -221,7 +221,7 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     bar.finish();
     let wall = started.elapsed().as_secs_f64();
     let cpu = cpu_seconds().zip(cpu0).map(|(a, b)| a - b);
-    summarize(server, handles, start, wall, cpu).await
+    summarize(server, handles, start, wall, cpu, rate).await
 }
 
 /// Stops the server, waits for the clients to apply its last frame,
@@ -232,6 +232,7 @@ async fn summarize(
     start: ServerStats,
     wall: f64,
     cpu: Option<f64>,
+    rate: u16,
 ) -> anyhow::Result<()> {
     let (pipeline, end) = server.shutdown(Duration::from_secs(2)).await?;
     let last = end.sequence;
@@ -271,10 +272,10 @@ async fn summarize(
         end.keyframes
     );
     println!(
-        "  schedule            {} ticks started late and were made up, {} given up (more than {} ms behind); at most {:.1} ms behind; longest step {:.1} ms (since the server started)",
-        end.late_ticks - start.late_ticks,
+        "  schedule            {} ticks started behind it (at most {:.0} ms behind were made up), {} given up; since the server started: at most {:.1} ms behind, longest step {:.1} ms",
+        end.behind_ticks - start.behind_ticks,
+        psao_proto::rate::catch_up_limit(rate).as_secs_f64() * 1e3,
         end.lost_ticks - start.lost_ticks,
-        psao_proto::rate::CATCH_UP.as_millis(),
         end.most_behind.as_secs_f64() * 1e3,
         end.longest_step.as_secs_f64() * 1e3
     );

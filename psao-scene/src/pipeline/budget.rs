@@ -226,12 +226,13 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, bound: u32) -> (Vec<bool
 /// `oldest`: more when the overdue points cost more than the budget
 /// (demand beyond it: they take the step past its period), by the bound
 /// times the share of the budget they overran it by (at least a step, at
-/// most doubling); a step
-/// less when none was overdue and the longest wait is under half the
+/// most doubling); a step less when none was overdue and the longest wait is under half the
 /// bound (the budget goes round the points well within it); within
-/// `[least, limit]`. Under demand beyond the budget the points that wait
-/// go round in about demand / budget steps, so the bound settles between
-/// that and twice it.
+/// `[least, limit]`; a budget of 0 (an automatic budget whose step spent
+/// its share before casting) raises it by a step. Under demand beyond the
+/// budget the points that wait go round in about demand / budget steps:
+/// the bound rises to about that, overshooting it by up to twice, and
+/// comes down a step at a time once nothing is overdue.
 pub fn next_bound(
     bound: u32,
     forced: u64,
@@ -240,7 +241,11 @@ pub fn next_bound(
     least: u32,
     limit: u32,
 ) -> u32 {
-    let next = if forced > budget {
+    let next = if forced > budget && budget == 0 {
+        // No budget left at all (an automatic budget whose step spent its
+        // share before casting): nothing to measure the overrun by.
+        bound.saturating_add(1)
+    } else if forced > budget {
         // Up by the bound's share of the overdue cost beyond the budget
         // (at least a step, at most doubling): demand well beyond the
         // budget, as when motion starts, raises the bound in a few steps
@@ -361,8 +366,8 @@ mod tests {
         // Far more: the bound doubles, within the limit.
         assert_eq!(next_bound(8, 5000, 1000, 8, 8, 60), 16);
         assert_eq!(next_bound(40, 5000, 1000, 40, 8, 60), 60);
-        // No budget at all: doubles.
-        assert_eq!(next_bound(8, 5000, 0, 8, 8, 60), 16);
+        // No budget at all: a step, as there is no overrun to measure.
+        assert_eq!(next_bound(8, 5000, 0, 8, 8, 60), 9);
         // At the limit it stays.
         assert_eq!(next_bound(60, 1000, 10, 60, 8, 60), 60);
         // Overdue points within the budget: unchanged.

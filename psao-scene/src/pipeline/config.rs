@@ -147,10 +147,12 @@ pub struct PipelineConfig {
     pub max_wait: u32,
     /// Under a budget, the most steps the bound on waiting may rise to
     /// when demand exceeds the budget (60: a second at 60 Hz). The bound
-    /// in force (`FrameReport::wait_bound`) goes up by a step each step
-    /// whose points that came due alone cost more than its budget, and
-    /// back down towards [`max_wait`](Self::max_wait) each step with none
-    /// of those and no wait beyond half of it: no point waits longer than it, and the
+    /// in force (`FrameReport::wait_bound`) goes up after each step whose
+    /// points that came due alone cost more than its budget (by the share
+    /// they overran it by, at least a step, at most doubling), and back
+    /// down a step towards [`max_wait`](Self::max_wait) after each step
+    /// with none of those and no wait beyond half of it: no point waits
+    /// longer than it, and the
     /// server keeps its rate unless even this limit's overdue points cost
     /// more than a period. Equal to `max_wait`: a fixed bound, whatever
     /// the rate.
