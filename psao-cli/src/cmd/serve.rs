@@ -241,7 +241,7 @@ async fn serve_until<S: FrameSource>(
                 }
                 let lost = s.lost_ticks - prev.0.lost_ticks;
                 if lost > 0 {
-                    // More than rate::CATCH_UP behind: ticks given up.
+                    // More than rate::catch_up_limit behind: ticks given up.
                     line.push_str(&format!(" | {lost} ticks given up"));
                 }
                 if let (Some(l), Some(p)) = (&link, &prev_link) {

@@ -226,8 +226,9 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, bound: u32) -> (Vec<bool
 /// `oldest`: more when the overdue points cost more than the budget
 /// (demand beyond it: they take the step past its period), by the bound
 /// times the share of the budget they overran it by (at least a step, at
-/// most doubling); a step less when none was overdue and the longest wait is under half the
-/// bound (the budget goes round the points well within it); within
+/// most doubling); a step less when none was overdue and the longest wait
+/// is under half the bound (the budget goes round the points well within
+/// it); within
 /// `[least, limit]`; a budget of 0 (an automatic budget whose step spent
 /// its share before casting) raises it by a step. Under demand beyond the
 /// budget the points that wait go round in about demand / budget steps:
