@@ -887,7 +887,7 @@ mod tests {
                     .wrapping_mul(6_364_136_223_846_793_005)
                     .wrapping_add(1_442_695_040_888_963_407);
                 let u = (s >> 33) as u32;
-                if u % 5 == 0 {
+                if u.is_multiple_of(5) {
                     specials[(u / 5) as usize % specials.len()]
                 } else {
                     0.1 + (u % 10_000) as f32 * 1e-3

@@ -20,7 +20,7 @@ fn masked_ceiling(y: f32, cells: u32, factor: f32) -> Mesh {
         height: cells,
         alpha: (0..cells * cells)
             .map(|i| {
-                if (i % cells + i / cells) % 2 == 0 {
+                if (i % cells + i / cells).is_multiple_of(2) {
                     255
                 } else {
                     0

@@ -86,7 +86,7 @@ fn changes_list_what_a_delta_wrote() {
     d.receive(&frames[1]).unwrap();
     let c = d.take_changes();
     assert_eq!(c[0], 0);
-    assert!(c.len() > 1 && (c.len() - 1) % 4 == 0, "{c:?}");
+    assert!(c.len() > 1 && (c.len() - 1).is_multiple_of(4), "{c:?}");
     assert_eq!(c[1], psao_wasm::change_kind::WORDS, "{c:?}");
     assert_eq!(d.instances(), vec![1]);
     assert!(

@@ -256,7 +256,7 @@ async fn serve_until<S: FrameSource>(
                 }
                 println!("{line}");
                 ticks += 1;
-                if web.is_some() && ticks % 5 == 0 {
+                if web.is_some() && ticks.is_multiple_of(5) {
                     println!("clients by binding: {}", super::web::binding_summary(&server.client_figures()));
                 }
                 prev = (s, Instant::now());

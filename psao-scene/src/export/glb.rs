@@ -47,7 +47,7 @@ pub fn to_glb(scene: &Scene, bind_space: impl Fn(usize) -> bool) -> Result<Vec<u
     let mut view = |bin: &mut Vec<u8>, bytes: &[u8], target: u32| {
         let offset = bin.len();
         bin.extend_from_slice(bytes);
-        while bin.len() % 4 != 0 {
+        while !bin.len().is_multiple_of(4) {
             bin.push(0);
         }
         views.push(

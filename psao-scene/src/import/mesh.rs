@@ -167,7 +167,7 @@ pub(super) fn primitive_mesh(
         }
         None => (0..positions.len() as u32).collect(),
     };
-    if indices.len() % 3 != 0 {
+    if !indices.len().is_multiple_of(3) {
         return Err(gltf_error(
             name,
             element,

@@ -62,7 +62,7 @@ impl Mesh {
 
     /// Checks indices, counts and finiteness. `mesh` names it in errors.
     pub fn validate(&self, mesh: usize) -> Result<(), SceneError> {
-        if self.indices.len() % 3 != 0 {
+        if !self.indices.len().is_multiple_of(3) {
             return Err(SceneError::IndexCount {
                 mesh,
                 len: self.indices.len(),

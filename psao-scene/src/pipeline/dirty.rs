@@ -566,20 +566,21 @@ impl Pipeline {
                 self.kept_scores.put(key(i, k), kept);
             }
             // Static points keep their scores for the next reach.
-            if keep && !self.instances[i].dynamic {
-                if let Some(s) = d.scores.take() {
-                    let (id, p, n) = (batch.ids[d.b], batch.points[d.b], batch.normals[d.b]);
-                    self.ray_cache.store(key(i, k), &s, || {
-                        PointRays::new(id, p, n, &ao).map_or_else(Vec::new, |r| {
-                            (0..ao.rays)
-                                .map(|j| {
-                                    let (d, len) = r.ray(j);
-                                    Vec3::from(d).extend(len)
-                                })
-                                .collect()
-                        })
-                    });
-                }
+            if keep
+                && !self.instances[i].dynamic
+                && let Some(s) = d.scores.take()
+            {
+                let (id, p, n) = (batch.ids[d.b], batch.points[d.b], batch.normals[d.b]);
+                self.ray_cache.store(key(i, k), &s, || {
+                    PointRays::new(id, p, n, &ao).map_or_else(Vec::new, |r| {
+                        (0..ao.rays)
+                            .map(|j| {
+                                let (d, len) = r.ray(j);
+                                Vec3::from(d).extend(len)
+                            })
+                            .collect()
+                    })
+                });
             }
         }
         self.last_early.sort_unstable();

@@ -156,10 +156,10 @@ impl TriangleBvh {
                     }
                     let mut aabb = Aabb::empty();
                     for k in node.first_index..node.first_index + node.prim_count {
-                        if let Some(&prim) = bvh.primitive_indices.get(k as usize) {
-                            if let Some(t) = self.tris.get(prim as usize) {
-                                aabb = aabb.union(&t.aabb());
-                            }
+                        if let Some(&prim) = bvh.primitive_indices.get(k as usize)
+                            && let Some(t) = self.tris.get(prim as usize)
+                        {
+                            aabb = aabb.union(&t.aabb());
                         }
                     }
                     bvh.nodes[n].set_aabb(aabb);
