@@ -4,8 +4,8 @@
 //! (`MOVE_INSTANCE`) and, when it culls, what the clients see
 //! (`CAMERA`, spec/session.md 3.2).
 //!
-//! psao-scene's `Pipeline` is one source (feature `scene`, in
-//! [`crate::scene_source`]); a user's own ray tracer, a recorded stream or
+//! psao-scene's `Pipeline` is one source (feature `scene`, in the
+//! `scene_source` module); a user's own ray tracer, a recorded stream or
 //! a test's synthetic stream are others.
 
 use glam::Affine3A;

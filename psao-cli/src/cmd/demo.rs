@@ -224,6 +224,19 @@ pub async fn run(args: Args) -> anyhow::Result<()> {
     summarize(server, handles, start, wall, cpu, rate).await
 }
 
+/// The summary's line on the server's schedule between `start` and `end`
+/// (rate::TickSchedule), for a server of `rate` ticks a second.
+pub(super) fn schedule_line(start: &ServerStats, end: &ServerStats, rate: u16) -> String {
+    format!(
+        "  schedule            {} ticks started behind it (at most {:.0} ms behind were made up), {} given up; since the server started: at most {:.1} ms behind, longest step {:.1} ms",
+        end.behind_ticks - start.behind_ticks,
+        psao_proto::rate::catch_up_limit(rate).as_secs_f64() * 1e3,
+        end.lost_ticks - start.lost_ticks,
+        end.most_behind.as_secs_f64() * 1e3,
+        end.longest_step.as_secs_f64() * 1e3
+    )
+}
+
 /// Stops the server, waits for the clients to apply its last frame,
 /// checks their mirrors against its tables and prints the figures.
 async fn summarize(
@@ -271,14 +284,7 @@ async fn summarize(
         end.sent_frames,
         end.keyframes
     );
-    println!(
-        "  schedule            {} ticks started behind it (at most {:.0} ms behind were made up), {} given up; since the server started: at most {:.1} ms behind, longest step {:.1} ms",
-        end.behind_ticks - start.behind_ticks,
-        psao_proto::rate::catch_up_limit(rate).as_secs_f64() * 1e3,
-        end.lost_ticks - start.lost_ticks,
-        end.most_behind.as_secs_f64() * 1e3,
-        end.longest_step.as_secs_f64() * 1e3
-    );
+    println!("{}", schedule_line(&start, &end, rate));
     if let Some(cpu) = cpu {
         println!(
             "  process CPU         {cpu:.2} s over {wall:.2} s ({:.0}% of one core; server and {} client(s) together)",

@@ -201,6 +201,7 @@ pub async fn run(d: RelayDemo, pipeline: Pipeline) -> anyhow::Result<()> {
         end.frames,
         (end.frames - start.frames) as f64 / wall
     );
+    println!("{}", super::demo::schedule_line(&start, &end, rate));
     if let Some(cpu) = cpu {
         println!(
             "  process CPU         {cpu:.2} s over {wall:.2} s ({:.0}% of one core; server and {clients} subscribers together, relays apart)",
