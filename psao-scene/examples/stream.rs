@@ -99,6 +99,7 @@ fn main() {
         max_wait: arg("--max-wait", 8),
         max_wait_limit: arg("--max-wait-limit", 60),
         movers_every_step: flag("--movers-every-step"),
+        movers_whole: flag("--movers-whole"),
         early: flag("--early").then(|| EarlyDecisions {
             z: arg("--early-z", 3.0),
             sd_floor: arg("--early-floor", 0.02),

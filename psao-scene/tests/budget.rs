@@ -369,6 +369,86 @@ fn movers_traced_every_step_hold_their_ao_under_any_budget() {
     );
 }
 
+/// A box sliding by a wall under a budget its points exceed by half, traced
+/// whole or held ([`PipelineConfig::movers_whole`]): per step, whether the
+/// transform clients hold moved, and what they hold of the box against a
+/// full trace then (the largest AO difference), with the box's points and
+/// the points traced.
+fn whole_box_run(movers_whole: bool) -> (Vec<(bool, f32)>, usize, Vec<u64>) {
+    let (mut scene, b) = sliding_box();
+    scene.add(
+        Mesh::quad(Vec3::new(0.6, 0.0, -1.5), Vec3::Y * 1.5, Vec3::Z * 3.0).subdivided(2),
+        Affine3A::IDENTITY,
+    );
+    let mut c = PipelineConfig {
+        max_wait: 6,
+        movers_whole,
+        ..config(Estimator::ClosestHit)
+    };
+    // A budget the box's points cost 1.5 times: never traced whole by the
+    // budget alone (but within the twice it may cost to be held whole).
+    let n = Pipeline::new(scene.clone(), c.clone())
+        .unwrap()
+        .points(b)
+        .unwrap()
+        .len() as u64;
+    c.budget = RayBudget::Rays(n * u64::from(c.ao.rays) * 2 / 3);
+    let ao = c.ao;
+    let mut p = Pipeline::new(scene, c).unwrap();
+    let floor = p.points(0).unwrap().len() as u32;
+    let id = p.table(b).unwrap().id();
+    let mut client = psao_codec::Decoder::new(psao_codec::Limits::default());
+    client.receive(&p.keyframe().unwrap().bytes).unwrap();
+    let held = |c: &psao_codec::Decoder| c.mirror().instance(id).unwrap().transform().cloned();
+    let (mut steps, mut traced) = (Vec::new(), Vec::new());
+    // The slide takes 20 steps; 10 more once it rests (more than the
+    // bound of 6 a part is held for).
+    for _ in 0..30 {
+        let before = held(&client);
+        let (f, r) = p.step(1.0 / 30.0).unwrap();
+        if let Some(f) = f {
+            client.receive(&f.bytes).unwrap();
+        }
+        let moved = held(&client) != before;
+        steps.push((moved, worst_held_error(&mut p, b, floor, &ao)));
+        traced.push(r.traced);
+    }
+    (steps, p.points(b).unwrap().len(), traced)
+}
+
+#[test]
+fn a_rigid_mover_held_whole_keeps_its_transform_with_its_points() {
+    let (whole, n, traced) = whole_box_run(true);
+    let sent: Vec<usize> = (0..whole.len()).filter(|&t| whole[t].0).collect();
+    // The budget cannot trace the box every step: it is held in some, and
+    // traced whole (its transform sent) in others.
+    assert!(
+        sent.len() >= 2 && sent.len() < 20,
+        "transform sent in steps {sent:?}"
+    );
+    for &t in &sent {
+        // Sent only with every point of the box traced at that pose, so
+        // what clients hold of it is a full trace there, to the send
+        // threshold (8 steps of 1/255).
+        assert!(
+            traced[t] >= n as u64,
+            "step {t}: {} traced of {n}",
+            traced[t]
+        );
+        assert!(
+            whole[t].1 <= 8.5 / 255.0,
+            "step {t}: box AO off by {} steps",
+            whole[t].1 * 255.0
+        );
+    }
+    // Once it rests and has been traced, clients hold its last pose.
+    assert!(whole.last().unwrap().1 <= 8.5 / 255.0);
+    // Without it the transform goes out every step of the slide, while
+    // the box's points wait their turn.
+    let (apart, _, _) = whole_box_run(false);
+    assert!(apart[..20].iter().all(|s| s.0), "{apart:?}");
+}
+
 #[test]
 fn an_automatic_budget_is_measured_and_reported() {
     let c = PipelineConfig {

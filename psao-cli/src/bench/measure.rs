@@ -150,6 +150,10 @@ pub struct Settings {
     /// Under the budget, movers' own points are traced every step
     /// ([`PipelineConfig::movers_every_step`](psao_scene::PipelineConfig::movers_every_step)).
     pub movers_every_step: bool,
+    /// Under the budget, rigid movers are traced whole, their transform
+    /// held back while they wait
+    /// ([`PipelineConfig::movers_whole`](psao_scene::PipelineConfig::movers_whole)).
+    pub movers_whole: bool,
     /// PSAO servers make early decisions
     /// ([`PipelineConfig::early`](psao_scene::PipelineConfig::early), the
     /// defaults).
@@ -262,6 +266,7 @@ impl Settings {
             max_wait: 8,
             max_wait_limit: PipelineConfig::default().max_wait_limit,
             movers_every_step: false,
+            movers_whole: false,
             early: false,
             ray_reuse: true,
             image_frames: ImageFrames::List(vec![0]),
@@ -751,6 +756,7 @@ fn measure_psao(
         config.max_wait = s.max_wait;
         config.max_wait_limit = s.max_wait_limit.max(s.max_wait);
         config.movers_every_step = s.movers_every_step;
+        config.movers_whole = s.movers_whole;
     }
     config.early = s.early.then(psao_scene::EarlyDecisions::default);
     config.fill_buried = s.fill_buried;

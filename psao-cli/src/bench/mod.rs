@@ -172,6 +172,10 @@ pub struct BenchArgs {
     /// it moves, whatever the budget (no AO lagging its transform).
     #[arg(long)]
     movers_every_frame: bool,
+    /// Under --ray-budget, trace a rigid moving part whole or not at all,
+    /// its transform held back with its points while they wait.
+    #[arg(long)]
+    movers_whole: bool,
     /// Every PSAO server makes early decisions: a moving instance's point
     /// stops casting rays once its AO is known, to 3 standard errors, to
     /// stay within the send threshold of what clients hold.
@@ -220,6 +224,7 @@ impl BenchArgs {
         settings.max_wait_limit = self.max_wait_limit;
         settings.ray_reuse = !self.no_ray_reuse;
         settings.movers_every_step = self.movers_every_frame;
+        settings.movers_whole = self.movers_whole;
         settings.early = self.early_decisions;
         settings
     }

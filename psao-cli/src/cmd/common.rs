@@ -210,6 +210,12 @@ pub struct BudgetArgs {
     /// of frames over the budget where movers alone exceed it.
     #[arg(long)]
     pub movers_every_frame: bool,
+    /// Under a budget, trace a rigid moving part whole or not at all in a
+    /// frame, and hold the transform clients hold back with its points
+    /// while they wait (occlusion stays where it was traced, as from a
+    /// slower server, instead of sliding with the part).
+    #[arg(long)]
+    pub movers_whole: bool,
     /// Early decisions: a moving instance's point stops casting rays once
     /// its AO is known, to 3 standard errors, to stay within the send
     /// threshold of what clients hold (nothing to send); a point that
@@ -226,6 +232,7 @@ impl BudgetArgs {
         config.max_wait = self.max_wait;
         config.max_wait_limit = self.max_wait_limit.max(self.max_wait);
         config.movers_every_step = self.movers_every_frame;
+        config.movers_whole = self.movers_whole;
         config.early = self
             .early_decisions
             .then(psao_scene::EarlyDecisions::default);

@@ -24,6 +24,11 @@ pub(super) struct Candidates {
     pub merged: Vec<(bool, usize)>,
     /// The candidates in merged order.
     pub all: Vec<Candidate>,
+    /// Per instance held whole under the budget
+    /// ([`PipelineConfig::movers_whole`](super::config::PipelineConfig::movers_whole)):
+    /// `Some(true)` traced whole this step, `Some(false)` held, its points
+    /// waiting together; `None` for the others.
+    pub whole: Vec<Option<bool>>,
     /// Planned points that motion reaches with no ray (nothing to trace).
     pub unreached: u64,
 }
@@ -108,8 +113,10 @@ impl Pipeline {
         apart: &[u64],
         motion: &StepMotion,
         bound: u32,
+        budget: Option<u64>,
     ) -> Candidates {
         let rays = self.config.ao.rays;
+        let whole = self.whole_movers(batch, plans, apart, motion, budget);
         // A moving point that may stop early costs what such points cast
         // on average.
         let (moving_cost, max_stops) = match self.early_decisions() {
@@ -149,11 +156,15 @@ impl Pipeline {
             };
             at.push(b);
             // A mover's own point traced every step it moves, if so
-            // configured: as one that waited its longest.
-            let every_step = self.config.movers_every_step && motion.changed[i];
-            let age = match every_step {
-                true => bound,
-                false => self.waiting.get(key(i, k)).map_or(0, |w| w.0),
+            // configured, or with its whole part: as one that waited its
+            // longest. A part held whole: one that fits no budget and is
+            // not due.
+            let every_step =
+                (self.config.movers_every_step && motion.changed[i]) || whole[i] == Some(true);
+            let (age, cost) = match (every_step, whole[i]) {
+                (true, _) => (bound, cost),
+                (false, Some(false)) => (0, u32::MAX),
+                _ => (self.waiting.get(key(i, k)).map_or(0, |w| w.0), cost),
             };
             waited_really.push(!every_step);
             cands.push(self.candidate(key(i, k), cost, reached, age, bound));
@@ -162,8 +173,12 @@ impl Pipeline {
         let apart_cands: Vec<Candidate> = apart
             .iter()
             .map(|&k| {
-                let age = self.waiting.get(k).map_or(0, |w| w.0);
-                self.candidate(k, rays, rays, age, bound)
+                let (age, cost) = match whole.get((k >> 32) as usize).copied().flatten() {
+                    Some(true) => (bound, rays),
+                    Some(false) => (0, u32::MAX),
+                    None => (self.waiting.get(k).map_or(0, |w| w.0), rays),
+                };
+                self.candidate(k, cost, rays, age, bound)
             })
             .collect();
         // Both in (instance, point) order, merged so (`select` breaks ties
@@ -193,8 +208,69 @@ impl Pipeline {
             waited_really,
             merged,
             all,
+            whole,
             unreached,
         }
+    }
+
+    /// Which rigid movers a step traces whole and which it holds, under
+    /// [`PipelineConfig::movers_whole`](super::config::PipelineConfig::movers_whole)
+    /// and a `budget` (see [`Candidates::whole`]): a part with points to
+    /// trace and that costs at most `max_wait` budgets is traced whole
+    /// when they fit in the budget, when it has been
+    /// held for [`max_wait`](super::config::PipelineConfig::max_wait) steps
+    /// (not the bound demand may have raised: a part held longer would
+    /// lag its motion by as much), or when it was placed this step.
+    fn whole_movers(
+        &self,
+        batch: &Batch,
+        plans: &[Plan],
+        apart: &[u64],
+        motion: &StepMotion,
+        budget: Option<u64>,
+    ) -> Vec<Option<bool>> {
+        let n = self.instances.len();
+        let Some(budget) =
+            budget.filter(|_| self.config.movers_whole && !self.config.movers_every_step)
+        else {
+            return vec![None; n];
+        };
+        let rays = u64::from(self.config.ao.rays);
+        let mut cost = vec![0u64; n];
+        for (b, plan) in plans.iter().enumerate() {
+            let i = batch.owner[b].0;
+            cost[i] += match plan {
+                Plan::Skip => 0,
+                Plan::Full { .. } => rays,
+                Plan::Rays { need, .. } => u64::from(need.count()),
+            };
+        }
+        for &k in apart {
+            if let Some(c) = cost.get_mut((k >> 32) as usize) {
+                *c += rays;
+            }
+        }
+        self.instances
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                // Traced whole at least every `max_wait` steps, a part
+                // costs at most a budget a step on average if its points
+                // cost at most `max_wait` budgets; a bigger one waits
+                // point by point. A part held already stays held until it
+                // is traced whole, whatever this step's budget, so that
+                // its points never wait past `max_wait` steps.
+                let held_whole = s.rigid_mover()
+                    && cost[i] > 0
+                    && (s.held_steps > 0
+                        || cost[i] <= budget.saturating_mul(u64::from(self.config.max_wait)));
+                held_whole.then(|| {
+                    cost[i] <= budget
+                        || s.held_steps.saturating_add(1) >= self.config.max_wait
+                        || motion.placed.get(i).copied().unwrap_or(false)
+                })
+            })
+            .collect()
     }
 
     /// Point `key`'s candidate: it costs `cost` rays, motion reached

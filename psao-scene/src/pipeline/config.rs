@@ -169,6 +169,22 @@ pub struct PipelineConfig {
     /// where movers alone need more rays than it affords. Points traced so
     /// are counted in [`FrameReport::overdue`](crate::FrameReport::overdue).
     pub movers_every_step: bool,
+    /// Under a budget, a rigid part that moves (not a deforming one) is
+    /// traced whole or not at all in a step, and while its points wait the
+    /// transform clients hold stays the one they were traced in (false,
+    /// the default). Clients then look its points up where it was traced:
+    /// occlusion from the scene around it stays where it was, as from a
+    /// server at a lower rate, instead of sliding with the part. It is
+    /// traced when its points fit in the budget, when it has been held
+    /// for [`max_wait`](Self::max_wait) steps, or when it was placed
+    /// ([`place_instance`](crate::Pipeline::place_instance), sent in its
+    /// step). So it costs at most a budget a step on average, a part whose
+    /// points cost more than `max_wait` budgets waits point by point, as
+    /// without it; a step that traces a part whole can take up to
+    /// `max_wait` periods (the reference server makes such a step up:
+    /// spec/session.md section 6). Ignored with
+    /// [`movers_every_step`](Self::movers_every_step).
+    pub movers_whole: bool,
     /// Early decisions (`Some`): a moving or deforming instance's point
     /// casts its rays in a spread order over the scores its last trace
     /// kept and stops once its AO is known, to the stated confidence, to
@@ -247,6 +263,7 @@ impl Default for PipelineConfig {
             max_wait: 8,
             max_wait_limit: 60,
             movers_every_step: false,
+            movers_whole: false,
             early: None,
             lead: 0.0,
             settle_steps: 0,

@@ -31,6 +31,9 @@ pub(super) struct StepMotion {
     /// Per instance, whether it moved or deformed: its points are traced
     /// in full.
     pub changed: Vec<bool>,
+    /// Per instance, whether it was placed this step (a placement is sent
+    /// in its step: never held back).
+    pub placed: Vec<bool>,
     /// The step's period, seconds (an automatic budget's share of it).
     pub period: f64,
     /// Time the step took before tracing.
@@ -154,7 +157,19 @@ impl Pipeline {
         let budgeted = std::time::Instant::now();
         // The bound on waiting in force for this step.
         let bound = self.wait_bound;
-        let cands = self.candidates(&batch, &plans, &apart, motion, bound);
+        let cands = self.candidates(&batch, &plans, &apart, motion, bound, budget);
+        // Parts held whole: their transform stays what clients hold.
+        self.held.resize(self.instances.len(), false);
+        for (i, w) in cands.whole.iter().enumerate() {
+            match w {
+                Some(true) => self.instances[i].held_steps = 0,
+                Some(false) => {
+                    self.held[i] = true;
+                    self.instances[i].held_steps += 1;
+                }
+                None => {}
+            }
+        }
         let (chosen, _) = select(&cands.all, budget, bound);
         // Overdue points, and the rays of those that really waited: what
         // moves the bound.

@@ -89,6 +89,15 @@ struct InstanceState {
     table: GridTable,
     transform: Affine3A,
     transform_seq: u32,
+    /// The transform clients hold, and its sequence: `transform` once sent,
+    /// or, for a rigid mover held whole under a budget
+    /// ([`PipelineConfig::movers_whole`]), the pose its points were last
+    /// traced in together.
+    sent_transform: Affine3A,
+    sent_seq: u32,
+    /// Steps a rigid mover held whole has had points to trace without
+    /// being traced (see `choose::whole_movers`).
+    held_steps: u32,
     /// Local bounds of the mesh as it is now.
     bounds: (Vec3, Vec3),
     /// Whether it can move or deform.
@@ -150,6 +159,12 @@ impl InstanceState {
     /// Whether it keeps and reads `heat`: a rigid instance (its points
     /// never move in its local space) that can move.
     fn keeps_heat(&self) -> bool {
+        self.rigid_mover()
+    }
+
+    /// Whether it is a rigid part that can move (its points never move in
+    /// its local space), which a budget may hold whole.
+    fn rigid_mover(&self) -> bool {
         self.dynamic && self.positions.is_empty()
     }
 
@@ -291,6 +306,10 @@ pub struct Pipeline {
     envelope_rays: slots::PointSlots,
     /// The masks `envelope_rays` points to, with the rays' directions.
     envelope_masks: Vec<plan::EnvelopeRays>,
+    /// Per instance, whether this step held it whole (a rigid mover whose
+    /// points wait together, its transform held back with them: see
+    /// [`PipelineConfig::movers_whole`]); reset after each step's encode.
+    held: Vec<bool>,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -578,6 +597,9 @@ impl Pipeline {
                 table,
                 transform: pose.instances[i],
                 transform_seq: 0,
+                sent_transform: pose.instances[i],
+                sent_seq: 0,
+                held_steps: 0,
                 bounds,
                 dynamic: dynamic[i],
                 bvh: None,
@@ -636,6 +658,7 @@ impl Pipeline {
             envelope: reach::Envelope::default(),
             envelope_rays: Default::default(),
             envelope_masks: Vec::new(),
+            held: Vec::new(),
         };
         if pipeline.config.fill_buried {
             pipeline.find_buried(progress)?;
@@ -862,7 +885,7 @@ impl Pipeline {
         let mut kf = self.encoder.keyframe();
         for s in &self.instances {
             kf.snapshot(&s.table)?;
-            kf.transform(s.table.id(), s.transform_seq, &s.transform.to_cols_array());
+            kf.transform(s.table.id(), s.sent_seq, &s.sent_transform.to_cols_array());
         }
         // A keyframe is always a frame (finish returns None only for empty
         // deltas).

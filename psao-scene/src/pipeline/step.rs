@@ -30,6 +30,8 @@ struct Motion {
     changed: Vec<bool>,
     /// The skinned instances whose pose changed.
     deformed: Vec<usize>,
+    /// The instances placed this step.
+    placed: Vec<bool>,
     /// The world box each change swept (before and after), grown by what
     /// an AO ray reaches ([`grow`]).
     swept: Vec<(Vec3, Vec3)>,
@@ -116,6 +118,7 @@ impl Pipeline {
                 boxes: MotionBoxes::new(motion.boxes.iter().copied(), 4.0 * RAY_LEAD),
                 envelope: MotionBoxes::new(self.envelope.boxes().iter().copied(), 4.0 * RAY_LEAD),
                 changed: motion.changed.clone(),
+                placed: motion.placed.clone(),
                 period: dt as f64,
                 elapsed: t0.elapsed(),
             };
@@ -152,7 +155,21 @@ impl Pipeline {
         report.t_trace = t3.elapsed();
 
         let t4 = Instant::now();
-        let frame = self.encode(&motion.moved, &mut report)?;
+        // What clients are sent of each transform: the current one, but
+        // for a rigid mover held whole this step.
+        let mut send = vec![false; self.instances.len()];
+        for (i, s) in self.instances.iter_mut().enumerate() {
+            if self.held.get(i).copied().unwrap_or(false) {
+                continue;
+            }
+            if s.sent_seq != s.transform_seq || motion.moved[i] {
+                s.sent_transform = s.transform;
+                s.sent_seq = s.transform_seq;
+                send[i] = true;
+            }
+        }
+        self.held.iter_mut().for_each(|h| *h = false);
+        let frame = self.encode(&send, &mut report)?;
         report.t_encode = t4.elapsed();
         // What a step takes besides casting once its budget is set, for
         // an automatic budget.
@@ -180,6 +197,7 @@ impl Pipeline {
             moved: vec![false; self.instances.len()],
             changed: vec![false; self.instances.len()],
             deformed: Vec::new(),
+            placed: vec![false; self.instances.len()],
             swept: Vec::new(),
             boxes: Vec::new(),
         };
@@ -192,6 +210,7 @@ impl Pipeline {
             let weights = &self.pose.weights[i];
             let deformed = !s.vertices.is_empty() && (*joints != s.joints || *weights != s.weights);
             let placed = std::mem::take(&mut self.placed[i]);
+            motion.placed[i] = placed;
             if next == s.transform && !deformed {
                 if placed {
                     // Placed where it already is: nothing to trace, but the
@@ -369,18 +388,19 @@ impl Pipeline {
         (anything && self.backend.is_none()).then(|| self.tracer(false))
     }
 
-    /// Encodes the frame: the transforms of the instances that `moved` and
-    /// every table's changes (the dirty set); `None` when there is nothing
-    /// to say. Counts transforms and bytes in `report`.
+    /// Encodes the frame: the transforms clients are to hold of the
+    /// instances in `send` and every table's changes (the dirty set);
+    /// `None` when there is nothing to say. Counts transforms and bytes in
+    /// `report`.
     fn encode(
         &mut self,
-        moved: &[bool],
+        send: &[bool],
         report: &mut FrameReport,
     ) -> Result<Option<EncodedFrame>, SceneError> {
         let mut frame = self.encoder.delta();
         for (i, s) in self.instances.iter_mut().enumerate() {
-            if moved[i] {
-                frame.transform(s.table.id(), s.transform_seq, &s.transform.to_cols_array());
+            if send[i] {
+                frame.transform(s.table.id(), s.sent_seq, &s.sent_transform.to_cols_array());
                 report.transforms += 1;
             }
             frame.changes(&mut s.table);
