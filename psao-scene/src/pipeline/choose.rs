@@ -116,7 +116,7 @@ impl Pipeline {
         budget: Option<u64>,
     ) -> Candidates {
         let rays = self.config.ao.rays;
-        let whole = self.whole_movers(batch, plans, apart, motion, budget);
+        let whole = self.whole_movers(batch, plans, apart, motion, bound, budget);
         // A moving point that may stop early costs what such points cast
         // on average.
         let (moving_cost, max_stops) = match self.early_decisions() {
@@ -227,6 +227,7 @@ impl Pipeline {
         plans: &[Plan],
         apart: &[u64],
         motion: &StepMotion,
+        bound: u32,
         budget: Option<u64>,
     ) -> Vec<Option<bool>> {
         let n = self.instances.len();
@@ -237,17 +238,24 @@ impl Pipeline {
         };
         let rays = u64::from(self.config.ao.rays);
         let mut cost = vec![0u64; n];
+        // Whether one of its points has waited its due: then the part is
+        // traced whole now, so that none waits past the bound.
+        let mut due_now = vec![false; n];
+        let overdue = |k: u64| self.waiting.get(k).is_some_and(|w| w.0 >= due(k, bound));
         for (b, plan) in plans.iter().enumerate() {
-            let i = batch.owner[b].0;
+            let (i, p) = batch.owner[b];
             cost[i] += match plan {
                 Plan::Skip => 0,
                 Plan::Full { .. } => rays,
                 Plan::Rays { need, .. } => u64::from(need.count()),
             };
+            due_now[i] |= !matches!(plan, Plan::Skip) && overdue(key(i, p));
         }
         for &k in apart {
-            if let Some(c) = cost.get_mut((k >> 32) as usize) {
+            let i = (k >> 32) as usize;
+            if let Some(c) = cost.get_mut(i) {
                 *c += rays;
+                due_now[i] |= overdue(k);
             }
         }
         self.instances
@@ -260,12 +268,19 @@ impl Pipeline {
                 // point by point. A part held already stays held until it
                 // is traced whole, whatever this step's budget, so that
                 // its points never wait past `max_wait` steps.
+                // Only a part whose transform is at stake: one that moved,
+                // or whose transform clients do not hold yet.
+                let at_stake = motion.changed.get(i).copied().unwrap_or(false)
+                    || s.sent_seq != s.transform_seq
+                    || s.held_steps > 0;
                 let held_whole = s.rigid_mover()
+                    && at_stake
                     && cost[i] > 0
                     && (s.held_steps > 0
                         || cost[i] <= budget.saturating_mul(u64::from(self.config.max_wait)));
                 held_whole.then(|| {
-                    cost[i] <= budget
+                    due_now[i]
+                        || cost[i] <= budget
                         || s.held_steps.saturating_add(1) >= self.config.max_wait
                         || motion.placed.get(i).copied().unwrap_or(false)
                 })

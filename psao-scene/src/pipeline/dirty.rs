@@ -158,7 +158,9 @@ impl Pipeline {
         // The bound on waiting in force for this step.
         let bound = self.wait_bound;
         let cands = self.candidates(&batch, &plans, &apart, motion, bound, budget);
-        // Parts held whole: their transform stays what clients hold.
+        // Parts held whole: their transform stays what clients hold (set
+        // afresh each step, whatever an earlier step that failed left).
+        self.held.clear();
         self.held.resize(self.instances.len(), false);
         for (i, w) in cands.whole.iter().enumerate() {
             match w {
