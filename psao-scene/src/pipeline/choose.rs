@@ -132,14 +132,15 @@ impl Pipeline {
         let mut waited_really = Vec::new();
         let mut unreached = 0u64;
         for (b, plan) in plans.iter().enumerate() {
-            let (cost, reached) = match plan {
+            let reached = match plan {
                 Plan::Skip => {
                     unreached += 1;
                     continue;
                 }
-                Plan::Full { reached } => (rays, *reached),
-                Plan::Rays { need, reached } => (need.count(), reached.count()),
+                Plan::Full { reached } => *reached,
+                Plan::Rays { reached, .. } => reached.count(),
             };
+            let cost = plan.cost(rays);
             let (i, k) = batch.owner[b];
             // A moving point that may stop early costs what such points
             // cast on average; one that will trace in full (nothing kept
@@ -161,6 +162,8 @@ impl Pipeline {
             // not due.
             let every_step =
                 (self.config.movers_every_step && motion.changed[i]) || whole[i] == Some(true);
+            // (A held point's cost fits no budget below u32::MAX rays; a
+            // part that cost as much would fit such a budget whole.)
             let (age, cost) = match (every_step, whole[i]) {
                 (true, _) => (bound, cost),
                 (false, Some(false)) => (0, u32::MAX),
@@ -215,12 +218,14 @@ impl Pipeline {
 
     /// Which rigid movers a step traces whole and which it holds, under
     /// [`PipelineConfig::movers_whole`](super::config::PipelineConfig::movers_whole)
-    /// and a `budget` (see [`Candidates::whole`]): a part with points to
-    /// trace and that costs at most `max_wait` budgets is traced whole
-    /// when they fit in the budget, when it has been
-    /// held for [`max_wait`](super::config::PipelineConfig::max_wait) steps
-    /// (not the bound demand may have raised: a part held longer would
-    /// lag its motion by as much), or when it was placed this step.
+    /// and a `budget` (see [`Candidates::whole`]). A part whose transform
+    /// is at stake (it moved, or clients do not hold its transform yet),
+    /// with points to trace that cost at most `max_wait` budgets (or held
+    /// already), is traced whole when they fit in the budget, when one of
+    /// them has waited its due under `bound`, when the part has been held
+    /// for [`max_wait`](super::config::PipelineConfig::max_wait) steps (not
+    /// the bound demand may have raised: a part held longer would lag its
+    /// motion by as much), or when it was placed this step; else held.
     fn whole_movers(
         &self,
         batch: &Batch,
@@ -236,7 +241,7 @@ impl Pipeline {
         else {
             return vec![None; n];
         };
-        let rays = u64::from(self.config.ao.rays);
+        let rays = self.config.ao.rays;
         let mut cost = vec![0u64; n];
         // Whether one of its points has waited its due: then the part is
         // traced whole now, so that none waits past the bound.
@@ -244,17 +249,13 @@ impl Pipeline {
         let overdue = |k: u64| self.waiting.get(k).is_some_and(|w| w.0 >= due(k, bound));
         for (b, plan) in plans.iter().enumerate() {
             let (i, p) = batch.owner[b];
-            cost[i] += match plan {
-                Plan::Skip => 0,
-                Plan::Full { .. } => rays,
-                Plan::Rays { need, .. } => u64::from(need.count()),
-            };
+            cost[i] += u64::from(plan.cost(rays));
             due_now[i] |= !matches!(plan, Plan::Skip) && overdue(key(i, p));
         }
         for &k in apart {
             let i = (k >> 32) as usize;
             if let Some(c) = cost.get_mut(i) {
-                *c += rays;
+                *c += u64::from(rays);
                 due_now[i] |= overdue(k);
             }
         }
@@ -266,10 +267,7 @@ impl Pipeline {
                 // costs at most a budget a step on average if its points
                 // cost at most `max_wait` budgets; a bigger one waits
                 // point by point. A part held already stays held until it
-                // is traced whole, whatever this step's budget, so that
-                // its points never wait past `max_wait` steps.
-                // Only a part whose transform is at stake: one that moved,
-                // or whose transform clients do not hold yet.
+                // is traced whole, whatever this step's budget.
                 let at_stake = motion.changed.get(i).copied().unwrap_or(false)
                     || s.sent_seq != s.transform_seq
                     || s.held_steps > 0;

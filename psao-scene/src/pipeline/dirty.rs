@@ -54,6 +54,10 @@ pub(super) struct StepTrace {
     /// Time the trace phase took after the budget was set, less the
     /// casting: choosing the points, and after casting.
     pub outside_cast: Duration,
+    /// Per instance, whether the step held it whole (a rigid mover whose
+    /// points wait together, its transform held back with them: see
+    /// [`PipelineConfig::movers_whole`](super::config::PipelineConfig::movers_whole)).
+    pub held: Vec<bool>,
 }
 
 /// What [`Pipeline::settle_left`] did.
@@ -158,17 +162,12 @@ impl Pipeline {
         // The bound on waiting in force for this step.
         let bound = self.wait_bound;
         let cands = self.candidates(&batch, &plans, &apart, motion, bound, budget);
-        // Parts held whole: their transform stays what clients hold (set
-        // afresh each step, whatever an earlier step that failed left).
-        self.held.clear();
-        self.held.resize(self.instances.len(), false);
-        for (i, w) in cands.whole.iter().enumerate() {
+        // Parts held whole: their transform stays what clients hold.
+        let held: Vec<bool> = cands.whole.iter().map(|w| *w == Some(false)).collect();
+        for (s, w) in self.instances.iter_mut().zip(&cands.whole) {
             match w {
-                Some(true) => self.instances[i].held_steps = 0,
-                Some(false) => {
-                    self.held[i] = true;
-                    self.instances[i].held_steps += 1;
-                }
+                Some(true) => s.held_steps = 0,
+                Some(false) => s.held_steps += 1,
                 None => {}
             }
         }
@@ -225,13 +224,7 @@ impl Pipeline {
                 ns
             };
         }
-        let planned: u64 = sub_plans
-            .iter()
-            .map(|p| match p {
-                Plan::Rays { need, .. } => need.count() as u64,
-                _ => rays as u64,
-            })
-            .sum();
+        let planned: u64 = sub_plans.iter().map(|p| u64::from(p.cost(rays))).sum();
         self.apply(&sub.owner, &result)?;
         let settle = self.settle_left(&sub.owner)?;
         for (t, s) in touched.iter_mut().zip(&settle.touched) {
@@ -253,6 +246,7 @@ impl Pipeline {
             overdue,
             early: self.last_early.len() as u64,
             outside_cast: casting.duration_since(budgeted) + t_after.elapsed(),
+            held,
         })
     }
 

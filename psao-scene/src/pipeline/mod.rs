@@ -306,10 +306,6 @@ pub struct Pipeline {
     envelope_rays: slots::PointSlots,
     /// The masks `envelope_rays` points to, with the rays' directions.
     envelope_masks: Vec<plan::EnvelopeRays>,
-    /// Per instance, whether this step held it whole (a rigid mover whose
-    /// points wait together, its transform held back with them: see
-    /// [`PipelineConfig::movers_whole`]); reset after each step's encode.
-    held: Vec<bool>,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -658,7 +654,6 @@ impl Pipeline {
             envelope: reach::Envelope::default(),
             envelope_rays: Default::default(),
             envelope_masks: Vec::new(),
-            held: Vec::new(),
         };
         if pipeline.config.fill_buried {
             pipeline.find_buried(progress)?;

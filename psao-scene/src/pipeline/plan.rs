@@ -27,6 +27,18 @@ pub(super) enum Plan {
     Rays { need: RayMask, reached: RayMask },
 }
 
+impl Plan {
+    /// The rays it casts of a point's `rays` (every one for a full trace,
+    /// none when skipped).
+    pub fn cost(&self, rays: u32) -> u32 {
+        match self {
+            Plan::Skip => 0,
+            Plan::Full { .. } => rays,
+            Plan::Rays { need, .. } => need.count(),
+        }
+    }
+}
+
 /// What planning a static point learnt of its rays against the envelope
 /// of what moves.
 #[derive(Clone, Debug)]

@@ -24,8 +24,6 @@ use crate::trace::geometry::RAY_LEAD;
 
 /// Where a step's animation moved or deformed instances.
 struct Motion {
-    /// Per instance, whether its transform changed (it is sent).
-    moved: Vec<bool>,
     /// Per instance, whether it moved or deformed.
     changed: Vec<bool>,
     /// The skinned instances whose pose changed.
@@ -100,6 +98,8 @@ impl Pipeline {
         report.t_bvh = t2.elapsed();
         let t3 = Instant::now();
         let mut outside_cast = std::time::Duration::ZERO;
+        // Rigid movers held whole this step (their transform held back).
+        let mut held = Vec::new();
         // The envelope of what moves: points whose rays miss it need no
         // test while it holds. Taken every step, so that motion in a step
         // that traces nothing still counts.
@@ -139,6 +139,7 @@ impl Pipeline {
             report.settled = done.settled;
             report.early = done.early;
             outside_cast = done.outside_cast;
+            held = done.held;
         } else if !self.last_traced.is_empty() {
             // Nothing to trace: the points the last step traced settle.
             let settle = self.settle_left(&[])?;
@@ -157,18 +158,15 @@ impl Pipeline {
         let t4 = Instant::now();
         // What clients are sent of each transform: the current one, but
         // for a rigid mover held whole this step.
+        // (A transform that changed, or a placement, has a newer sequence.)
         let mut send = vec![false; self.instances.len()];
         for (i, s) in self.instances.iter_mut().enumerate() {
-            if self.held.get(i).copied().unwrap_or(false) {
-                continue;
-            }
-            if s.sent_seq != s.transform_seq || motion.moved[i] {
+            if !held.get(i).copied().unwrap_or(false) && s.sent_seq != s.transform_seq {
                 s.sent_transform = s.transform;
                 s.sent_seq = s.transform_seq;
                 send[i] = true;
             }
         }
-        self.held.iter_mut().for_each(|h| *h = false);
         let frame = self.encode(&send, &mut report)?;
         report.t_encode = t4.elapsed();
         // What a step takes besides casting once its budget is set, for
@@ -194,7 +192,6 @@ impl Pipeline {
         let ao = self.config.ao;
         self.scene.pose_into(self.posed_time(), &mut self.pose);
         let mut motion = Motion {
-            moved: vec![false; self.instances.len()],
             changed: vec![false; self.instances.len()],
             deformed: Vec::new(),
             placed: vec![false; self.instances.len()],
@@ -216,7 +213,6 @@ impl Pipeline {
                     // Placed where it already is: nothing to trace, but the
                     // placement is sent (a newer transform sequence).
                     s.transform_seq = s.transform_seq.wrapping_add(1);
-                    motion.moved[i] = true;
                 }
                 continue;
             }
@@ -269,7 +265,6 @@ impl Pipeline {
             if next != s.transform || placed {
                 s.transform = next;
                 s.transform_seq = s.transform_seq.wrapping_add(1);
-                motion.moved[i] = true;
             }
             motion.changed[i] = true;
         }
