@@ -859,10 +859,11 @@ fn points_near_a_sweeping_change_are_traced_before_the_rest_waits() {
     // The bar's points trace about once in two or three steps, those
     // near the rim first (where their neighbours' AO just jumped: the
     // `Heat` of the pipeline's `trend`): what clients hold of them is
-    // within 6 steps of 1/255 of a full trace on average. Measured when
-    // this was written: 5.2 steps; with local patches, 7.1 with the
-    // points ranked by their own trends alone (no heat) and 2.1 with no
-    // budget.
+    // within 6.7 steps of 1/255 of a full trace on average. Measured with
+    // the ray lattice of `PointRays::ray`: 6.2 steps; with local patches,
+    // 7.2 with the points ranked by their own trends alone (no heat) and
+    // 3.0 with no budget. (With azimuths drawn at random per ray, when
+    // this was written: 5.2, 7.1 and 2.1.)
     let err = bar_out_of_a_well_error();
-    assert!(err <= 6.0 / 255.0, "off by {} steps", err * 255.0);
+    assert!(err <= 6.7 / 255.0, "off by {} steps", err * 255.0);
 }

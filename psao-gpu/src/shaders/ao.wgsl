@@ -102,6 +102,9 @@ fn solid(instance: u32, prim: u32, bary: vec2<f32>) -> bool {
 }
 
 const GOLDEN: u32 = 0x9E3779B9u;
+// The fractional part of sqrt(2) in 32-bit fixed point: the step of a
+// point's ray azimuths (psao-scene's AZIMUTH_STEP).
+const AZIMUTH_STEP: u32 = 0x6A09E667u;
 const TAU: f32 = 6.28318530717958647692;
 const PI: f32 = 3.14159265358979323846;
 
@@ -239,9 +242,10 @@ fn trace(i: u32, lane: u32, sum: ptr<function, f32>) -> u32 {
         return 1u;
     }
     let shift = hash(params.seed_lo ^ hash(id ^ hash(params.seed_hi)));
+    let azimuth = hash(shift);
     for (var k = lane; k < params.rays; k = k + LANES) {
         let r1 = (f32(k) + uniform01(id, 3u * k)) / f32(params.rays);
-        let r2 = uniform01(id, 3u * k + 1u);
+        let r2 = f32((k * AZIMUTH_STEP + azimuth) >> 8u) / 16777216.0;
         // sin and cos of phi in [0, 2 pi), taken in [-pi, pi) where their
         // accuracy is bounded: sin(x) = -sin(x - pi), cos(x) = -cos(x - pi).
         let phi = TAU * r2 - PI;
