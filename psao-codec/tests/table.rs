@@ -314,6 +314,29 @@ fn key_is_eq1_unique_and_fits() {
 }
 
 #[test]
+fn a_change_into_fully_open_updates_whatever_its_size() {
+    let def = small_def();
+    let mut t = GridTable::new(1, def, 4).unwrap();
+    let th = Thresholds::default();
+    let p = centre(&def, UVec3::new(3, 1, 3));
+    assert!(t.update_point(0, p, Vec3::Y, 250.0 / 255.0, &th).unwrap());
+    // Within the threshold, short of open: not sent.
+    assert!(!t.update_point(0, p, Vec3::Y, 254.0 / 255.0, &th).unwrap());
+    // Open (255 once quantized), 5 steps from what clients hold: sent.
+    assert!(t.update_point(0, p, Vec3::Y, 0.9999, &th).unwrap());
+    assert_eq!(t.sent(0, p, Vec3::Y).word.fields().ao, 255);
+    // Open again, or within the threshold below open: nothing to send.
+    assert!(!t.update_point(0, p, Vec3::Y, 1.0, &th).unwrap());
+    assert!(!t.update_point(0, p, Vec3::Y, 250.0 / 255.0, &th).unwrap());
+    // A zero threshold sends every change, open or not.
+    let every = Thresholds { ao_steps: 0, ..th };
+    assert!(
+        t.update_point(0, p, Vec3::Y, 250.0 / 255.0, &every)
+            .unwrap()
+    );
+}
+
+#[test]
 fn update_point_applies_paper_thresholds() {
     let def = small_def();
     let mut t = GridTable::new(1, def, 4).unwrap();

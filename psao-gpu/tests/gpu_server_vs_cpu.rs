@@ -352,13 +352,15 @@ fn the_gpu_compares_with_what_clients_hold_and_reads_back_only_changes() {
     let (ids, pts, nrm) = world_points(&p);
     let mut sent = held(&p);
     // Exercise every threshold: some points moved by 6.4 quanta, some
-    // turned around, some not held at all; the rest differ in AO only
-    // (another seed, 16 rays: steps of 16/255).
+    // turned around, some not held at all, some held 3 steps short of
+    // open (sent where their AO comes out open); the rest differ in AO
+    // only (another seed, 16 rays: steps of 16/255).
     for (k, s) in sent.iter_mut().enumerate() {
         match k % 17 {
             3 => s.frac.x = (s.frac.x + 0.2) % 1.0,
             5 => s.normal = -s.normal,
             7 => *s = psao_codec::SentPoint::not_held(s.normal),
+            11 if s.word.is_allocated() => s.word = s.word.with_ao(252),
             _ => {}
         }
     }
@@ -400,6 +402,15 @@ fn the_gpu_compares_with_what_clients_hold_and_reads_back_only_changes() {
             "point {k}"
         );
     }
+    // Some points held 3 steps short of open came out open, and were
+    // sent below the threshold.
+    let opened = on_gpu
+        .changed
+        .iter()
+        .zip(&on_gpu.ao)
+        .filter(|&(&k, &ao)| k % 17 == 11 && psao_codec::wire::point::quantize_ao(ao) == 255)
+        .count();
+    assert!(opened > 0, "no point held short of open came out open");
     // Against the CPU backend's AO: the same decisions but for points
     // whose AO differs in the last bits right at a threshold.
     let cpu = PosedScene::new(&scene, 0.0)

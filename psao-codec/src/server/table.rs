@@ -77,7 +77,9 @@ pub struct Thresholds {
     pub position_quanta: f32,
     /// Smallest cosine between old and new normal that is not an update (0.6).
     pub normal_cos: f32,
-    /// AO change in 1/255 steps above which it is an update (8).
+    /// AO change in 1/255 steps above which it is an update (8). A change
+    /// to fully open (255) is an update whatever its size
+    /// ([`SentPoint::changed`]).
     pub ao_steps: u8,
 }
 
@@ -125,7 +127,12 @@ impl SentPoint {
     /// Whether a point with this position, normal and AO `ao` is worth
     /// sending (the paper's thresholds): its word is empty, it moved by
     /// more than `position_quanta` quanta, its normal turned past
-    /// `normal_cos`, or its AO changed by more than `ao_steps`.
+    /// `normal_cos`, or its AO changed by more than `ao_steps`; or, past
+    /// the paper, its AO became fully open (255) while clients hold less.
+    /// Open is where a point's AO rests once every occluder has left its
+    /// radius, so a change into it is not noise that a later one undoes,
+    /// and below the threshold it would leave up to `ao_steps` of darkness
+    /// behind for good wherever something passed.
     pub fn changed(&self, ao: f32, thresholds: &Thresholds) -> bool {
         if !self.word.is_allocated() {
             return true;
@@ -136,8 +143,10 @@ impl SentPoint {
         let d2 = ((self.frac - self.word.frac()) * POSITION_QUANTA as f32).length_squared();
         let moved = q < 0.0 || d2 > q * q;
         let turned = self.word.normal().dot(self.normal) < thresholds.normal_cos;
-        let shaded = quantize_ao(ao).abs_diff(self.word.fields().ao) > thresholds.ao_steps;
-        moved || turned || shaded
+        let (now, held) = (quantize_ao(ao), self.word.fields().ao);
+        let shaded = now.abs_diff(held) > thresholds.ao_steps;
+        let opened = now == u8::MAX && held != u8::MAX;
+        moved || turned || shaded || opened
     }
 }
 

@@ -101,10 +101,10 @@ fn solid(instance: u32, prim: u32, bary: vec2<f32>) -> bool {
     return a >= info.cutoff;
 }
 
+// psao-scene's GOLDEN (the step of a point's ray azimuths) and SQRT2 (of
+// its Laine-Karras ray lengths), in 32-bit fixed point.
 const GOLDEN: u32 = 0x9E3779B9u;
-// The fractional part of sqrt(2) in 32-bit fixed point: the step of a
-// point's ray azimuths (psao-scene's AZIMUTH_STEP).
-const AZIMUTH_STEP: u32 = 0x6A09E667u;
+const SQRT2: u32 = 0x6A09E667u;
 const TAU: f32 = 6.28318530717958647692;
 const PI: f32 = 3.14159265358979323846;
 
@@ -245,7 +245,7 @@ fn trace(i: u32, lane: u32, sum: ptr<function, f32>) -> u32 {
     let azimuth = hash(shift);
     for (var k = lane; k < params.rays; k = k + LANES) {
         let r1 = (f32(k) + uniform01(id, 3u * k)) / f32(params.rays);
-        let r2 = f32((k * AZIMUTH_STEP + azimuth) >> 8u) / 16777216.0;
+        let r2 = f32((k * GOLDEN + azimuth) >> 8u) / 16777216.0;
         // sin and cos of phi in [0, 2 pi), taken in [-pi, pi) where their
         // accuracy is bounded: sin(x) = -sin(x - pi), cos(x) = -cos(x - pi).
         let phi = TAU * r2 - PI;
@@ -256,7 +256,7 @@ fn trace(i: u32, lane: u32, sum: ptr<function, f32>) -> u32 {
         if (params.estimator == 0u) {
             *sum = *sum + closest(origin, dir, params.radius) / params.radius;
         } else {
-            let u = f32((k * GOLDEN + shift) >> 8u) / 16777216.0;
+            let u = f32((k * SQRT2 + shift) >> 8u) / 16777216.0;
             if (misses(origin, dir, u * params.radius)) {
                 *sum = *sum + 1.0;
             }

@@ -77,7 +77,9 @@ fn is_changed(s: Sent, a: f32) -> bool {
     let q_new = quantize_ao(a);
     let q_old = w & 0xFFu;
     let steps = max(q_new, q_old) - min(q_new, q_old);
-    return moved || turned || steps > params.ao_steps;
+    // Fully open while clients hold less: sent whatever the threshold.
+    let opened = q_new == 255u && q_old != 255u;
+    return moved || turned || steps > params.ao_steps || opened;
 }
 
 @compute @workgroup_size(64)

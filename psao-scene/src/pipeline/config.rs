@@ -216,13 +216,13 @@ pub struct PipelineConfig {
     /// again: it keeps that AO), is sent if its AO is this many 1/255
     /// steps or more from what clients hold, however far below the send
     /// threshold: without this the threshold's worth of error stays behind
-    /// wherever motion passed (1: to the quantization; 0: off, the
-    /// default). A point motion has left casts no ray for it; frames stay
-    /// the same with or without ray reuse (points dropped from a full cell
-    /// aside, as before). It pays where AO is near white and motion is
-    /// fast (a spinning triangle: +14 dB), and costs bytes for little
-    /// elsewhere (+27-90% bit rate for 0.0-0.1 dB on the bench's animated
-    /// scenes; BENCHMARKS.md), so it is off unless asked for. With the
+    /// wherever motion passed and left AO short of open (1: to the
+    /// quantization; 0: off, the default; a point that came out fully open
+    /// is sent anyway, [`psao_codec::SentPoint::changed`]). A point motion
+    /// has left casts no ray for it; frames stay the same with or without
+    /// ray reuse (points dropped from a full cell aside, as before). It
+    /// costs bytes for little on the bench's animated scenes
+    /// (BENCHMARKS.md), so it is off unless asked for. With the
     /// Laine-Karras estimator at few rays (its AO moves in steps of
     /// `1 / rays`: at 24 rays above the default send threshold of 8/255)
     /// every change passes the threshold and nothing is left to settle.

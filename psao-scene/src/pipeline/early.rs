@@ -23,8 +23,12 @@
 //! - The point stops when `|F̂ - h| + z · se <= t`, `h` the AO clients hold
 //!   and `t` the send threshold (`ao_steps / 255`): had the estimate erred
 //!   by less than `z` standard errors, the full trace would quantize
-//!   within the threshold of `h` and not be sent. A point that does not
-//!   stop casts every ray, and its AO is the full trace's, bit for bit.
+//!   within the threshold of `h` and not be sent. Where clients hold less
+//!   than open, it must also be that `F̂ + z · se` stays below what
+//!   quantizes to open (254.5 / 255), since a trace that comes out open is
+//!   sent whatever the threshold (`psao_codec::SentPoint::changed`). A
+//!   point that does not stop casts every ray, and its AO is the full
+//!   trace's, bit for bit.
 //!
 //! The rays sampled are a fixed spread, not a random draw, so `z` is a
 //! normal approximation's confidence, not a proven one: the audit below
@@ -55,6 +59,7 @@
 //! that moved or deformed this step (a static point re-traces only the
 //! rays motion reached, the others' scores kept: see `reach`).
 
+use psao_codec::wire::point::quantize_ao;
 use rustc_hash::FxHashMap;
 
 use super::reach::RayMask;
@@ -231,6 +236,9 @@ pub(super) fn rotation(n: u32, frame: u64) -> usize {
 /// floor sees the floor at the same distance, up to the last bits).
 const CHANGED: f64 = 1e-3;
 
+/// The least AO that quantizes to fully open (255).
+const OPEN_FROM: f64 = 254.5 / 255.0;
+
 /// What [`trace_early`] did.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct Outcome {
@@ -263,6 +271,7 @@ pub(super) fn trace_early(
 ) -> Outcome {
     let n = kept.scores.len();
     let rays = n as u32;
+    let held_below_open = quantize_ao(held) != u8::MAX;
     let c = kept.scores.iter().map(|&s| s as f64).sum::<f64>() / n.max(1) as f64;
     let mut changed = RayMask::none(rays);
     let mut cast = 0u32;
@@ -313,7 +322,11 @@ pub(super) fn trace_early(
             let se = rest as f64 / n as f64
                 * (var / m as f64 * (rest - m) as f64 / (rest - 1) as f64).sqrt();
             let estimate = c + (exact + mean * rest as f64) / n as f64;
-            if (estimate - held as f64).abs() + test.z as f64 * se <= tolerance as f64 {
+            let margin = test.z as f64 * se;
+            // A full trace that could be open is sent whatever the
+            // threshold (`SentPoint::changed`), unless clients hold open.
+            let could_open = held_below_open && estimate + margin >= OPEN_FROM;
+            if !could_open && (estimate - held as f64).abs() + margin <= tolerance as f64 {
                 stopped = true;
                 break;
             }
@@ -402,6 +415,41 @@ mod tests {
         assert_eq!(kept.scores[..], now[..]);
         let differ = before.iter().zip(&now).filter(|(b, n)| b != n).count();
         assert_eq!(kept.changed.count() as usize, differ);
+    }
+
+    #[test]
+    fn a_point_that_may_come_out_open_does_not_stop_unless_clients_hold_open() {
+        // Every ray open, last time and now: the full trace is open (255).
+        let order = ray_order(32);
+        let test = EarlyDecisions::default();
+        let open = vec![1.0f32; 32];
+        // Clients hold 5 steps less: within the threshold, but a trace
+        // that comes out open is sent, so every ray is cast.
+        let mut kept = stable(&open);
+        let out = trace_early(
+            &order,
+            0,
+            &mut kept,
+            250.0 / 255.0,
+            8.0 / 255.0,
+            &test,
+            |k| open[k as usize],
+        );
+        assert_eq!(out.value, Some(1.0));
+        assert_eq!(out.cast, 32);
+        // Clients hold open: nothing to send, it stops after a quarter.
+        let mut kept = stable(&open);
+        let out = trace_early(&order, 0, &mut kept, 1.0, 8.0 / 255.0, &test, |k| {
+            open[k as usize]
+        });
+        assert_eq!((out.value, out.cast), (None, 8));
+        // Far from open (a dark point, held as it is): it stops.
+        let dark = vec![0.5f32; 32];
+        let mut kept = stable(&dark);
+        let out = trace_early(&order, 0, &mut kept, 0.5, 8.0 / 255.0, &test, |k| {
+            dark[k as usize]
+        });
+        assert_eq!((out.value, out.cast), (None, 8));
     }
 
     #[test]

@@ -20,12 +20,15 @@ use crate::error::{SceneError, check_param};
 use crate::morton::morton_order;
 use crate::random::{hash, uniform};
 
-/// The golden ratio's fractional part in 32-bit fixed point.
+/// The golden ratio's fractional part in 32-bit fixed point: the step of a
+/// point's ray azimuths (with one stratum of elevation per ray, a
+/// Fibonacci lattice).
 const GOLDEN: u32 = 0x9E37_79B9;
 
-/// The fractional part of the square root of 2 in 32-bit fixed point: the
-/// step of a point's ray azimuths.
-const AZIMUTH_STEP: u32 = 0x6A09_E667;
+/// The square root of 2's fractional part in 32-bit fixed point: the step
+/// of a point's Laine-Karras ray lengths (another irrational than the
+/// azimuths', so that lengths and azimuths do not run in step).
+const SQRT2: u32 = 0x6A09_E667;
 
 /// Most rays per point.
 pub const MAX_RAYS: u32 = 1 << 20;
@@ -392,25 +395,25 @@ impl PointRays {
     /// radius for closest-hit rays, `u R` for Laine-Karras ones).
     pub fn ray(&self, k: u32) -> (Vec3A, f32) {
         let p = &self.p;
-        // A jittered lattice on the unit square (cosine-mapped): r1 has
-        // one stratum per ray, random within; the azimuth r2 steps by the
-        // fractional part of sqrt(2) from an offset drawn per point, so
-        // the rays of any run of k spread evenly around the normal too.
-        // Drawing r2 at random per ray left clumps and gaps in azimuth,
-        // and their noise (BENCHMARKS.md, issue 15, the ray lattice).
+        // A jittered Fibonacci lattice on the unit square (cosine-mapped):
+        // r1 has one stratum per ray, random within; the azimuth r2 steps
+        // by the golden ratio from an offset drawn per point, so the rays
+        // of any run of k spread evenly around the normal too. Drawing r2
+        // at random per ray left clumps and gaps in azimuth, and their
+        // noise (BENCHMARKS.md, issue 15, the ray lattice).
         let r1 = (k as f32 + uniform(p.seed, self.id, 3 * k)) / p.rays as f32;
-        let r2 = (k.wrapping_mul(AZIMUTH_STEP).wrapping_add(self.azimuth) >> 8) as f32
-            / (1u32 << 24) as f32;
+        let r2 =
+            (k.wrapping_mul(GOLDEN).wrapping_add(self.azimuth) >> 8) as f32 / (1u32 << 24) as f32;
         let (s, c) = (std::f32::consts::TAU * r2).sin_cos();
         let rr = r1.sqrt();
         let dir = self.t1 * (rr * c) + self.t2 * (rr * s) + self.n * (1.0 - r1).max(0.0).sqrt();
         let len = match p.estimator {
             Estimator::ClosestHit => p.radius,
-            // Lengths from a golden-ratio sequence, rotated per point:
-            // evenly spread over [0, 1) and uncorrelated with the
-            // direction strata.
+            // Lengths from a sqrt(2) sequence, rotated per point: evenly
+            // spread over [0, 1) and out of step with the direction
+            // lattice.
             Estimator::LaineKarras => {
-                let u = (k.wrapping_mul(GOLDEN).wrapping_add(self.shift) >> 8) as f32
+                let u = (k.wrapping_mul(SQRT2).wrapping_add(self.shift) >> 8) as f32
                     / (1u32 << 24) as f32;
                 u * p.radius
             }
