@@ -440,7 +440,9 @@ typedef struct psao_thresholds {
   float position_quanta;
   // Smallest cosine between old and new normal that is not an update.
   float normal_cos;
-  // AO change in 1/255 steps above which it is an update.
+  // AO change in 1/255 steps above which it is an update. A change to
+  // fully open (255) is an update whatever its size, so 255 here still
+  // sends points that come out open.
   uint8_t ao_steps;
 } psao_thresholds;
 
@@ -978,8 +980,9 @@ psao_result psao_table_set_point(struct psao_table *table,
                                  struct psao_placement *placement);
 
 // Sets point `id` only if it differs from what clients hold by more than
-// `thresholds` (NULL for the defaults), or moved to another cell, or is
-// not stored. `*sent` receives 1 when it was set, else 0 (a point set
+// `thresholds` (NULL for the defaults), or its AO became fully open (255)
+// while clients hold less, or it moved to another cell, or is not
+// stored. `*sent` receives 1 when it was set, else 0 (a point set
 // but dropped, see `psao_table_placement`, is not sent).
 //
 // # Safety

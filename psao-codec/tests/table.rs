@@ -334,6 +334,9 @@ fn a_change_into_fully_open_updates_whatever_its_size() {
         t.update_point(0, p, Vec3::Y, 250.0 / 255.0, &every)
             .unwrap()
     );
+    assert!(t.update_point(0, p, Vec3::Y, 1.0, &every).unwrap());
+    // Open where clients hold open: nothing changed.
+    assert!(!t.update_point(0, p, Vec3::Y, 1.0, &every).unwrap());
 }
 
 #[test]

@@ -182,8 +182,9 @@ pub unsafe extern "C" fn psao_table_set_point(
 }
 
 /// Sets point `id` only if it differs from what clients hold by more than
-/// `thresholds` (NULL for the defaults), or moved to another cell, or is
-/// not stored. `*sent` receives 1 when it was set, else 0 (a point set
+/// `thresholds` (NULL for the defaults), or its AO became fully open (255)
+/// while clients hold less, or it moved to another cell, or is not
+/// stored. `*sent` receives 1 when it was set, else 0 (a point set
 /// but dropped, see `psao_table_placement`, is not sent).
 ///
 /// # Safety

@@ -282,7 +282,9 @@ pub struct psao_thresholds {
     pub position_quanta: f32,
     /// Smallest cosine between old and new normal that is not an update.
     pub normal_cos: f32,
-    /// AO change in 1/255 steps above which it is an update.
+    /// AO change in 1/255 steps above which it is an update. A change to
+    /// fully open (255) is an update whatever its size, so 255 here still
+    /// sends points that come out open.
     pub ao_steps: u8,
 }
 

@@ -132,8 +132,8 @@ pub struct Settings {
     /// the tick itself (false: the baseline, a period or more behind).
     pub lead: bool,
     /// PSAO servers' [`PipelineConfig::settle_steps`](psao_scene::PipelineConfig::settle_steps)
-    /// (0: points stay within the send threshold where motion passed, the
-    /// baseline).
+    /// (0: points stay within the send threshold where motion passed and
+    /// left AO short of open, the baseline).
     pub settle_steps: u8,
     /// A ray budget for the servers of extra PSAO configurations, one per
     /// density at the first rate ("PSAO-N @R Hz budget"), beside the

@@ -146,7 +146,7 @@ pub struct BenchArgs {
     /// Servers send a point whose AO stopped changing (or that motion has
     /// left) once it is this many 1/255 steps from what clients hold, below
     /// the send threshold (0: never, the baseline: the threshold's worth of
-    /// error stays behind where motion passed).
+    /// error stays behind where motion passed and left AO short of open).
     #[arg(long, default_value_t = PipelineConfig::default().settle_steps)]
     settle_steps: u8,
     /// Add, per density, a PSAO configuration whose server traces within

@@ -253,8 +253,9 @@ pub struct LeadArgs {
     pub lead_ms: Lead,
     /// Send a point whose AO stopped changing (or that motion has left)
     /// once it is this many 1/255 steps from what clients hold, below the
-    /// send threshold (0: never). Pays on near-white scenes with fast
-    /// motion; costs bit rate elsewhere (BENCHMARKS.md).
+    /// send threshold (0: never; a point that comes out fully open is sent
+    /// anyway). Costs bit rate for little on the bench's animated scenes
+    /// (BENCHMARKS.md).
     #[arg(long, default_value_t = PipelineConfig::default().settle_steps)]
     pub settle_steps: u8,
 }

@@ -129,10 +129,12 @@ impl SentPoint {
     /// more than `position_quanta` quanta, its normal turned past
     /// `normal_cos`, or its AO changed by more than `ao_steps`; or, past
     /// the paper, its AO became fully open (255) while clients hold less.
-    /// Open is where a point's AO rests once every occluder has left its
-    /// radius, so a change into it is not noise that a later one undoes,
-    /// and below the threshold it would leave up to `ao_steps` of darkness
-    /// behind for good wherever something passed.
+    /// A trace comes out open only when none of the point's rays meets
+    /// anything within the radius: where something passed and left, that
+    /// is where the point's AO rests until something comes back, so the
+    /// change is not noise that a later one undoes, and below the
+    /// threshold it would leave up to `ao_steps` of darkness behind for
+    /// good.
     pub fn changed(&self, ao: f32, thresholds: &Thresholds) -> bool {
         if !self.word.is_allocated() {
             return true;

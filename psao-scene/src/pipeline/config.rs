@@ -188,7 +188,8 @@ pub struct PipelineConfig {
     /// Early decisions (`Some`): a moving or deforming instance's point
     /// casts its rays in a spread order over the scores its last trace
     /// kept and stops once its AO is known, to the stated confidence, to
-    /// stay within the send threshold of what clients hold (the
+    /// stay within the send threshold of what clients hold and, where
+    /// they hold less than open, to come out short of open (the
     /// pipeline's `early` module says how, and what error it can add).
     /// A point that goes on casts every ray and sends the full trace's
     /// AO. CPU tracer only: a backend ([`AoBackend`](crate::AoBackend))

@@ -42,7 +42,8 @@
 //! change cannot rule out).
 //!
 //! **What it can add.** A wrong decision leaves clients holding `h` where
-//! a full trace would have sent a value more than the threshold away; by
+//! a full trace would have sent a value more than the threshold away (or
+//! an open one, where `h` is short of open); by
 //! how much is what the estimate missed beyond `z` standard errors. A
 //! point traced four steps in a row casts every ray among the first in one
 //! of them (the rotation); a point that stopped early

@@ -42,6 +42,7 @@ pub struct FrameReport {
     pub wait_bound: u32,
     /// Points of moving instances that stopped casting rays early, their
     /// AO known to stay within the send threshold of what clients hold
+    /// (and short of open where they hold less)
     /// ([`PipelineConfig::early`](crate::PipelineConfig::early)); counted
     /// in `traced` too.
     pub early: u64,
