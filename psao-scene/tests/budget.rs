@@ -209,6 +209,26 @@ fn sliding_box() -> (Scene, usize) {
     (s, b)
 }
 
+/// [`sliding_box`] with a wall beside the box's path (x = 0.6).
+fn box_by_a_wall() -> (Scene, usize) {
+    let (mut scene, b) = sliding_box();
+    scene.add(
+        Mesh::quad(Vec3::new(0.6, 0.0, -1.5), Vec3::Y * 1.5, Vec3::Z * 3.0).subdivided(2),
+        Affine3A::IDENTITY,
+    );
+    (scene, b)
+}
+
+/// Places [`sliding_box`]'s box `b` for step `t`: 3 m in 20 steps of
+/// 0.15 m from x = -1.5, then it rests where it was put.
+fn slide(p: &mut Pipeline, b: usize, t: u32) {
+    if t < 20 {
+        let x = -1.5 + 0.15 * t as f32;
+        p.place_instance(b, Affine3A::from_translation(Vec3::new(x, 0.0, 0.0)))
+            .unwrap();
+    }
+}
+
 /// What clients hold of every stored point of instance `i`, beside a full
 /// trace of the scene now: (point, held AO, traced AO). (The points'
 /// normals are taken as stored: for an instance that turns, they are not
@@ -256,11 +276,7 @@ fn where_motion_has_left_a_point_open_clients_hold_it_open() {
     let mut p = Pipeline::new(scene, c).unwrap();
     let mut was_dark = vec![false; p.points(0).unwrap().len()];
     for t in 0..24 {
-        if t < 20 {
-            let x = -1.5 + 0.15 * t as f32;
-            p.place_instance(b, Affine3A::from_translation(Vec3::new(x, 0.0, 0.0)))
-                .unwrap();
-        }
+        slide(&mut p, b, t);
         p.step(1.0 / 30.0).unwrap();
         for (k, held, _) in held_and_fresh(&mut p, 0, 0, &ao) {
             was_dark[k] |= quantize_ao(held) < 255;
@@ -296,12 +312,7 @@ fn under_a_budget_no_point_waits_past_max_wait_and_all_catch_up() {
     let mut p = Pipeline::new(scene.clone(), c).unwrap();
     let mut waited = false;
     for t in 0..40 {
-        if t < 20 {
-            // 3 m in 20 steps, then it rests where it was put.
-            let x = -1.5 + 0.15 * t as f32;
-            p.place_instance(b, Affine3A::from_translation(Vec3::new(x, 0.0, 0.0)))
-                .unwrap();
-        }
+        slide(&mut p, b, t);
         let (_, r) = p.step(1.0 / 30.0).unwrap();
         // Reported on every step that traces.
         assert!(r.rays == 0 || r.budget == Some(240), "{:?}", r.budget);
@@ -372,11 +383,7 @@ fn under_demand_beyond_the_budget_the_bound_on_waiting_rises_and_steps_keep_the_
 /// the steps it slides up to a wall (its AO changes as it nears it),
 /// under a budget far below what its points need.
 fn box_error_while_it_moves(movers_every_step: bool) -> f32 {
-    let (mut scene, b) = sliding_box();
-    scene.add(
-        Mesh::quad(Vec3::new(0.6, 0.0, -1.5), Vec3::Y * 1.5, Vec3::Z * 3.0).subdivided(2),
-        Affine3A::IDENTITY,
-    );
+    let (scene, b) = box_by_a_wall();
     let c = PipelineConfig {
         budget: RayBudget::Rays(48),
         max_wait: 6,
@@ -428,11 +435,7 @@ fn movers_traced_every_step_hold_their_ao_under_any_budget() {
 /// full trace then (the largest AO difference), with the box's points and
 /// the points traced.
 fn whole_box_run(movers_whole: bool) -> (Vec<(bool, f32)>, usize, Vec<u64>) {
-    let (mut scene, b) = sliding_box();
-    scene.add(
-        Mesh::quad(Vec3::new(0.6, 0.0, -1.5), Vec3::Y * 1.5, Vec3::Z * 3.0).subdivided(2),
-        Affine3A::IDENTITY,
-    );
+    let (scene, b) = box_by_a_wall();
     let mut c = PipelineConfig {
         max_wait: 6,
         movers_whole,
@@ -530,11 +533,7 @@ fn held_error_after_the_box_rests(c: PipelineConfig) -> f32 {
     let ao = c.ao;
     let mut p = Pipeline::new(scene, c).unwrap();
     for t in 0..24 {
-        if t < 20 {
-            let x = -1.5 + 0.15 * t as f32;
-            p.place_instance(b, Affine3A::from_translation(Vec3::new(x, 0.0, 0.0)))
-                .unwrap();
-        }
+        slide(&mut p, b, t);
         p.step(1.0 / 30.0).unwrap();
     }
     let floor = p.points(0).unwrap().len() as u32;
@@ -640,11 +639,7 @@ fn a_lead_poses_the_scene_ahead_of_the_clock() {
 /// trace while it moves, and once it has rested a step; and what the
 /// audits found over the run.
 fn early_run(early: Option<EarlyDecisions>) -> (u64, f32, f32, EarlyAudit) {
-    let (mut scene, b) = sliding_box();
-    scene.add(
-        Mesh::quad(Vec3::new(0.6, 0.0, -1.5), Vec3::Y * 1.5, Vec3::Z * 3.0).subdivided(2),
-        Affine3A::IDENTITY,
-    );
+    let (scene, b) = box_by_a_wall();
     let mut c = PipelineConfig {
         density: 256.0,
         early,

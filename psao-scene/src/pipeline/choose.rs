@@ -157,30 +157,18 @@ impl Pipeline {
             };
             at.push(b);
             // A mover's own point traced every step it moves, if so
-            // configured, or with its whole part: as one that waited its
-            // longest. A part held whole: one that fits no budget and is
-            // not due.
-            let every_step =
-                (self.config.movers_every_step && motion.changed[i]) || whole[i] == Some(true);
-            // (A held point's cost fits no budget below u32::MAX rays; a
-            // part that cost as much would fit such a budget whole.)
-            let (age, cost) = match (every_step, whole[i]) {
-                (true, _) => (bound, cost),
-                (false, Some(false)) => (0, u32::MAX),
-                _ => (self.waiting.get(key(i, k)).map_or(0, |w| w.0), cost),
-            };
-            waited_really.push(!every_step);
+            // configured (see `age_and_cost`); it has not really waited.
+            let every_step = self.config.movers_every_step && motion.changed[i];
+            let (age, cost) = self.age_and_cost(key(i, k), every_step, whole[i], cost, bound);
+            waited_really.push(!every_step && whole[i] != Some(true));
             cands.push(self.candidate(key(i, k), cost, reached, age, bound));
         }
         // The waiting points apart: a full trace each.
         let apart_cands: Vec<Candidate> = apart
             .iter()
             .map(|&k| {
-                let (age, cost) = match whole.get((k >> 32) as usize).copied().flatten() {
-                    Some(true) => (bound, rays),
-                    Some(false) => (0, u32::MAX),
-                    None => (self.waiting.get(k).map_or(0, |w| w.0), rays),
-                };
+                let whole = whole.get((k >> 32) as usize).copied().flatten();
+                let (age, cost) = self.age_and_cost(k, false, whole, rays, bound);
                 self.candidate(k, cost, rays, age, bound)
             })
             .collect();
@@ -213,6 +201,29 @@ impl Pipeline {
             all,
             whole,
             unreached,
+        }
+    }
+
+    /// The age and cost a candidate, point `key` costing `cost` rays,
+    /// enters the budget with: a mover's point traced every step it moves
+    /// (`every_step`), or one of a part traced whole this step (`whole`
+    /// `Some(true)`), as one that waited its longest, the `bound`; one of
+    /// a part held whole (`Some(false)`) as one that fits no budget and is
+    /// not due (a held point's cost fits no budget below `u32::MAX` rays;
+    /// a part that cost as much would fit such a budget whole); any other
+    /// as it waited.
+    fn age_and_cost(
+        &self,
+        key: u64,
+        every_step: bool,
+        whole: Option<bool>,
+        cost: u32,
+        bound: u32,
+    ) -> (u32, u32) {
+        match (every_step, whole) {
+            (true, _) | (false, Some(true)) => (bound, cost),
+            (false, Some(false)) => (0, u32::MAX),
+            (false, None) => (self.waiting.get(key).map_or(0, |w| w.0), cost),
         }
     }
 
