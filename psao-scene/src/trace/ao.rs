@@ -421,6 +421,36 @@ impl PointRays {
         (Vec3A::from(dir), len)
     }
 
+    /// A run of `k` holding every ray whose direction may lie within
+    /// `half_angle` (radians) of the unit `axis`, found without drawing
+    /// one: ray `k`'s squared sine of elevation from the normal lies in
+    /// its own stratum `[k, k + 1) / rays`, and a direction within
+    /// `half_angle` of `axis` has an elevation within `half_angle` of
+    /// the axis's. The run is a little wider than that (a margin for
+    /// rounding), so a ray outside it cannot point within `half_angle`.
+    pub fn rays_near(&self, axis: Vec3A, half_angle: f32) -> std::ops::Range<u32> {
+        use std::f32::consts::FRAC_PI_2;
+        let rays = self.p.rays;
+        if half_angle.is_nan() || !axis.is_finite() {
+            return 0..rays;
+        }
+        // The rounding margin, in radians (far above f32's rounding of
+        // unit vectors and of the angles here).
+        const MARGIN: f32 = 1e-3;
+        let elevation = Vec3A::from(self.n).dot(axis).clamp(-1.0, 1.0).acos();
+        let low = (elevation - half_angle - MARGIN).max(0.0);
+        if low > FRAC_PI_2 {
+            // The whole cone lies below the tangent plane.
+            return 0..0;
+        }
+        let high = (elevation + half_angle + MARGIN).min(FRAC_PI_2);
+        let stratum = |a: f32| a.sin().powi(2) * rays as f32;
+        // One stratum more on each side, for the rounding of `stratum`.
+        let first = (stratum(low).floor() as u32).saturating_sub(1);
+        let end = (stratum(high).floor() as u32).saturating_add(2).min(rays);
+        first.min(end)..end
+    }
+
     /// Ray `k`'s score against `tracer`: `min(t, R) / R` for a
     /// closest-hit ray, 1 or 0 for a Laine-Karras one (misses or not).
     pub fn score(&self, tracer: &AoTracer, k: u32) -> f32 {
