@@ -48,16 +48,20 @@ impl RayMask {
         }
     }
 
+    /// The word holding ray `k`'s bit, to change.
+    fn word_mut(&mut self, k: u32) -> Option<&mut u64> {
+        match k / 64 {
+            0 => Some(&mut self.first),
+            w => self.rest.get_mut(w as usize - 1),
+        }
+    }
+
     /// Adds ray `k` (of those the mask was made for; others are ignored).
     pub fn set(&mut self, k: u32) {
         if k >= self.rays {
             return;
         }
-        let w = match k / 64 {
-            0 => Some(&mut self.first),
-            w => self.rest.get_mut(w as usize - 1),
-        };
-        if let Some(w) = w {
+        if let Some(w) = self.word_mut(k) {
             *w |= 1 << (k % 64);
         }
     }
@@ -151,13 +155,17 @@ impl MotionBoxes {
     /// enter it and the run of its rays that can point into that cone. A
     /// point whose hemisphere reaches none needs no ray tested (the reach
     /// of item 3 of issue 20: not only the sphere around it); one that
-    /// sees a box tests only the rays that can point at it.
-    pub fn seen_from(&self, rays: &PointRays, len: f32) -> Vec<SeenBox> {
+    /// sees a box tests only the rays that can point at it. With
+    /// `hemisphere` false every box is kept (with its cone).
+    pub fn seen_from(&self, rays: &PointRays, len: f32, hemisphere: bool) -> Vec<SeenBox> {
         let (origin, normal) = (rays.origin(), rays.normal());
         self.boxes
             .iter()
             .copied()
             .filter(|&(lo, hi)| {
+                if !hemisphere {
+                    return true;
+                }
                 let nearest = origin.clamp(lo, hi);
                 if nearest.distance_squared(origin) > len * len {
                     return false;
@@ -196,7 +204,8 @@ impl MotionBoxes {
 pub struct SeenBox {
     lo: Vec3A,
     hi: Vec3A,
-    /// The unit direction to the box's centre.
+    /// The unit direction to the box's centre (unused where every
+    /// direction may enter).
     axis: Vec3A,
     /// The cosine of the cone's half angle (with a margin for rounding):
     /// a direction whose dot product with `axis` is below it misses.
@@ -209,11 +218,16 @@ impl SeenBox {
     fn new(lo: Vec3A, hi: Vec3A, rays: &PointRays) -> SeenBox {
         let origin = rays.origin();
         let centre = (lo + hi) * 0.5;
-        let radius = (hi - lo).length() * 0.5;
+        // From the centre as rounded, to the farthest corner: the sphere
+        // holds the whole box whatever the rounding of the centre (a
+        // half diagonal about a rounded centre can leave a corner out,
+        // and far from the origin of the world that rounding is large).
+        let radius = (hi - centre).max(centre - lo).length();
         let to = centre - origin;
         let distance = to.length();
-        // Within (or nearly within) the bounding sphere, or nothing to
-        // go by: every direction may enter.
+        // Within the bounding sphere, or too near it for a cone worth the
+        // name (the 1% keeps the arcsine off its steep end), or nothing to
+        // go by: every direction may enter. (`axis` is then unused.)
         let every = SeenBox {
             lo,
             hi,
@@ -227,9 +241,6 @@ impl SeenBox {
         // The half angle of the sphere's cone, with a margin far above
         // the rounding of the slab test and of these sums.
         let half = (radius / distance).asin() + 1e-3;
-        if half >= std::f32::consts::PI {
-            return every;
-        }
         let axis = to / distance;
         SeenBox {
             lo,
@@ -375,8 +386,8 @@ pub struct Among<'a> {
     pub dirs: Option<&'a [Vec4]>,
 }
 
-/// The rays of a point (`rays`, its `count` rays) that `motion` can
-/// reach, with what `query` knows of them.
+/// The rays of a point (`rays`, its `count` rays: `rays.count()`) that
+/// `motion` can reach, with what `query` knows of them.
 pub fn reached_rays(
     rays: &PointRays,
     count: u32,
@@ -391,14 +402,16 @@ pub fn reached_rays(
         among,
         first_only,
     } = query;
+    debug_assert_eq!(count, rays.count(), "a point's rays are counted by its own");
     let mut mask = RayMask::none(count);
     if motion.is_empty() {
         return mask;
     }
     // Only the boxes its hemisphere can reach (closest-hit rays and
     // Laine-Karras ones are no longer than the radius), and of each the
-    // cone its rays can enter it by.
-    let seen = motion.seen_from(rays, radius);
+    // cone its rays can enter it by. Rays given `among` are tested
+    // against every box, as they always were.
+    let seen = motion.seen_from(rays, radius, among.is_none());
     if seen.is_empty() {
         return mask;
     }
@@ -510,23 +523,112 @@ mod tests {
     #[test]
     fn cones_leave_out_only_rays_that_enter_no_box() {
         // Every ray against every box, as before cones: what reached_rays
-        // must still find, ray for ray.
+        // must still find, ray for ray, drawing the rays or given them,
+        // among all rays or some.
         let (mut partial, mut pruned) = (0, 0);
         for case in 0..3000 {
             let (rays, count, boxes, estimator) = drawn_case(case);
-            let r = reached_rays(&rays, count, &boxes, estimator, 0.6, ReachQuery::default());
+            let drawn: Vec<Vec4> = (0..count)
+                .map(|k| {
+                    let (d, len) = rays.ray(k);
+                    Vec3::from(d).extend(len)
+                })
+                .collect();
+            let enters: Vec<bool> = (0..count)
+                .map(|k| {
+                    let (d, len) = rays.ray(k);
+                    boxes.entry(rays.origin(), d, len).is_some()
+                })
+                .collect();
+            let reach = |q: ReachQuery<'_>| reached_rays(&rays, count, &boxes, estimator, 0.6, q);
+            let r = reach(ReachQuery::default());
             for k in 0..count {
-                let (d, len) = rays.ray(k);
-                let enters = boxes.entry(rays.origin(), d, len).is_some();
-                assert_eq!(r.has(k), enters, "case {case}, ray {k}");
+                assert_eq!(r.has(k), enters[k as usize], "case {case}, ray {k}");
+            }
+            let kept = reach(ReachQuery {
+                dirs: Some(&drawn),
+                ..ReachQuery::default()
+            });
+            assert_eq!(kept, r, "case {case}: directions given");
+            let mut odd = RayMask::none(count);
+            (1..count).step_by(2).for_each(|k| odd.set(k));
+            let odd_dirs: Vec<Vec4> = odd.iter().map(|k| drawn[k as usize]).collect();
+            for dirs in [None, Some(&odd_dirs[..])] {
+                let among = reach(ReachQuery {
+                    among: Some(Among { mask: &odd, dirs }),
+                    ..ReachQuery::default()
+                });
+                for k in 0..count {
+                    let want = enters[k as usize] && k % 2 == 1;
+                    assert_eq!(among.has(k), want, "case {case}, ray {k} among odd ones");
+                }
             }
             partial += usize::from(!r.is_empty() && r.count() < count);
-            let seen = boxes.seen_from(&rays, 0.6);
-            pruned += usize::from(seen.iter().all(|b| b.rays.len() < count as usize));
+            let seen = boxes.seen_from(&rays, 0.6, true);
+            pruned +=
+                usize::from(!seen.is_empty() && seen.iter().all(|b| b.rays.len() < count as usize));
         }
         // The cases are worth the name: many reach some rays, not all,
         // and in many the cones leave rays out untested.
-        assert!(partial > 500 && pruned > 500, "{partial} {pruned}");
+        assert!(partial > 500 && pruned > 300, "{partial} {pruned}");
+    }
+
+    #[test]
+    fn a_cone_holds_every_corner_of_its_box_far_from_the_origin_of_the_world() {
+        // Where coordinates are large, the box's centre rounds. A point
+        // looks at a corner along the line that grazes the box's sphere
+        // there (the edge of the cone), and the cone must still hold
+        // every ray the slab test takes.
+        let mut tested = 0;
+        for (case, offset) in [0.0f32, 30.0, 1e3, 1e4, 6e4].into_iter().enumerate() {
+            for j in 0..400u32 {
+                let r = |n: u32| crate::random::uniform(9, case as u32 * 1000 + j, n);
+                let v = |n: u32| Vec3::new(r(n), r(n + 1), r(n + 2)) * 2.0 - 1.0;
+                let base = Vec3::splat(offset) + v(0) * offset.max(1.0) * 0.25;
+                // Boxes as large as a part, and as thin as their padding
+                // (a flat or tiny part), where the centre's rounding
+                // weighs most.
+                let size = v(3).abs() * [0.6, 2e-3, 0.0][(j / 8 % 3) as usize];
+                let boxes = MotionBoxes::new([(base, base + size)], 4.0 * RAY_LEAD);
+                let (lo, hi) = boxes.boxes[0];
+                let c = (j % 8) as usize;
+                let corner = Vec3::new(
+                    if c & 1 == 0 { lo.x } else { hi.x },
+                    if c & 2 == 0 { lo.y } else { hi.y },
+                    if c & 4 == 0 { lo.z } else { hi.z },
+                );
+                // Away from the corner, square to the sphere's radius
+                // there: the line back to the corner grazes the sphere.
+                let out = (corner - (Vec3::from(lo) + Vec3::from(hi)) * 0.5).normalize();
+                let side = out.any_orthonormal_pair().0;
+                let sphere = (hi - lo).length() * 0.5;
+                let at = corner + side * sphere * (0.15 + 0.5 * r(9));
+                let p = AoParams {
+                    rays: 32,
+                    ..AoParams::default()
+                };
+                let rays = PointRays::new(j, at, -side, &p).expect("rays");
+                let seen = boxes.seen_from(&rays, 10.0, false);
+                let o = rays.origin();
+                let corner = Vec3A::from(corner);
+                for inside in [0.0, 1e-4, 1e-3] {
+                    let aim = corner + ((lo + hi) * 0.5 - corner) * inside;
+                    let Some(dir) = (aim - o).try_normalize() else {
+                        continue;
+                    };
+                    let inv = Vec3A::ONE / dir;
+                    if slab_entry(lo, hi, o, dir, inv, 10.0).is_none() {
+                        continue;
+                    }
+                    tested += 1;
+                    assert!(
+                        seen_entry(&seen, o, dir, 10.0).is_some(),
+                        "offset {offset}, case {j}, corner {c}, inside {inside}"
+                    );
+                }
+            }
+        }
+        assert!(tested > 3000, "{tested}");
     }
 
     #[test]
@@ -666,7 +768,7 @@ mod tests {
         assert!((0..64).find(|&k| up.has(k)).is_some_and(|k| first.has(k)));
         // A box behind the tangent plane, within the radius: not in the
         // hemisphere.
-        assert!(below.seen_from(&rays, 0.6).is_empty());
-        assert!(!above.seen_from(&rays, 0.6).is_empty());
+        assert!(below.seen_from(&rays, 0.6, true).is_empty());
+        assert!(!above.seen_from(&rays, 0.6, true).is_empty());
     }
 }

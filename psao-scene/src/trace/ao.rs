@@ -381,6 +381,11 @@ impl PointRays {
         })
     }
 
+    /// How many rays the point has.
+    pub fn count(&self) -> u32 {
+        self.p.rays
+    }
+
     /// Where every ray starts.
     pub fn origin(&self) -> Vec3A {
         self.origin
@@ -401,6 +406,9 @@ impl PointRays {
         // of any run of k spread evenly around the normal too. Drawing r2
         // at random per ray left clumps and gaps in azimuth, and their
         // noise (BENCHMARKS.md, issue 15, the ray lattice).
+        // `rays_near` relies on ray k's r1 (its squared sine of
+        // elevation) lying in the stratum [k, k + 1) / rays: a change of
+        // pattern must change it too.
         let r1 = (k as f32 + uniform(p.seed, self.id, 3 * k)) / p.rays as f32;
         let r2 =
             (k.wrapping_mul(GOLDEN).wrapping_add(self.azimuth) >> 8) as f32 / (1u32 << 24) as f32;
