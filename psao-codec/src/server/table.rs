@@ -93,6 +93,16 @@ impl Default for Thresholds {
     }
 }
 
+impl Thresholds {
+    /// Whether AO quantized to `now` is an update over `held`, what
+    /// clients hold (both in 1/255 steps): more than `ao_steps` away, or
+    /// fully open (255) while clients hold less (see
+    /// [`SentPoint::changed`]).
+    pub fn ao_changed(&self, now: u8, held: u8) -> bool {
+        now.abs_diff(held) > self.ao_steps || (now == u8::MAX && held != u8::MAX)
+    }
+}
+
 /// What a client holds for one point, next to the point's new position
 /// and normal ([`GridTable::sent`]): all a new AO value is compared with.
 /// Plain data, so that a backend can compare where it traced (psao-gpu
@@ -145,10 +155,8 @@ impl SentPoint {
         let d2 = ((self.frac - self.word.frac()) * POSITION_QUANTA as f32).length_squared();
         let moved = q < 0.0 || d2 > q * q;
         let turned = self.word.normal().dot(self.normal) < thresholds.normal_cos;
-        let (now, held) = (quantize_ao(ao), self.word.fields().ao);
-        let shaded = now.abs_diff(held) > thresholds.ao_steps;
-        let opened = now == u8::MAX && held != u8::MAX;
-        moved || turned || shaded || opened
+        let shaded = thresholds.ao_changed(quantize_ao(ao), self.word.fields().ao);
+        moved || turned || shaded
     }
 }
 

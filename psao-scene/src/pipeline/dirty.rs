@@ -453,18 +453,16 @@ impl Pipeline {
         let full = self
             .tracer(false)
             .trace_ids(&batch.ids, &batch.points, &batch.normals, &ao)?;
-        let steps = self.config.thresholds.ao_steps;
+        let th = self.config.thresholds;
         let mut audit = super::early::EarlyAudit {
             checked: batch.ids.len() as u64,
             ..Default::default()
         };
         for (sent, &value) in batch.sent.iter().zip(&full.ao) {
             let (full, held) = (quantize_ao(value), sent.word.fields().ao);
-            let gap = full.abs_diff(held);
-            audit.worst_steps = audit.worst_steps.max(gap);
-            // As `SentPoint::changed` would decide: past the threshold, or
-            // come out open where clients hold less.
-            if gap > steps || (full == u8::MAX && held != u8::MAX) {
+            audit.worst_steps = audit.worst_steps.max(full.abs_diff(held));
+            // As `SentPoint::changed` would decide.
+            if th.ao_changed(full, held) {
                 audit.wrong += 1;
             }
         }

@@ -420,37 +420,25 @@ mod tests {
 
     #[test]
     fn a_point_that_may_come_out_open_does_not_stop_unless_clients_hold_open() {
-        // Every ray open, last time and now: the full trace is open (255).
         let order = ray_order(32);
         let test = EarlyDecisions::default();
-        let open = vec![1.0f32; 32];
-        // Clients hold 5 steps less: within the threshold, but a trace
-        // that comes out open is sent, so every ray is cast.
-        let mut kept = stable(&open);
-        let out = trace_early(
-            &order,
-            0,
-            &mut kept,
-            250.0 / 255.0,
-            8.0 / 255.0,
-            &test,
-            |k| open[k as usize],
-        );
-        assert_eq!(out.value, Some(1.0));
-        assert_eq!(out.cast, 32);
+        // Every ray scoring `score`, last time and now, clients holding
+        // `held`: the outcome and the rays cast.
+        let early = |score: f32, held: f32| {
+            let scores = vec![score; 32];
+            let mut kept = stable(&scores);
+            let out = trace_early(&order, 0, &mut kept, held, 8.0 / 255.0, &test, |k| {
+                scores[k as usize]
+            });
+            (out.value, out.cast)
+        };
+        // Open (255), clients 5 steps less: within the threshold, but a
+        // trace that comes out open is sent, so every ray is cast.
+        assert_eq!(early(1.0, 250.0 / 255.0), (Some(1.0), 32));
         // Clients hold open: nothing to send, it stops after a quarter.
-        let mut kept = stable(&open);
-        let out = trace_early(&order, 0, &mut kept, 1.0, 8.0 / 255.0, &test, |k| {
-            open[k as usize]
-        });
-        assert_eq!((out.value, out.cast), (None, 8));
+        assert_eq!(early(1.0, 1.0), (None, 8));
         // Far from open (a dark point, held as it is): it stops.
-        let dark = vec![0.5f32; 32];
-        let mut kept = stable(&dark);
-        let out = trace_early(&order, 0, &mut kept, 0.5, 8.0 / 255.0, &test, |k| {
-            dark[k as usize]
-        });
-        assert_eq!((out.value, out.cast), (None, 8));
+        assert_eq!(early(0.5, 0.5), (None, 8));
     }
 
     #[test]
