@@ -10,6 +10,8 @@
 //!   (the baseline of the static/moving BVH split);
 //! - `--no-ray-reuse`: trace every point within reach of motion in full
 //!   (the baseline of re-tracing only the rays motion reaches);
+//! - `--no-skip-open`: trace a point even where no triangle lies within
+//!   reach of its rays (the baseline of knowing such a point open);
 //! - `--ray-budget N` (rays per frame) or `--ray-budget auto` (as many as
 //!   80% of the frame period affords): points past it wait, at most
 //!   `--max-wait` frames (8); `--movers-every-step` traces a moving
@@ -33,6 +35,7 @@
 //!
 //! `cargo run --release -p psao-scene --example stream`
 
+use std::hash::{DefaultHasher, Hasher};
 use std::time::Instant;
 
 use psao_codec::{Decoder, Event, Limits};
@@ -88,6 +91,7 @@ fn main() {
         split_bvh,
         cull: flag("--cull").then(ViewerCull::default),
         ray_reuse: !flag("--no-ray-reuse"),
+        skip_open: !flag("--no-skip-open"),
         budget: match arg("--ray-budget", String::new()).as_str() {
             "" => RayBudget::Unlimited,
             "auto" => RayBudget::Auto { share: 0.8 },
@@ -149,7 +153,6 @@ fn main() {
         .map(|i| server.points(i).map_or(0, |p| p.len()))
         .sum();
     let digest = {
-        use std::hash::{DefaultHasher, Hasher};
         let mut h = DefaultHasher::new();
         h.write(&kf.bytes);
         h.finish()
@@ -182,6 +185,9 @@ fn main() {
     }
     let mut sum = FrameReport::default();
     let mut sent = 0u32;
+    // Every frame's bytes, in order: two runs that send the same frames
+    // print the same digest.
+    let mut frames_hash = DefaultHasher::new();
     let audit = flag("--early-audit");
     let (mut audited, mut audit_time) = (EarlyAudit::default(), std::time::Duration::ZERO);
     let t = Instant::now();
@@ -198,6 +204,7 @@ fn main() {
         }
         if let Some(f) = frame {
             sent += 1;
+            frames_hash.write(&f.bytes);
             let e = client.receive(&f.bytes).expect("valid frame");
             assert!(matches!(e, Event::Applied { .. }), "{e:?}");
         }
@@ -233,6 +240,10 @@ fn main() {
         "  rays               {:.0} per frame, {:.2} Mrays/s while tracing",
         sum.rays as f64 / n,
         sum.rays as f64 / sum.t_trace.as_secs_f64().max(1e-9) / 1e6
+    );
+    println!(
+        "  known open         {:.0} points per frame traced without a ray (nothing within reach of their rays)",
+        sum.open as f64 / n
     );
     println!(
         "  ray reuse          {:.0} points per frame within reach but no ray reached, {:.0} rays per frame kept from the last trace; {} points with kept scores",
@@ -306,7 +317,10 @@ fn main() {
         ms(sum.t_trace),
         ms(sum.t_encode)
     );
-    println!("  client mirror      equal to the server's tables");
+    println!(
+        "  client mirror      equal to the server's tables; frames digest {:016x}",
+        frames_hash.finish()
+    );
 }
 
 /// Resident and peak resident memory of this process in KiB (Linux).

@@ -192,6 +192,37 @@ fn skipping_changes_nothing_clients_see() {
     );
 }
 
+#[test]
+fn points_known_open_cast_no_ray_and_send_the_same_frames() {
+    // A moving point with nothing within reach of its rays is open
+    // without a ray: the same frames, byte for byte, and exactly its rays
+    // fewer cast.
+    let run = |skip_open: bool| {
+        let config = PipelineConfig {
+            skip_open,
+            ..quick()
+        };
+        let mut p = Pipeline::new(default_scene(), config).unwrap();
+        let (mut frames, mut rays, mut open) = (Vec::new(), 0, 0);
+        for _ in 0..12 {
+            let (frame, r) = p.step(1.0 / 20.0).unwrap();
+            frames.push(frame.map(|f| f.bytes));
+            rays += r.rays;
+            open += r.open;
+        }
+        (frames, rays, open)
+    };
+    let (frames, rays, open) = run(true);
+    let (frames_traced, rays_traced, none) = run(false);
+    assert!(
+        frames == frames_traced,
+        "knowing points open changed a frame"
+    );
+    assert_eq!(none, 0);
+    assert!(open > 50, "{open} points known open");
+    assert_eq!(rays + open * u64::from(quick().ao.rays), rays_traced);
+}
+
 /// Where point `id` of `table` is stored, decoded to instance-local space.
 fn stored_position(table: &psao_codec::GridTable, id: u32) -> Option<Vec3> {
     let psao_codec::Placement::Stored { cell, slot } = table.placement(id) else {

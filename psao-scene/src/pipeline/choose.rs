@@ -138,6 +138,7 @@ impl Pipeline {
                     continue;
                 }
                 Plan::Full { reached } => *reached,
+                Plan::Open => rays,
                 Plan::Rays { reached, .. } => reached.count(),
             };
             let cost = plan.cost(rays);

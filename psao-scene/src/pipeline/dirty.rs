@@ -51,6 +51,8 @@ pub(super) struct StepTrace {
     pub overdue: u64,
     pub settled: u64,
     pub early: u64,
+    /// Points known open without a ray ([`Plan::Open`]).
+    pub open: u64,
     /// Time the trace phase took after the budget was set, less the
     /// casting: choosing the points, and after casting.
     pub outside_cast: Duration,
@@ -153,7 +155,7 @@ impl Pipeline {
         // What clients hold is looked up for the points traced only.
         let batch = self.batch_unheld(&lists);
         let (plans, learnt): (Vec<Plan>, Vec<Learnt>) =
-            self.plan(&batch, motion).into_iter().unzip();
+            self.plan(&batch, motion, tracer).into_iter().unzip();
         self.remember_envelope(&batch, learnt);
         let budget = self.step_budget(motion, started);
         // From here to casting (choosing, the waiting list, what clients
@@ -225,6 +227,7 @@ impl Pipeline {
             };
         }
         let planned: u64 = sub_plans.iter().map(|p| u64::from(p.cost(rays))).sum();
+        let open = sub_plans.iter().filter(|p| matches!(p, Plan::Open)).count() as u64;
         self.apply(&sub.owner, &result)?;
         let settle = self.settle_left(&sub.owner)?;
         for (t, s) in touched.iter_mut().zip(&settle.touched) {
@@ -241,10 +244,12 @@ impl Pipeline {
             updated: result.changed.len() as u64 + settle.updated + filled,
             settled: settled + settle.updated,
             unreached: cands.unreached,
-            rays_kept: (traced * rays as u64).saturating_sub(planned),
+            // An open point's rays are known, not kept.
+            rays_kept: ((traced - open) * rays as u64).saturating_sub(planned),
             budget,
             overdue,
             early: self.last_early.len() as u64,
+            open,
             outside_cast: casting.duration_since(budgeted) + t_after.elapsed(),
             held,
         })
@@ -266,14 +271,7 @@ impl Pipeline {
     ) -> Result<(ChangedPoints, u64), SceneError> {
         let th = self.config.thresholds;
         let steps = self.config.settle_steps;
-        if steps == 0 {
-            // Nothing settles: no last trace to keep.
-            let out = ChangedPoints::compare(values, &batch.sent, &th)?;
-            self.note_trend(values, batch, &out.changed);
-            return Ok((out, 0));
-        }
-        let mut settle = th;
-        settle.ao_steps = th.ao_steps.min(steps - 1);
+        // Each point's last trace, kept (planning reads it too).
         let repeated: Vec<bool> = batch
             .owner
             .iter()
@@ -286,6 +284,14 @@ impl Pipeline {
                 }
             })
             .collect();
+        if steps == 0 {
+            // Nothing settles.
+            let out = ChangedPoints::compare(values, &batch.sent, &th)?;
+            self.note_trend(values, batch, &out.changed);
+            return Ok((out, 0));
+        }
+        let mut settle = th;
+        settle.ao_steps = th.ao_steps.min(steps - 1);
         let out = ChangedPoints::compare_each(values, &batch.sent, |b| {
             if repeated[b] { settle } else { th }
         })?;
@@ -522,8 +528,15 @@ impl Pipeline {
         let cache = &self.ray_cache;
         let instances = &self.instances;
         let (th, ray_order) = (self.config.thresholds, &self.ray_order);
-        let rot = super::early::rotation(ao.rays, self.frame);
-        let tolerance = th.ao_steps as f32 / 255.0;
+        let moving = early.as_ref().map(|test| Moving {
+            test,
+            order: ray_order,
+            rot: super::early::rotation(ao.rays, self.frame),
+            tolerance: th.ao_steps as f32 / 255.0,
+            th: &th,
+            ao: &ao,
+            open: false,
+        });
         let mut done: Vec<Traced> = work
             .into_par_iter()
             .map(|(b, kept)| {
@@ -531,10 +544,14 @@ impl Pipeline {
                 let key = key(i, k);
                 let (id, p, n) = (batch.ids[b], batch.points[b], batch.normals[b]);
                 let dynamic = instances[i].dynamic;
-                if let (Some(test), true) = (&early, dynamic && changed[i]) {
-                    return trace_moving(
-                        tracer, batch, b, kept, test, ray_order, rot, tolerance, &th, &ao,
-                    );
+                // Every ray scores 1, known without casting one.
+                let open = matches!(plans[b], Plan::Open);
+                if let (Some(how), true) = (&moving, dynamic && changed[i]) {
+                    return trace_moving(tracer, batch, b, kept, &Moving { open, ..*how });
+                }
+                if open {
+                    let scores = (keep && !dynamic).then(|| vec![1.0; rays]);
+                    return Traced::new(b, 1.0, 0, scores);
                 }
                 if !keep || dynamic {
                     // Nothing kept (a moving instance's point): the
@@ -772,33 +789,56 @@ impl Traced {
     }
 }
 
+/// How [`trace_moving`] traces a point of a moving instance.
+#[derive(Clone, Copy)]
+struct Moving<'a> {
+    /// The early decisions' settings.
+    test: &'a super::early::EarlyDecisions,
+    /// The rays' spread order (`early::ray_order`).
+    order: &'a [u32],
+    /// Where this step's rotation of the order starts.
+    rot: usize,
+    /// The send threshold of AO, as a fraction.
+    tolerance: f32,
+    /// The send thresholds.
+    th: &'a Thresholds,
+    /// AO parameters.
+    ao: &'a crate::trace::ao::AoParams,
+    /// Whether its rays can hit nothing ([`Plan::Open`]): every score 1.
+    open: bool,
+}
+
 /// Traces point `b` of a moving instance with early decisions: over its
 /// `kept` scores when it has them, has not stopped
 /// [`max_stops`](super::early::EarlyDecisions::max_stops) times in a row,
 /// and could go unsent (clients hold a word for it that its position and
 /// normal alone would not send again); in full otherwise, keeping the
 /// scores for the next time. The AO is the full trace's, bit for bit,
-/// unless it stopped early.
-#[allow(clippy::too_many_arguments)]
+/// unless it stopped early. A point known open casts no ray: its scores
+/// are all 1, as its full trace's.
 fn trace_moving(
     tracer: &AoTracer,
     batch: &Batch,
     b: usize,
     kept: Option<Kept>,
-    test: &super::early::EarlyDecisions,
-    order: &[u32],
-    rot: usize,
-    tolerance: f32,
-    th: &Thresholds,
-    ao: &crate::trace::ao::AoParams,
+    how: &Moving,
 ) -> Traced {
+    let Moving {
+        test,
+        order,
+        rot,
+        tolerance,
+        th,
+        ao,
+        open,
+    } = *how;
     let (id, p, n) = (batch.ids[b], batch.points[b], batch.normals[b]);
     let sent = &batch.sent[b];
     let held = dequantize_ao(sent.word.fields().ao);
     let could_stay = sent.word.is_allocated() && !sent.changed(held, th);
     let rays = PointRays::new(id, p, n, ao);
     match (kept, &rays) {
-        (Some(mut kept), Some(r)) if could_stay && kept.stops < test.max_stops => {
+        (Some(mut kept), Some(r)) if could_stay && kept.stops < test.max_stops && !open => {
             // Rays that turned with the point since its scores were kept
             // change more, and more at once, than rays that held still.
             let mut test = *test;
@@ -824,8 +864,12 @@ fn trace_moving(
             }
         }
         (old, _) => {
-            let mut scores = vec![0.0f32; ao.rays as usize];
-            let cast = tracer.trace_point_rays(id, p, n, ao, &mut scores, |_| true);
+            let mut scores = vec![1.0f32; ao.rays as usize];
+            let cast = if open {
+                0
+            } else {
+                tracer.trace_point_rays(id, p, n, ao, &mut scores, |_| true)
+            };
             // The rays that changed since the kept scores (all of them
             // with nothing kept).
             let changed = match &old {

@@ -105,7 +105,8 @@ struct InstanceState {
     /// Points waiting to be traced until they come into view.
     pending: Vec<bool>,
     /// Each point's AO as its last trace gave it, quantized (what the
-    /// settle rule compares with; the held AO after setup).
+    /// settle rule compares with, and which points planning tests for
+    /// being open; the held AO after setup).
     last_ao: Vec<u8>,
     /// Each point's trend, for the ray budget's priority (empty without
     /// a budget).

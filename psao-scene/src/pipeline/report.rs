@@ -46,6 +46,11 @@ pub struct FrameReport {
     /// ([`PipelineConfig::early`](crate::PipelineConfig::early)); counted
     /// in `traced` too.
     pub early: u64,
+    /// Points traced whose rays, it was known without casting one, can
+    /// hit nothing: their AO is 1
+    /// ([`PipelineConfig::skip_open`](crate::PipelineConfig::skip_open));
+    /// counted in `traced` too.
+    pub open: u64,
     /// Points whose change passed the thresholds (set in their table).
     pub updated: u64,
     /// Points sent because they settled below the send threshold (their
@@ -88,6 +93,7 @@ impl FrameReport {
         self.rays_kept += other.rays_kept;
         self.overdue += other.overdue;
         self.early += other.early;
+        self.open += other.open;
         self.budget = match (self.budget, other.budget) {
             (Some(a), Some(b)) => Some(a + b),
             (a, b) => a.or(b),

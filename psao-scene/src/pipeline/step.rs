@@ -138,6 +138,7 @@ impl Pipeline {
             report.overdue = done.overdue;
             report.settled = done.settled;
             report.early = done.early;
+            report.open = done.open;
             outside_cast = done.outside_cast;
             held = done.held;
         } else if !self.last_traced.is_empty() {

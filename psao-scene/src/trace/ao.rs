@@ -15,9 +15,12 @@ use psao_codec::{SentPoint, Thresholds};
 use rayon::prelude::*;
 
 use super::geometry::{Geometry, Layer, RAY_LEAD, TriangleBvh};
+use super::open::HalfBall;
 use super::top::TopLevel;
 use crate::error::{SceneError, check_param};
 use crate::morton::morton_order;
+use std::ops::Sub;
+
 use crate::random::{hash, uniform};
 
 /// The golden ratio's fractional part in 32-bit fixed point: the step of a
@@ -457,6 +460,40 @@ impl PointRays {
         let first = (stratum(low).floor() as u32).saturating_sub(1);
         let end = (stratum(high).floor() as u32).saturating_add(2).min(rays);
         first.min(end)..end
+    }
+
+    /// Whether every ray of the point surely misses `tracer`'s triangles,
+    /// so that each scores 1 and the point's AO is 1 exactly, known
+    /// without casting one: no triangle reaches the half ball its rays
+    /// can hit in (see `trace::open`). A triangle the test cannot rule
+    /// out (alpha-mask holes and all) keeps the point traced, so a point
+    /// whose rays all miss may still be traced; one said to be open is
+    /// open. The ray offset keeps the point's own triangle out as long
+    /// as its bias is above the test's margin (a ten-thousandth of the
+    /// radius; the default bias is well above it).
+    pub fn surely_open(&self, tracer: &AoTracer) -> bool {
+        let region = HalfBall::new(
+            self.origin,
+            Vec3A::from(self.n),
+            self.p.radius,
+            self.least_rise(),
+        );
+        !tracer.top.may_reach(&tracer.layers, &region)
+    }
+
+    /// The least cosine between a ray and the normal, over the point's
+    /// rays, less a margin for rounding (at least 0): every ray's
+    /// direction lies within the cone of that cosine about the normal.
+    fn least_rise(&self) -> f32 {
+        let rays = self.p.rays;
+        (0..rays)
+            .map(|k| {
+                let r1 = (k as f32 + uniform(self.p.seed, self.id, 3 * k)) / rays as f32;
+                (1.0 - r1).max(0.0).sqrt()
+            })
+            .fold(1.0f32, f32::min)
+            .sub(1e-5)
+            .max(0.0)
     }
 
     /// Ray `k`'s score against `tracer`: `min(t, R) / R` for a

@@ -16,6 +16,7 @@ use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::ray::{Ray, RayHit};
 use obvhs::triangle::Triangle;
 
+use super::open::HalfBall;
 use crate::model::alpha::AlphaMask;
 use crate::model::mesh::transformed_bounds;
 
@@ -271,6 +272,84 @@ impl TriangleBvh {
         found.then_some((prim, hit.t))
     }
 
+    /// Whether `near` holds for any triangle in a leaf whose box (in the
+    /// BVH's space) `may_hold`: the BVH is walked down the nodes whose
+    /// box `may_hold`, and the triangles of such leaves passed in turn
+    /// until one holds. True as well when the walk runs out of room (a
+    /// BVH deeper than any obvhs builds): the caller must then assume the
+    /// worst.
+    pub(super) fn any_near(
+        &self,
+        may_hold: impl Fn(&Aabb) -> bool,
+        mut near: impl FnMut(&Triangle) -> bool,
+    ) -> bool {
+        let mut test = |indices: &[u32], first: u32, count: u32| {
+            (first..first.saturating_add(count)).any(|k| {
+                indices
+                    .get(k as usize)
+                    .and_then(|&p| self.tris.get(p as usize))
+                    .is_some_and(&mut near)
+            })
+        };
+        let mut stack = NodeStack::default();
+        match &self.accel {
+            None => false,
+            Some(Accel::Binary(bvh)) => {
+                let Some(root) = bvh.nodes.first() else {
+                    return false;
+                };
+                if root.is_leaf() {
+                    return may_hold(root.aabb())
+                        && test(&bvh.primitive_indices, root.first_index, root.prim_count);
+                }
+                stack.push(root.first_index);
+                while let Some(first) = stack.pop() {
+                    for n in [first, first.saturating_add(1)] {
+                        let Some(node) = bvh.nodes.get(n as usize) else {
+                            continue;
+                        };
+                        if !may_hold(node.aabb()) {
+                            continue;
+                        }
+                        if node.is_leaf() {
+                            if test(&bvh.primitive_indices, node.first_index, node.prim_count) {
+                                return true;
+                            }
+                        } else if !stack.push(node.first_index) {
+                            return true;
+                        }
+                    }
+                }
+                false
+            }
+            Some(Accel::Wide(bvh)) => {
+                // Node 0 is the root; a child's box is rounded outward.
+                stack.push(0);
+                while let Some(n) = stack.pop() {
+                    let Some(node) = bvh.nodes.get(n as usize) else {
+                        continue;
+                    };
+                    for child in 0..obvhs::cwbvh::BRANCHING {
+                        if node.is_child_empty(child) || !may_hold(&node.child_aabb(child)) {
+                            continue;
+                        }
+                        if !node.is_leaf(child) {
+                            if !stack.push(node.child_node_index(child)) {
+                                return true;
+                            }
+                        } else {
+                            let (first, count) = node.child_primitives(child);
+                            if test(&bvh.primitive_indices, first, count) {
+                                return true;
+                            }
+                        }
+                    }
+                }
+                false
+            }
+        }
+    }
+
     /// Whether `ray` hits nothing.
     pub(super) fn misses(&self, ray: Ray) -> bool {
         match &self.accel {
@@ -282,6 +361,40 @@ impl TriangleBvh {
                 bvh.ray_traverse_miss(ray, |r, id| self.hit(r, bvh.primitive_indices[id]))
             }
         }
+    }
+}
+
+/// Nodes still to visit in [`TriangleBvh::any_near`], on the stack of
+/// the thread: room for a wide BVH's eight children at each of 32 levels
+/// (obvhs builds none deeper), and more.
+struct NodeStack {
+    nodes: [u32; 320],
+    len: usize,
+}
+
+impl Default for NodeStack {
+    fn default() -> Self {
+        NodeStack {
+            nodes: [0; 320],
+            len: 0,
+        }
+    }
+}
+
+impl NodeStack {
+    /// Pushes `n`; false, pushing nothing, when full.
+    fn push(&mut self, n: u32) -> bool {
+        let Some(slot) = self.nodes.get_mut(self.len) else {
+            return false;
+        };
+        *slot = n;
+        self.len += 1;
+        true
+    }
+
+    fn pop(&mut self) -> Option<u32> {
+        self.len = self.len.checked_sub(1)?;
+        self.nodes.get(self.len).copied()
     }
 }
 
@@ -350,6 +463,26 @@ impl Layer {
             Some(m) => transformed_bounds(m, b),
         };
         (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+    }
+
+    /// Whether any of the layer's triangles may reach `region` (see
+    /// [`HalfBall`]): walked in the layer's space down the boxes that may
+    /// meet it, each triangle then tested with its corners in world space.
+    pub(super) fn may_reach(&self, region: &HalfBall) -> bool {
+        let local = match (&self.to_world, &self.to_local) {
+            (Some(w), Some(l)) => region.placed(w, l),
+            _ => region.clone(),
+        };
+        self.bvh.any_near(
+            |b| local.may_hold(b),
+            |t| {
+                let corners = [t.v0, t.v1, t.v2];
+                region.may_reach(match &self.to_world {
+                    None => corners,
+                    Some(m) => corners.map(|v| m.transform_point3a(v)),
+                })
+            },
+        )
     }
 
     /// The world ray `world` in the layer's space: the same `t` reaches

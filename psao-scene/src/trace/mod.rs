@@ -4,8 +4,10 @@
 //! placed in the world as layers); [`top`] the BVH over the layers' world
 //! boxes that rays go through first; [`ao`] the tracer itself (parameters,
 //! the closest-hit and Laine-Karras estimators, results, and which traced
-//! points changed enough to send).
+//! points changed enough to send); [`open`] the test that finds a point
+//! whose rays can hit nothing, open without a ray cast.
 
 pub(crate) mod ao;
 pub(crate) mod geometry;
+pub(crate) mod open;
 pub(crate) mod top;

@@ -20,6 +20,7 @@ use obvhs::bvh2::builder::build_bvh2;
 use obvhs::ray::{Ray, RayHit};
 
 use super::geometry::{Layer, lead_ray};
+use super::open::HalfBall;
 
 /// Fewest boxed layers worth a top-level BVH; fewer are tested in turn.
 const MIN_BOXED: usize = 2;
@@ -154,6 +155,40 @@ impl TopLevel {
                 f32::NEG_INFINITY
             }
         })
+    }
+
+    /// Whether any triangle of `layers` may be hit by a ray of `region`
+    /// ([`Layer::may_reach`]), searched in the layers whose box meets the
+    /// region's.
+    pub(super) fn may_reach(&self, layers: &[Layer], region: &HalfBall) -> bool {
+        let bounds = region.bounds();
+        let cube = Aabb::new(Vec3A::from(bounds.0), Vec3A::from(bounds.1));
+        let search = |i: u32| {
+            let l = &layers[i as usize];
+            // A layer whose box is not finite is searched.
+            let apart = l
+                .world_bounds()
+                .is_some_and(|b| !padded(b).intersect_aabb(&cube));
+            !apart && l.may_reach(region)
+        };
+        if self.direct.iter().any(|&i| search(i)) {
+            return true;
+        }
+        let Some(bvh) = &self.bvh else {
+            return false;
+        };
+        let mut found = false;
+        bvh.aabb_traverse(cube, |bvh, n| {
+            let node = &bvh.nodes[n as usize];
+            found = (node.first_index..node.first_index + node.prim_count).any(|k| {
+                bvh.primitive_indices
+                    .get(k as usize)
+                    .and_then(|&p| self.boxed.get(p as usize))
+                    .is_some_and(|&i| search(i))
+            });
+            !found
+        });
+        found
     }
 
     /// Layers a ray is tested against without the BVH, and layers in it.

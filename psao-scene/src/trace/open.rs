@@ -1,0 +1,322 @@
+//! Points whose rays can hit nothing: a point's rays count hits out to
+//! the AO radius from their origin, in the hemisphere about its normal,
+//! so every hit lies in the *half ball* over the point ([`HalfBall`]).
+//! When no triangle reaches it, every ray misses and the point's AO is 1
+//! exactly, known without casting a ray
+//! ([`PointRays::surely_open`](super::ao::PointRays::surely_open)).
+//!
+//! The tests only rule triangles out; each allows a margin far above f32
+//! rounding of the rays' directions and of the hit tests (a
+//! ten-thousandth of the radius, and more far from the world's origin),
+//! and anything not finite is kept in. A triangle kept in is not
+//! necessarily hit: a point whose rays all miss may still be traced, but
+//! one said to be open is open.
+
+use glam::{Affine3A, Vec3A};
+use obvhs::aabb::Aabb;
+
+/// Where a point's rays can hit (see the module): within `reach` of
+/// `origin` and no more than `below` under the plane through `origin`
+/// normal to `normal`, along directions that rise from the plane at
+/// least as steeply as `rise` (the least cosine between a ray and the
+/// normal). In a layer's own space ([`HalfBall::placed`]) the normal is
+/// not a unit one and the reach covers the world's ball; only
+/// [`HalfBall::may_hold`] is used there.
+#[derive(Clone, Debug)]
+pub(crate) struct HalfBall {
+    origin: Vec3A,
+    normal: Vec3A,
+    reach: f32,
+    below: f32,
+    rise: f32,
+}
+
+impl HalfBall {
+    /// The half ball of rays from `origin` about the unit `normal` out to
+    /// `radius`, each rising at least `rise` (a cosine).
+    pub fn new(origin: Vec3A, normal: Vec3A, radius: f32, rise: f32) -> HalfBall {
+        let far = origin.abs().max_element() * (1.0 / (1u32 << 20) as f32);
+        let below = radius * 1e-4 + far;
+        HalfBall {
+            origin,
+            normal,
+            reach: radius + below,
+            below,
+            rise: rise.clamp(0.0, 1.0),
+        }
+    }
+
+    /// The box it lies in.
+    pub fn bounds(&self) -> (glam::Vec3, glam::Vec3) {
+        let r = Vec3A::splat(self.reach);
+        ((self.origin - r).into(), (self.origin + r).into())
+    }
+
+    /// The same region in the space of a layer placed by `to_world`
+    /// (`to_local` its inverse), for [`HalfBall::may_hold`]: heights above
+    /// the plane are the world's (the normal is carried by the transpose
+    /// of the linear part), and the reach grows by the most `to_local`
+    /// can stretch a length (at most its Frobenius norm).
+    pub fn placed(&self, to_world: &Affine3A, to_local: &Affine3A) -> HalfBall {
+        let m = to_local.matrix3;
+        let stretch =
+            (m.x_axis.length_squared() + m.y_axis.length_squared() + m.z_axis.length_squared())
+                .sqrt();
+        HalfBall {
+            origin: to_local.transform_point3a(self.origin),
+            normal: to_world.matrix3.transpose() * self.normal,
+            reach: self.reach * stretch,
+            below: self.below,
+            rise: self.rise,
+        }
+    }
+
+    /// Whether the box `b` may hold a point of the region: not when it
+    /// lies farther than the reach, nor wholly further below the plane.
+    pub fn may_hold(&self, b: &Aabb) -> bool {
+        let nearest = self.origin.max(b.min).min(b.max);
+        if (nearest - self.origin).length_squared() > self.reach * self.reach {
+            return false;
+        }
+        let centre = (b.min + b.max) * 0.5;
+        let top = (centre - self.origin).dot(self.normal)
+            + ((b.max - b.min) * 0.5).dot(self.normal.abs());
+        // A height that is not a number may hold.
+        let under = top < -self.below;
+        !under
+    }
+
+    /// Whether the triangle `a b c` (world space) may be hit by a ray of
+    /// the region: false only when all its corners lie below the plane,
+    /// its plane or its box lies farther than the reach, or no ray
+    /// rising as steeply as the rays do reaches its plane within the
+    /// reach.
+    pub fn may_reach(&self, [a, b, c]: [Vec3A; 3]) -> bool {
+        let (o, n) = (self.origin, self.normal);
+        if [a, b, c].iter().all(|&v| (v - o).dot(n) < -self.below) {
+            return false;
+        }
+        let nearest = o.max(a.min(b).min(c)).min(a.max(b).max(c));
+        if (nearest - o).length_squared() > self.reach * self.reach {
+            return false;
+        }
+        let face = (b - a).cross(c - a);
+        let area = face.length();
+        if area.is_nan() || area <= 0.0 {
+            // No plane to test (degenerate, or not finite).
+            return true;
+        }
+        let height = (o - a).dot(face) / area;
+        if height.abs() > self.reach {
+            return false;
+        }
+        // The face's unit normal on the origin's side: a ray meets the
+        // plane only heading against it, and within the reach only if
+        // steeply enough, by more than the cosine `least` allows.
+        let toward = face / area * height.signum();
+        let cos_b = n.dot(toward).clamp(-1.0, 1.0);
+        let (cos_a, sin_a) = (self.rise, (1.0 - self.rise * self.rise).max(0.0).sqrt());
+        // The least cosine between `toward` and a direction within the
+        // rays' cone (half angle `a` about the normal, `b` from
+        // `toward`): cos(b + a), or -1 once b + a passes a half turn.
+        let least = if cos_b < -cos_a {
+            -1.0
+        } else {
+            cos_b * cos_a - (1.0 - cos_b * cos_b).max(0.0).sqrt() * sin_a
+        };
+        let clear = (height.abs() - self.below).max(0.0) / self.reach;
+        let ruled_out = least - 1e-4 >= -clear;
+        !ruled_out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use glam::{Affine3A, Quat, Vec3};
+
+    use crate::random::uniform;
+    use crate::trace::ao::{AoParams, AoTracer, Estimator, PointRays};
+    use crate::trace::geometry::{Geometry, Layer, TriangleBvh};
+
+    fn params(radius: f32, rays: u32, estimator: Estimator) -> AoParams {
+        AoParams {
+            radius,
+            rays,
+            estimator,
+            ..AoParams::default()
+        }
+    }
+
+    /// One layer of `tris` (world space) as a wide or refittable BVH,
+    /// placed by `to_world` (its triangles given in its local space).
+    fn layer(tris: &[[Vec3; 3]], to_world: Option<Affine3A>, refittable: bool) -> Layer {
+        let local: Vec<[Vec3; 3]> = match to_world {
+            None => tris.to_vec(),
+            Some(m) => {
+                let back = m.inverse();
+                tris.iter()
+                    .map(|t| t.map(|v| back.transform_point3(v)))
+                    .collect()
+            }
+        };
+        let geometry = Geometry {
+            triangles: local,
+            masks: Vec::new(),
+        };
+        let bvh = Arc::new(if refittable {
+            TriangleBvh::refittable(geometry)
+        } else {
+            TriangleBvh::new(geometry)
+        });
+        match to_world {
+            None => Layer::world(bvh),
+            Some(m) => Layer::placed(bvh, m),
+        }
+    }
+
+    fn every_ray_misses(id: u32, at: Vec3, normal: Vec3, tracer: &AoTracer, p: &AoParams) -> bool {
+        let mut scores = vec![0.0; p.rays as usize];
+        tracer.trace_point_rays(id, at, normal, p, &mut scores, |_| true);
+        scores.iter().all(|&s| s == 1.0)
+    }
+
+    fn open(id: u32, at: Vec3, normal: Vec3, tracer: &AoTracer, p: &AoParams) -> bool {
+        PointRays::new(id, at, normal, p).is_some_and(|r| r.surely_open(tracer))
+    }
+
+    #[test]
+    fn a_point_with_nothing_in_reach_above_it_is_open_and_one_with_something_is_not() {
+        let p = params(0.6, 32, Estimator::ClosestHit);
+        let floor = [
+            [
+                Vec3::new(-5.0, 0.0, -5.0),
+                Vec3::new(5.0, 0.0, -5.0),
+                Vec3::new(5.0, 0.0, 5.0),
+            ],
+            [
+                Vec3::new(-5.0, 0.0, -5.0),
+                Vec3::new(5.0, 0.0, 5.0),
+                Vec3::new(-5.0, 0.0, 5.0),
+            ],
+        ];
+        let tile = |y: f32, x: f32| {
+            [
+                Vec3::new(x - 0.1, y, -0.1),
+                Vec3::new(x + 0.1, y, -0.1),
+                Vec3::new(x, y, 0.1),
+            ]
+        };
+        let at = Vec3::ZERO;
+        for (extra, want) in [
+            (None, true),
+            // Within reach above: may be hit.
+            (Some(tile(0.3, 0.0)), false),
+            // Above, but beyond the radius.
+            (Some(tile(0.7, 0.0)), true),
+            // Beside, beyond the radius.
+            (Some(tile(0.1, 0.9)), true),
+            // Under the floor, within the radius.
+            (Some(tile(-0.3, 0.0)), true),
+        ] {
+            let mut tris = floor.to_vec();
+            tris.extend(extra);
+            let tracer = AoTracer::from_layers(vec![layer(&tris, None, false)]);
+            assert_eq!(open(7, at, Vec3::Y, &tracer, &p), want, "{extra:?}");
+            if want {
+                assert!(every_ray_misses(7, at, Vec3::Y, &tracer, &p));
+            }
+        }
+    }
+
+    #[test]
+    fn a_point_said_open_has_no_ray_that_hits() {
+        // Triangles drawn about a point (its own tilted as an interpolated
+        // normal leaves it, others above, below, beside and beyond the
+        // radius), in world, placed, rotated and stretched layers, wide or
+        // refittable, near the origin of the world and far from it: where
+        // the test says open, every ray must miss.
+        let (mut said_open, mut traced, mut missed_anyway) = (0, 0, 0);
+        for case in 0..3000u32 {
+            let u = |k: u32| uniform(11, case, k);
+            let radius = [0.6, 0.01, 4.0][(u(0) * 3.0) as usize % 3];
+            let estimator = if u(1) < 0.5 {
+                Estimator::ClosestHit
+            } else {
+                Estimator::LaineKarras
+            };
+            let p = params(radius, [8, 16, 32][(u(2) * 3.0) as usize % 3], estimator);
+            let far = [0.0, 50.0, 3e3][(u(3) * 3.0) as usize % 3];
+            let at = Vec3::new(u(4) - 0.5, u(5) - 0.5, u(6) - 0.5) * far;
+            let normal = Vec3::new(u(7) - 0.5, u(8) - 0.5, u(9) - 0.5)
+                .try_normalize()
+                .unwrap_or(Vec3::Z);
+            let (t1, t2) = normal.any_orthonormal_pair();
+            // Its own triangle, tilted by up to 12 degrees.
+            let tilt = Quat::from_axis_angle(t1, (u(10) - 0.5) * 0.42);
+            let (a1, a2) = (tilt * t1, tilt * t2);
+            let size = radius * (0.05 + 2.0 * u(11));
+            let mut tris = vec![[
+                at - (a1 + a2) * size,
+                at + a1 * size * 2.0 - a2 * size,
+                at + a2 * size * 2.0,
+            ]];
+            for j in 0..(u(12) * 5.0) as u32 {
+                let w = |k: u32| u(20 + 8 * j + k);
+                // Height over the plane and distance: often near the
+                // radius and near the plane.
+                let h = radius * (w(0) * 2.4 - 1.0);
+                let side = radius * w(1) * 1.6;
+                let c = at + normal * h + (t1 * (w(2) - 0.5) + t2 * (w(3) - 0.5)) * 2.0 * side;
+                let s = radius * (0.02 + 0.6 * w(4));
+                tris.push([
+                    c + t1 * s,
+                    c + t2 * s + normal * s * (w(5) - 0.5),
+                    c - (t1 + t2) * s,
+                ]);
+            }
+            let placed = match (u(13) * 4.0) as u32 {
+                0 => None,
+                1 => Some(Affine3A::from_translation(Vec3::new(1.0, -2.0, 0.5) * far)),
+                2 => Some(Affine3A::from_rotation_translation(
+                    Quat::from_rotation_y(u(14) * 6.0) * Quat::from_rotation_x(u(15)),
+                    Vec3::new(u(16), 0.0, -1.0),
+                )),
+                _ => Some(Affine3A::from_scale_rotation_translation(
+                    Vec3::new(0.3 + u(14), 2.0, 0.5 + 3.0 * u(15)),
+                    Quat::from_rotation_z(u(16) * 6.0),
+                    Vec3::ZERO,
+                )),
+            };
+            // One layer, or two (the top level's BVH, with the own
+            // triangle apart).
+            let refit = u(17) < 0.5;
+            let layers = if u(18) < 0.5 {
+                vec![layer(&tris, placed, refit)]
+            } else {
+                vec![
+                    layer(&tris[..1], None, !refit),
+                    layer(&tris[1..], placed, refit),
+                    layer(&[], None, false),
+                ]
+            };
+            let tracer = AoTracer::from_layers(layers);
+            // Each case its own rays (the steepness of the lowest varies).
+            let misses = every_ray_misses(case, at, normal, &tracer, &p);
+            if open(case, at, normal, &tracer, &p) {
+                said_open += 1;
+                assert!(misses, "case {case}: said open, but a ray hits");
+            } else {
+                traced += 1;
+                missed_anyway += usize::from(misses);
+            }
+        }
+        // Both answers are common, and so are points traced whose rays
+        // all miss (what the test cannot rule out).
+        assert!(
+            said_open > 500 && traced > 500 && missed_anyway > 50,
+            "{said_open} {traced} {missed_anyway}"
+        );
+    }
+}
