@@ -288,10 +288,7 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
             settle_steps,
             lead,
             budget,
-            // The CPU's kept scores and points known open cost it fewer
-            // rays than the GPU, which would change a budget's choices.
             ray_reuse: budget == RayBudget::Unlimited,
-            skip_open: budget == RayBudget::Unlimited,
             ..PipelineConfig::default()
         };
         let mut cpu = Pipeline::new(scene.clone(), config.clone()).unwrap();

@@ -194,33 +194,47 @@ fn skipping_changes_nothing_clients_see() {
 
 #[test]
 fn points_known_open_cast_no_ray_and_send_the_same_frames() {
-    // A moving point with nothing within reach of its rays is open
-    // without a ray: the same frames, byte for byte, and exactly its rays
-    // fewer cast.
+    // A point with nothing within reach of its rays is open without a
+    // ray: the same frames, byte for byte, and exactly its rays fewer
+    // cast, with a ray budget too (its choices stand).
+    for budget in [RayBudget::Unlimited, RayBudget::Rays(800)] {
+        points_known_open_under(budget);
+    }
+}
+
+fn points_known_open_under(budget: RayBudget) {
     let run = |skip_open: bool| {
         let config = PipelineConfig {
             skip_open,
+            budget,
             ..quick()
         };
         let mut p = Pipeline::new(default_scene(), config).unwrap();
-        let (mut frames, mut rays, mut open) = (Vec::new(), 0, 0);
+        let (mut frames, mut rays, mut open, mut waited) = (Vec::new(), 0, 0, 0);
         for _ in 0..12 {
             let (frame, r) = p.step(1.0 / 20.0).unwrap();
             frames.push(frame.map(|f| f.bytes));
             rays += r.rays;
             open += r.open;
+            waited += r.waiting;
         }
-        (frames, rays, open)
+        (frames, rays, open, waited)
     };
-    let (frames, rays, open) = run(true);
-    let (frames_traced, rays_traced, none) = run(false);
+    let (frames, rays, open, waited) = run(true);
+    let (frames_traced, rays_traced, none, _) = run(false);
+    // The budget is tight enough that points wait.
+    assert_eq!(waited > 0, budget != RayBudget::Unlimited, "{waited}");
     assert!(
         frames == frames_traced,
-        "knowing points open changed a frame"
+        "{budget:?}: knowing points open changed a frame"
     );
     assert_eq!(none, 0);
-    assert!(open > 50, "{open} points known open");
-    assert_eq!(rays + open * u64::from(quick().ao.rays), rays_traced);
+    assert!(open > 20, "{budget:?}: {open} points known open");
+    assert_eq!(
+        rays + open * u64::from(quick().ao.rays),
+        rays_traced,
+        "{budget:?}"
+    );
 }
 
 /// Where point `id` of `table` is stored, decoded to instance-local space.

@@ -163,6 +163,11 @@ pub struct Settings {
     /// ([`PipelineConfig::ray_reuse`](psao_scene::PipelineConfig::ray_reuse)),
     /// or (false: the baseline) every ray of a point they trace.
     pub ray_reuse: bool,
+    /// PSAO servers on the CPU backend know a point open without a ray
+    /// where no triangle lies within reach of its rays
+    /// ([`PipelineConfig::skip_open`](psao_scene::PipelineConfig::skip_open)),
+    /// or (false: the baseline) trace it.
+    pub skip_open: bool,
     /// Which measured frames are saved as images.
     pub image_frames: ImageFrames,
 }
@@ -269,6 +274,7 @@ impl Settings {
             movers_whole: false,
             early: false,
             ray_reuse: true,
+            skip_open: true,
             image_frames: ImageFrames::List(vec![0]),
         }
     }
@@ -766,6 +772,7 @@ fn measure_psao(
     let period = 1.0 / rate as f64;
     config.settle_steps = s.settle_steps;
     config.ray_reuse = s.ray_reuse;
+    config.skip_open = s.skip_open;
     if s.lead {
         config.lead = (period + s.network_ms as f64 / 1e3) as f32;
     }

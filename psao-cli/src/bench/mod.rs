@@ -168,6 +168,12 @@ pub struct BenchArgs {
     /// costs all its rays).
     #[arg(long)]
     no_ray_reuse: bool,
+    /// Trace a point even where no triangle lies within reach of its rays
+    /// (the baseline: such a point is otherwise known open without a ray;
+    /// frames are the same unbudgeted, under --ray-budget it then costs
+    /// its rays).
+    #[arg(long)]
+    no_skip_open: bool,
     /// Under --ray-budget, trace a moving instance's own points every tick
     /// it moves, whatever the budget (no AO lagging its transform).
     #[arg(long)]
@@ -223,6 +229,7 @@ impl BenchArgs {
         settings.max_wait = self.max_wait;
         settings.max_wait_limit = self.max_wait_limit;
         settings.ray_reuse = !self.no_ray_reuse;
+        settings.skip_open = !self.no_skip_open;
         settings.movers_every_step = self.movers_every_frame;
         settings.movers_whole = self.movers_whole;
         settings.early = self.early_decisions;

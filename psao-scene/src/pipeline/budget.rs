@@ -45,13 +45,15 @@
 //! A point costs the rays it traces. On the CPU backend with ray reuse
 //! that is only the rays motion reached (the others' scores are kept),
 //! and with early decisions a moving point that may stop early costs what
-//! such points cast on average in the last step; a point known open (no
-//! triangle within reach of its rays, [`PipelineConfig::skip_open`])
-//! costs none. A backend without kept scores (psao-gpu's) traces every
-//! ray of a point it traces, so the same budget takes fewer points there.
-//! With the same costs (ray reuse, points known open and early decisions
-//! off) the backends take the same decisions and send the same frames,
-//! byte for byte (psao-gpu's tests check it).
+//! such points cast on average in the last step. (A point chosen in full
+//! may then turn out to be open without a ray,
+//! [`PipelineConfig::skip_open`]: it casts none, but was chosen at the
+//! cost of its rays, so the choices do not depend on it.) A backend
+//! without kept scores (psao-gpu's) traces every ray of a point it
+//! traces, so the same budget takes fewer points there. With the same
+//! costs (ray reuse and early decisions off) the backends take the same
+//! decisions and send the same frames, byte for byte (psao-gpu's tests
+//! check it).
 //!
 //! [`PipelineConfig::max_wait`]: super::config::PipelineConfig::max_wait
 //! [`PipelineConfig::max_wait_limit`]: super::config::PipelineConfig::max_wait_limit

@@ -6,10 +6,13 @@
 use std::time::Instant;
 
 use super::Pipeline;
+use rayon::prelude::*;
+
 use super::budget::{Candidate, REPLAN_WAITS, RayBudget, due};
 use super::dirty::{Batch, StepMotion};
 use super::plan::Plan;
 use super::ray_cache::key;
+use crate::trace::ao::{AoTracer, PointRays};
 
 /// A step's budget candidates: the planned points that trace and the
 /// waiting points apart, merged in (instance, point) order.
@@ -34,6 +37,53 @@ pub(super) struct Candidates {
 }
 
 impl Pipeline {
+    /// Of the `chosen` candidates, those traced in full whose last trace
+    /// came out open and whose rays can hit nothing
+    /// ([`PointRays::surely_open`] against `tracer`, this step's scene):
+    /// planned again as [`Plan::Open`], traced without casting a ray.
+    /// Found after choosing, so that the test, a good part of a trace, is
+    /// spent on points traced only, and only where the last trace came
+    /// out open: a point that was shaded seldom has nothing within reach.
+    /// The budget's choices stand (such a point was chosen at the cost of
+    /// its rays): frames are the same as with every ray cast, and the
+    /// step takes less time. With [`PipelineConfig::skip`] and
+    /// [`PipelineConfig::skip_open`].
+    ///
+    /// [`PipelineConfig::skip`]: super::config::PipelineConfig::skip
+    /// [`PipelineConfig::skip_open`]: super::config::PipelineConfig::skip_open
+    pub(super) fn known_open(
+        &self,
+        tracer: &AoTracer,
+        batch: &Batch,
+        plans: &mut [Plan],
+        cands: &Candidates,
+        chosen: &[bool],
+    ) {
+        if !(self.config.skip && self.config.skip_open) {
+            return;
+        }
+        let ao = self.config.ao;
+        let todo: Vec<usize> = (cands.merged.iter().zip(chosen))
+            .filter(|&(&(apart, _), &c)| c && !apart)
+            .map(|(&(_, j), _)| cands.at[j])
+            .filter(|&b| {
+                let (i, k) = batch.owner[b];
+                matches!(plans[b], Plan::Full { .. })
+                    && self.instances[i].last_ao.get(k as usize) == Some(&u8::MAX)
+            })
+            .collect();
+        let open: Vec<bool> = todo
+            .par_iter()
+            .map(|&b| {
+                PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao)
+                    .is_some_and(|r| r.surely_open(tracer))
+            })
+            .collect();
+        for (&b, _) in todo.iter().zip(&open).filter(|(_, o)| **o) {
+            plans[b] = Plan::Open;
+        }
+    }
+
     /// Adds the waiting points to the step's `lists` (ascending, each
     /// once), except those that need a full trace, of instances that did
     /// not move and with no kept scores: their plan is known (every ray,
@@ -138,7 +188,8 @@ impl Pipeline {
                     continue;
                 }
                 Plan::Full { reached } => *reached,
-                Plan::Open => rays,
+                // (Found only after choosing: see `known_open`.)
+                Plan::Open => 0,
                 Plan::Rays { reached, .. } => reached.count(),
             };
             let cost = plan.cost(rays);

@@ -125,15 +125,14 @@ pub struct PipelineConfig {
     /// or every point within reach of motion is traced in full (false:
     /// the baseline).
     pub ray_reuse: bool,
-    /// A point that motion reached and that would be traced in full (a
-    /// moving instance's, or any without [`ray_reuse`](Self::ray_reuse))
-    /// is not traced when no triangle lies where its rays can hit
+    /// A point chosen for a full trace whose last trace came out open
+    /// casts no ray when no triangle lies where its rays can hit
     /// ([`PointRays::surely_open`](crate::PointRays::surely_open)): its
-    /// AO is 1, as its full trace's, bit for bit, so frames are the same,
-    /// and under a ray budget it costs no rays (true); or it is traced
-    /// (false: the baseline). Only with the CPU tracer and
-    /// [`skip`](Self::skip): a backend (psao-gpu's) traces such a point,
-    /// to the same AO, so under a budget it may put off other points.
+    /// AO is 1, as its full trace's, bit for bit (true); or it casts them
+    /// (false: the baseline). Frames are the same either way, with a ray
+    /// budget too (such a point is chosen at the cost of its rays); the
+    /// step takes less time. Only with the CPU tracer and
+    /// [`skip`](Self::skip): a backend (psao-gpu's) casts them.
     pub skip_open: bool,
     /// Most bytes the kept ray scores take (64 MiB: about 400,000 points
     /// of 32 rays); beyond it, points are traced in full.

@@ -154,8 +154,8 @@ impl Pipeline {
         let (apart, mut touched) = self.split_waiting(&mut lists, motion);
         // What clients hold is looked up for the points traced only.
         let batch = self.batch_unheld(&lists);
-        let (plans, learnt): (Vec<Plan>, Vec<Learnt>) =
-            self.plan(&batch, motion, tracer).into_iter().unzip();
+        let (mut plans, learnt): (Vec<Plan>, Vec<Learnt>) =
+            self.plan(&batch, motion).into_iter().unzip();
         self.remember_envelope(&batch, learnt);
         let budget = self.step_budget(motion, started);
         // From here to casting (choosing, the waiting list, what clients
@@ -174,6 +174,9 @@ impl Pipeline {
             }
         }
         let (chosen, _) = select(&cands.all, budget, bound);
+        if let Some(t) = tracer {
+            self.known_open(t, &batch, &mut plans, &cands, &chosen);
+        }
         // Overdue points, and the rays of those that really waited: what
         // moves the bound.
         let (overdue, forced) = cands

@@ -12,7 +12,7 @@ use super::budget::RayBudget;
 use super::dirty::{Batch, StepMotion};
 use super::ray_cache::key;
 use super::reach::{Among, RayMask, ReachQuery, reached_rays};
-use crate::trace::ao::{AoTracer, PointRays};
+use crate::trace::ao::PointRays;
 
 /// How one point is traced this step.
 #[derive(Clone, Debug)]
@@ -24,7 +24,8 @@ pub(super) enum Plan {
     Full { reached: u32 },
     /// In full, but no triangle lies where its rays can hit
     /// ([`PointRays::surely_open`]): every ray scores 1, known without
-    /// casting one.
+    /// casting one. Found for chosen points only, after choosing
+    /// ([`Pipeline::known_open`](super::Pipeline::known_open)).
     Open,
     /// Only `need` (motion's `reached` ones and those it reached while
     /// the point waited), the others' scores kept.
@@ -84,17 +85,8 @@ impl Pipeline {
     /// full where it has none; not at all when none is reached and the
     /// point does not wait. Only a point's rays that reach the envelope
     /// are tested, once they are known; with each plan, what was learnt
-    /// of the point's rays against the envelope. With `tracer` (the CPU
-    /// tracer of this step's scene) and [`skip_open`], a point to be
-    /// traced in full whose rays can hit nothing is [`Plan::Open`].
-    ///
-    /// [`skip_open`]: super::config::PipelineConfig::skip_open
-    pub(super) fn plan(
-        &self,
-        batch: &Batch,
-        motion: &StepMotion,
-        tracer: Option<&AoTracer>,
-    ) -> Vec<(Plan, Learnt)> {
+    /// of the point's rays against the envelope.
+    pub(super) fn plan(&self, batch: &Batch, motion: &StepMotion) -> Vec<(Plan, Learnt)> {
         let ao = self.config.ao;
         let rays = ao.rays;
         // Without skipping every point is traced in full (the baseline).
@@ -104,8 +96,6 @@ impl Pipeline {
         let (envelope_rays, masks) = (&self.envelope_rays, &self.envelope_masks);
         let rested = &self.early_rested;
         let unlimited = self.config.budget == RayBudget::Unlimited;
-        let open_test = tracer.filter(|_| self.config.skip && self.config.skip_open);
-        let last_ao: Vec<&[u8]> = self.instances.iter().map(|s| &s.last_ao[..]).collect();
         (0..batch.ids.len())
             .into_par_iter()
             .map(|b| {
@@ -113,19 +103,7 @@ impl Pipeline {
                 let key = key(i, k);
                 let full = (Plan::Full { reached: rays }, Learnt::Nothing);
                 if !reuse || motion.changed[i] || rested.binary_search(&key).is_ok() {
-                    // Tested only where the last trace came out open: a
-                    // point that was shaded seldom has nothing in reach,
-                    // and the test costs a good part of a trace.
-                    let was_open = last_ao[i].get(k as usize) == Some(&u8::MAX);
-                    let open = open_test.filter(|_| was_open).is_some_and(|t| {
-                        PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao)
-                            .is_some_and(|r| r.surely_open(t))
-                    });
-                    return if open {
-                        (Plan::Open, Learnt::Nothing)
-                    } else {
-                        full
-                    };
+                    return full;
                 }
                 let waiting = waiting_list.get(key);
                 let entry = if cache { ray_cache.get(key) } else { None };

@@ -477,10 +477,15 @@ impl Layer {
             |b| local.may_hold(b),
             |t| {
                 let corners = [t.v0, t.v1, t.v2];
-                region.may_reach(match &self.to_world {
-                    None => corners,
-                    Some(m) => corners.map(|v| m.transform_point3a(v)),
-                })
+                match &self.to_world {
+                    None => region.may_reach(corners),
+                    // Most triangles near a point lie under its plane:
+                    // ruled out before their corners are moved.
+                    Some(m) => {
+                        !local.under(corners)
+                            && region.may_reach(corners.map(|v| m.transform_point3a(v)))
+                    }
+                }
             },
         )
     }

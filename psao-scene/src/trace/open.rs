@@ -86,16 +86,24 @@ impl HalfBall {
         !under
     }
 
+    /// Whether all the corners `v` lie further below the plane than the
+    /// margin (the triangle then lies below it): in the region's own
+    /// space, world or placed (heights are the world's in both).
+    pub fn under(&self, v: [Vec3A; 3]) -> bool {
+        v.iter()
+            .all(|&v| (v - self.origin).dot(self.normal) < -self.below)
+    }
+
     /// Whether the triangle `a b c` (world space) may be hit by a ray of
-    /// the region: false only when all its corners lie below the plane,
-    /// its plane or its box lies farther than the reach, or no ray
+    /// the region: false only when it lies [under](Self::under) the
+    /// plane, its plane or its box lies farther than the reach, or no ray
     /// rising as steeply as the rays do reaches its plane within the
     /// reach.
     pub fn may_reach(&self, [a, b, c]: [Vec3A; 3]) -> bool {
-        let (o, n) = (self.origin, self.normal);
-        if [a, b, c].iter().all(|&v| (v - o).dot(n) < -self.below) {
+        if self.under([a, b, c]) {
             return false;
         }
+        let o = self.origin;
         let nearest = o.max(a.min(b).min(c)).min(a.max(b).max(c));
         if (nearest - o).length_squared() > self.reach * self.reach {
             return false;
@@ -114,7 +122,7 @@ impl HalfBall {
         // plane only heading against it, and within the reach only if
         // steeply enough, by more than the cosine `least` allows.
         let toward = face / area * height.signum();
-        let cos_b = n.dot(toward).clamp(-1.0, 1.0);
+        let cos_b = self.normal.dot(toward).clamp(-1.0, 1.0);
         let (cos_a, sin_a) = (self.rise, (1.0 - self.rise * self.rise).max(0.0).sqrt());
         // The least cosine between `toward` and a direction within the
         // rays' cone (half angle `a` about the normal, `b` from

@@ -163,7 +163,7 @@ impl TopLevel {
     pub(super) fn may_reach(&self, layers: &[Layer], region: &HalfBall) -> bool {
         let bounds = region.bounds();
         let cube = Aabb::new(Vec3A::from(bounds.0), Vec3A::from(bounds.1));
-        let search = |i: u32| {
+        let direct = |&i: &u32| {
             let l = &layers[i as usize];
             // A layer whose box is not finite is searched.
             let apart = l
@@ -171,7 +171,7 @@ impl TopLevel {
                 .is_some_and(|b| !padded(b).intersect_aabb(&cube));
             !apart && l.may_reach(region)
         };
-        if self.direct.iter().any(|&i| search(i)) {
+        if self.direct.iter().any(direct) {
             return true;
         }
         let Some(bvh) = &self.bvh else {
@@ -184,7 +184,8 @@ impl TopLevel {
                 bvh.primitive_indices
                     .get(k as usize)
                     .and_then(|&p| self.boxed.get(p as usize))
-                    .is_some_and(|&i| search(i))
+                    // Its (padded) box meets the region's: searched.
+                    .is_some_and(|&i| layers[i as usize].may_reach(region))
             });
             !found
         });
