@@ -918,3 +918,48 @@ fn points_near_a_sweeping_change_are_traced_before_the_rest_waits() {
     let err = bar_out_of_a_well_error();
     assert!(err <= 5.5 / 255.0, "off by {} steps", err * 255.0);
 }
+
+/// Frames and early stops of the box by a wall, pushed back and forth
+/// for 40 steps, with early decisions under `budget`.
+fn known_open_run(skip_open: bool, budget: RayBudget) -> (Vec<Option<Vec<u8>>>, u64, u64) {
+    let (scene, b) = box_by_a_wall();
+    let mut c = PipelineConfig {
+        density: 128.0,
+        early: Some(EarlyDecisions::default()),
+        budget,
+        skip_open,
+        ..PipelineConfig::default()
+    };
+    c.ao.rays = 32;
+    let mut p = Pipeline::new(scene, c).unwrap();
+    let (mut frames, mut open, mut early) = (Vec::new(), 0, 0);
+    for t in 0..40 {
+        let x = -1.2 + 0.06 * (t % 30) as f32;
+        p.place_instance(b, Affine3A::from_translation(Vec3::new(x, 0.0, 0.0)))
+            .unwrap();
+        let (f, r) = p.step(1.0 / 30.0).unwrap();
+        frames.push(f.map(|f| f.bytes.to_vec()));
+        open += r.open;
+        early += r.early;
+    }
+    (frames, open, early)
+}
+
+#[test]
+fn points_known_open_decide_early_as_their_rays_would() {
+    // A moving point known open takes its early decision on scores of 1,
+    // what its rays would give: the same stops, the same price for the
+    // budget, the same frames.
+    for budget in [
+        RayBudget::Unlimited,
+        RayBudget::Rays(3000),
+        RayBudget::Rays(8000),
+    ] {
+        let (frames, open, early) = known_open_run(true, budget);
+        let (frames_cast, none, early_cast) = known_open_run(false, budget);
+        assert!(open > 0 && none == 0, "{budget:?}: {open}");
+        assert_eq!(early, early_cast, "{budget:?}: early stops");
+        let first = frames.iter().zip(&frames_cast).position(|(a, b)| a != b);
+        assert_eq!(first, None, "{budget:?}: first frame that differs");
+    }
+}

@@ -195,19 +195,39 @@ fn skipping_changes_nothing_clients_see() {
 #[test]
 fn points_known_open_cast_no_ray_and_send_the_same_frames() {
     // A point with nothing within reach of its rays is open without a
-    // ray: the same frames, byte for byte, and exactly its rays fewer
-    // cast, with a ray budget too (its choices stand).
-    for budget in [RayBudget::Unlimited, RayBudget::Rays(800)] {
-        points_known_open_under(budget);
+    // ray: the same frames, byte for byte, with a ray budget too (its
+    // choices stand), with early decisions (it decides as its rays
+    // would) and with settling; without early decisions exactly its rays
+    // fewer are cast.
+    let early = Some(EarlyDecisions::default());
+    for (budget, early, settle_steps) in [
+        (RayBudget::Unlimited, None, 0),
+        (RayBudget::Rays(800), None, 0),
+        (RayBudget::Unlimited, None, 2),
+        (RayBudget::Unlimited, early, 0),
+        (RayBudget::Rays(800), early, 0),
+    ] {
+        let config = PipelineConfig {
+            budget,
+            early,
+            settle_steps,
+            ..quick()
+        };
+        points_known_open_under(config);
     }
 }
 
-fn points_known_open_under(budget: RayBudget) {
+fn points_known_open_under(config: PipelineConfig) {
+    let what = format!(
+        "{:?}, early {}, settling {}",
+        config.budget,
+        config.early.is_some(),
+        config.settle_steps
+    );
     let run = |skip_open: bool| {
         let config = PipelineConfig {
             skip_open,
-            budget,
-            ..quick()
+            ..config.clone()
         };
         let mut p = Pipeline::new(default_scene(), config).unwrap();
         let (mut frames, mut rays, mut open, mut waited) = (Vec::new(), 0, 0, 0);
@@ -223,18 +243,27 @@ fn points_known_open_under(budget: RayBudget) {
     let (frames, rays, open, waited) = run(true);
     let (frames_traced, rays_traced, none, _) = run(false);
     // The budget is tight enough that points wait.
-    assert_eq!(waited > 0, budget != RayBudget::Unlimited, "{waited}");
+    assert_eq!(
+        waited > 0,
+        config.budget != RayBudget::Unlimited,
+        "{what}: {waited}"
+    );
     assert!(
         frames == frames_traced,
-        "{budget:?}: knowing points open changed a frame"
+        "{what}: knowing points open changed a frame"
     );
     assert_eq!(none, 0);
-    assert!(open > 20, "{budget:?}: {open} points known open");
-    assert_eq!(
-        rays + open * u64::from(quick().ao.rays),
-        rays_traced,
-        "{budget:?}"
-    );
+    assert!(open > 20, "{what}: {open} points known open");
+    if config.early.is_none() {
+        assert_eq!(
+            rays + open * u64::from(config.ao.rays),
+            rays_traced,
+            "{what}"
+        );
+    } else {
+        // Early decisions would have cast some of an open point's rays.
+        assert!(rays < rays_traced, "{what}: {rays} {rays_traced}");
+    }
 }
 
 /// Where point `id` of `table` is stored, decoded to instance-local space.

@@ -168,10 +168,10 @@ pub struct BenchArgs {
     /// costs all its rays).
     #[arg(long)]
     no_ray_reuse: bool,
-    /// Trace a point even where no triangle lies within reach of its rays
+    /// Cast a point's rays even where no triangle lies within their reach
     /// (the baseline: such a point is otherwise known open without a ray;
-    /// frames are the same unbudgeted, under --ray-budget it then costs
-    /// its rays).
+    /// the frames are the same, and so are a fixed --ray-budget's
+    /// choices).
     #[arg(long)]
     no_skip_open: bool,
     /// Under --ray-budget, trace a moving instance's own points every tick

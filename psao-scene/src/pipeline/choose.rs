@@ -37,15 +37,17 @@ pub(super) struct Candidates {
 }
 
 impl Pipeline {
-    /// Of the `chosen` candidates, those traced in full whose last trace
-    /// came out open and whose rays can hit nothing
+    /// Of the `chosen` candidates, those traced in full whose last AO was
+    /// open (their last trace's, or what clients held when it stopped
+    /// early) and whose rays can hit nothing
     /// ([`PointRays::surely_open`] against `tracer`, this step's scene):
     /// planned again as [`Plan::Open`], traced without casting a ray.
     /// Found after choosing, so that the test, a good part of a trace, is
     /// spent on points traced only, and only where the last trace came
     /// out open: a point that was shaded seldom has nothing within reach.
     /// The budget's choices stand (such a point was chosen at the cost of
-    /// its rays): frames are the same as with every ray cast, and the
+    /// its rays, and with early decisions decides on scores of 1, as its
+    /// rays would): frames are the same as with every ray cast, and the
     /// step takes less time. With [`PipelineConfig::skip`] and
     /// [`PipelineConfig::skip_open`].
     ///

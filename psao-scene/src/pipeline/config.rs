@@ -129,9 +129,11 @@ pub struct PipelineConfig {
     /// casts no ray when no triangle lies where its rays can hit
     /// ([`PointRays::surely_open`](crate::PointRays::surely_open)): its
     /// AO is 1, as its full trace's, bit for bit (true); or it casts them
-    /// (false: the baseline). Frames are the same either way, with a ray
-    /// budget too (such a point is chosen at the cost of its rays); the
-    /// step takes less time. Only with the CPU tracer and
+    /// (false: the baseline). Frames are the same either way, with a
+    /// fixed ray budget and early decisions too (such a point is chosen
+    /// at the cost of its rays, and decides as its rays would); the step
+    /// takes less time, which an automatic budget measures. Only with the
+    /// CPU tracer and
     /// [`skip`](Self::skip): a backend (psao-gpu's) casts them.
     pub skip_open: bool,
     /// Most bytes the kept ray scores take (64 MiB: about 400,000 points

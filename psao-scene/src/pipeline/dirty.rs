@@ -274,19 +274,19 @@ impl Pipeline {
     ) -> Result<(ChangedPoints, u64), SceneError> {
         let th = self.config.thresholds;
         let steps = self.config.settle_steps;
-        // Each point's last trace, kept (planning reads it too).
-        let repeated: Vec<bool> = batch
-            .owner
-            .iter()
-            .zip(&values.ao)
-            .map(|(&(i, k), &ao)| {
-                let q = quantize_ao(ao);
-                match self.instances[i].last_ao.get_mut(k as usize) {
-                    Some(last) => std::mem::replace(last, q) == q,
-                    None => false,
-                }
-            })
-            .collect();
+        // Each point's last trace, kept (choosing reads it too), and
+        // whether it repeated the one before (for settling).
+        let mut repeated = Vec::with_capacity(if steps > 0 { batch.owner.len() } else { 0 });
+        for (&(i, k), &ao) in batch.owner.iter().zip(&values.ao) {
+            let q = quantize_ao(ao);
+            let same = match self.instances[i].last_ao.get_mut(k as usize) {
+                Some(last) => std::mem::replace(last, q) == q,
+                None => false,
+            };
+            if steps > 0 {
+                repeated.push(same);
+            }
+        }
         if steps == 0 {
             // Nothing settles.
             let out = ChangedPoints::compare(values, &batch.sent, &th)?;
@@ -591,7 +591,7 @@ impl Pipeline {
             let (i, k) = batch.owner[d.b];
             if let Some(kept) = d.kept.take() {
                 eligible += 1;
-                eligible_rays += d.cast;
+                eligible_rays += d.priced;
                 if d.stopped {
                     self.last_early.push(key(i, k));
                 }
@@ -777,6 +777,9 @@ struct Traced {
     kept: Option<Kept>,
     /// Whether it stopped early.
     stopped: bool,
+    /// Rays it would have cast had it not been known open (`cast`
+    /// otherwise): what the budget prices a moving point at.
+    priced: u64,
 }
 
 impl Traced {
@@ -788,6 +791,7 @@ impl Traced {
             scores,
             kept: None,
             stopped: false,
+            priced: cast,
         }
     }
 }
@@ -817,8 +821,8 @@ struct Moving<'a> {
 /// and could go unsent (clients hold a word for it that its position and
 /// normal alone would not send again); in full otherwise, keeping the
 /// scores for the next time. The AO is the full trace's, bit for bit,
-/// unless it stopped early. A point known open casts no ray: its scores
-/// are all 1, as its full trace's.
+/// unless it stopped early. A point known open casts no ray, its scores
+/// all 1, and decides as its rays would have: the same frames.
 fn trace_moving(
     tracer: &AoTracer,
     batch: &Batch,
@@ -841,7 +845,7 @@ fn trace_moving(
     let could_stay = sent.word.is_allocated() && !sent.changed(held, th);
     let rays = PointRays::new(id, p, n, ao);
     match (kept, &rays) {
-        (Some(mut kept), Some(r)) if could_stay && kept.stops < test.max_stops && !open => {
+        (Some(mut kept), Some(r)) if could_stay && kept.stops < test.max_stops => {
             // Rays that turned with the point since its scores were kept
             // change more, and more at once, than rays that held still.
             let mut test = *test;
@@ -849,8 +853,9 @@ fn trace_moving(
                 test.sd_floor = test.sd_floor.max(test.sd_floor_turning);
             }
             kept.normal = n;
+            // A point known open decides as its rays would: each scores 1.
             let out = trace_early(order, rot, &mut kept, held, tolerance, &test, |k| {
-                r.score(tracer, k)
+                if open { 1.0 } else { r.score(tracer, k) }
             });
             kept.stops = if out.value.is_some() {
                 0
@@ -860,7 +865,8 @@ fn trace_moving(
             Traced {
                 b,
                 value: out.value.unwrap_or(held),
-                cast: out.cast as u64,
+                cast: if open { 0 } else { out.cast as u64 },
+                priced: out.cast as u64,
                 scores: None,
                 stopped: out.value.is_none(),
                 kept: Some(kept),
@@ -885,6 +891,7 @@ fn trace_moving(
                 b,
                 value: ao_of_scores(&scores),
                 cast,
+                priced: if open { u64::from(ao.rays) } else { cast },
                 scores: None,
                 stopped: false,
                 kept: Some(Kept {

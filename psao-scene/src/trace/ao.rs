@@ -19,8 +19,6 @@ use super::open::HalfBall;
 use super::top::TopLevel;
 use crate::error::{SceneError, check_param};
 use crate::morton::morton_order;
-use std::ops::Sub;
-
 use crate::random::{hash, uniform};
 
 /// The golden ratio's fractional part in 32-bit fixed point: the step of a
@@ -468,9 +466,10 @@ impl PointRays {
     /// can hit in (see `trace::open`). A triangle the test cannot rule
     /// out (alpha-mask holes and all) keeps the point traced, so a point
     /// whose rays all miss may still be traced; one said to be open is
-    /// open. The ray offset keeps the point's own triangle out as long
-    /// as its bias is above the test's margin (a ten-thousandth of the
-    /// radius; the default bias is well above it).
+    /// open. The point's own triangle lies a ray offset below the rays'
+    /// origin: where that is within the test's margin (a bias of nearly
+    /// nothing, or coordinates thousands of radii from the world's
+    /// origin), it keeps the point traced.
     pub fn surely_open(&self, tracer: &AoTracer) -> bool {
         let region = HalfBall::new(
             self.origin,
@@ -486,13 +485,13 @@ impl PointRays {
     /// direction lies within the cone of that cosine about the normal.
     fn least_rise(&self) -> f32 {
         let rays = self.p.rays;
-        (0..rays)
+        ((0..rays)
             .map(|k| {
                 let r1 = (k as f32 + uniform(self.p.seed, self.id, 3 * k)) / rays as f32;
                 (1.0 - r1).max(0.0).sqrt()
             })
             .fold(1.0f32, f32::min)
-            .sub(1e-5)
+            - 1e-5)
             .max(0.0)
     }
 

@@ -469,21 +469,25 @@ impl Layer {
     /// [`HalfBall`]): walked in the layer's space down the boxes that may
     /// meet it, each triangle then tested with its corners in world space.
     pub(super) fn may_reach(&self, region: &HalfBall) -> bool {
-        let local = match (&self.to_world, &self.to_local) {
-            (Some(w), Some(l)) => region.placed(w, l),
-            _ => region.clone(),
+        let (local, world) = match (&self.to_world, &self.to_local) {
+            (Some(w), Some(l)) => {
+                // The layer's own rounding, allowed in world space too.
+                let (local, extra) = region.placed(w, l);
+                (local, region.widened(extra))
+            }
+            _ => (region.clone(), region.clone()),
         };
         self.bvh.any_near(
             |b| local.may_hold(b),
             |t| {
                 let corners = [t.v0, t.v1, t.v2];
                 match &self.to_world {
-                    None => region.may_reach(corners),
+                    None => world.may_reach(corners),
                     // Most triangles near a point lie under its plane:
                     // ruled out before their corners are moved.
                     Some(m) => {
                         !local.under(corners)
-                            && region.may_reach(corners.map(|v| m.transform_point3a(v)))
+                            && world.may_reach(corners.map(|v| m.transform_point3a(v)))
                     }
                 }
             },
