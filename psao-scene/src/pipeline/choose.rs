@@ -5,9 +5,9 @@
 
 use std::time::Instant;
 
-use super::Pipeline;
 use rayon::prelude::*;
 
+use super::Pipeline;
 use super::budget::{Candidate, REPLAN_WAITS, RayBudget, due};
 use super::dirty::{Batch, StepMotion};
 use super::plan::Plan;

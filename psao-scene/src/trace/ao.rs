@@ -407,10 +407,10 @@ impl PointRays {
         // of any run of k spread evenly around the normal too. Drawing r2
         // at random per ray left clumps and gaps in azimuth, and their
         // noise (BENCHMARKS.md, issue 15, the ray lattice).
-        // `rays_near` relies on ray k's r1 (its squared sine of
-        // elevation) lying in the stratum [k, k + 1) / rays: a change of
-        // pattern must change it too.
-        let r1 = (k as f32 + uniform(p.seed, self.id, 3 * k)) / p.rays as f32;
+        // `rays_near` and `least_rise` rely on ray k's r1 (its squared
+        // sine of elevation) lying in the stratum [k, k + 1) / rays: a
+        // change of pattern must change them too.
+        let r1 = self.r1(k);
         let r2 =
             (k.wrapping_mul(GOLDEN).wrapping_add(self.azimuth) >> 8) as f32 / (1u32 << 24) as f32;
         let (s, c) = (std::f32::consts::TAU * r2).sin_cos();
@@ -480,19 +480,20 @@ impl PointRays {
         !tracer.top.may_reach(&tracer.layers, &region)
     }
 
+    /// Ray `k`'s squared sine of elevation from the normal: in the
+    /// stratum `[k, k + 1) / rays`, random within it.
+    fn r1(&self, k: u32) -> f32 {
+        (k as f32 + uniform(self.p.seed, self.id, 3 * k)) / self.p.rays as f32
+    }
+
     /// The least cosine between a ray and the normal, over the point's
     /// rays, less a margin for rounding (at least 0): every ray's
     /// direction lies within the cone of that cosine about the normal.
+    /// The last ray's: its stratum lies above every other's (and rounding
+    /// keeps that order), so it is the flattest.
     fn least_rise(&self) -> f32 {
-        let rays = self.p.rays;
-        ((0..rays)
-            .map(|k| {
-                let r1 = (k as f32 + uniform(self.p.seed, self.id, 3 * k)) / rays as f32;
-                (1.0 - r1).max(0.0).sqrt()
-            })
-            .fold(1.0f32, f32::min)
-            - 1e-5)
-            .max(0.0)
+        let last = self.p.rays.saturating_sub(1);
+        ((1.0 - self.r1(last)).max(0.0).sqrt() - 1e-5).max(0.0)
     }
 
     /// Ray `k`'s score against `tracer`: `min(t, R) / R` for a

@@ -475,7 +475,7 @@ impl Layer {
                 let (local, extra) = region.placed(w, l);
                 (local, region.widened(extra))
             }
-            _ => (region.clone(), region.clone()),
+            _ => (*region, *region),
         };
         self.bvh.any_near(
             |b| local.may_hold(b),

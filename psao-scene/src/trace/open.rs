@@ -32,7 +32,7 @@ const ROUNDING: f32 = 1.0 / (1u32 << 19) as f32;
 /// normal). In a layer's own space ([`HalfBall::placed`]) the normal is
 /// not a unit one and the reach covers the world's ball; only
 /// [`HalfBall::may_hold`] and [`HalfBall::under`] are used there.
-#[derive(Clone, Debug)]
+#[derive(Clone, Copy, Debug)]
 pub(crate) struct HalfBall {
     origin: Vec3A,
     normal: Vec3A,
@@ -68,7 +68,7 @@ impl HalfBall {
         HalfBall {
             reach: self.reach + extra,
             below: self.below + extra,
-            ..self.clone()
+            ..*self
         }
     }
 
