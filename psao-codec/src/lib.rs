@@ -57,9 +57,13 @@ pub mod wire;
 
 pub use client::decoder::Decoder;
 pub use client::gpu_record::{GPU_RECORD_WORDS, gpu_instance_record};
+pub use client::hidden::{
+    HiddenMemo, NO_SURFACE, SeenSurfaces, SeenSurfacesError, reconstruct_ao_seen,
+};
 pub use client::mirror::{Change, Changes, Event, InstanceMirror, Mirror, Transform};
 pub use client::reconstruct::{
-    LocalFrame, WeightParams, base_cell, for_each_candidate, reconstruct_ao, weight, world_to_local,
+    LocalFrame, WeightParams, base_cell, for_each_candidate, reconstruct_ao,
+    reconstruct_ao_keeping, weight, world_to_local,
 };
 pub use error::{DecodeError, DecompressFault, DefError, EncodeError, MessageError};
 pub use grid::{

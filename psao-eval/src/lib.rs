@@ -32,6 +32,6 @@ pub use metrics::{MetricError, error_map, psnr, rmse, ssim};
 pub use open_pixels::{
     Cause, OpenCause, OpenReasons, REFERENCE_DARK, SHOWN_OPEN, open_cause, open_reasons,
 };
-pub use pixel_ao::{ClientImage, psao_image, ray_traced_ao};
+pub use pixel_ao::{ClientImage, psao_image, psao_image_seen, ray_traced_ao};
 pub use sao::{SaoParams, sao};
 pub use view::{MAX_IMAGE_SIDE, View};

@@ -7,10 +7,16 @@
 //! not).
 
 use glam::Vec3;
-use psao_codec::{InstanceMirror, LocalFrame, Mirror, reconstruct_ao};
+use std::collections::HashMap;
+
+use psao_codec::{
+    HiddenMemo, InstanceMirror, LocalFrame, Mirror, SeenSurfaces, reconstruct_ao,
+    reconstruct_ao_seen,
+};
 use rayon::prelude::*;
 
 use crate::gbuffer::{GBuffer, NO_INSTANCE};
+use crate::view::View;
 use psao_scene::{AoParams, AoTracer, SceneError};
 
 /// Ray-traced AO at every covered pixel of `g` against `tracer`, with the
@@ -55,6 +61,56 @@ pub struct ClientImage {
 /// does not depend on the thread count. A G-buffer whose attributes do not
 /// hold `width x height` values is an error.
 pub fn psao_image(mirror: &Mirror, g: &GBuffer) -> Result<ClientImage, SceneError> {
+    client_image(mirror, g, None)
+}
+
+/// [`psao_image`] with the optional test of spec/wire-format.md 7.3.1: a
+/// candidate point hidden from `view` behind another surface, one that
+/// faces the pixel being shaded, is left out (the G-buffer is what the
+/// view sees; [`psao_codec::reconstruct_ao_seen`]). Instances in bind space
+/// are reconstructed as by [`psao_image`]. `view` must be the view `g` was
+/// made from; a view of another size is an error.
+pub fn psao_image_seen(
+    mirror: &Mirror,
+    g: &GBuffer,
+    view: &View,
+) -> Result<ClientImage, SceneError> {
+    g.check()?;
+    let seen = SeenSurfaces::new(
+        view.world_to_clip(),
+        g.width,
+        g.height,
+        &g.position,
+        &g.normal,
+        &g.instance,
+    )
+    .map_err(|e| SceneError::Camera {
+        reason: format!("the view does not fit the G-buffer: {e}"),
+    })?;
+    if (view.width, view.height) != (g.width, g.height) {
+        return Err(SceneError::Camera {
+            reason: format!(
+                "a {}x{} view for a {}x{} G-buffer",
+                view.width, view.height, g.width, g.height
+            ),
+        });
+    }
+    // One memo per instance in local space, shared by every row.
+    let memos: HashMap<u32, HiddenMemo> = mirror
+        .instances()
+        .filter(|(_, inst)| !inst.def().bind_space())
+        .map(|(id, inst)| (id, HiddenMemo::new(inst, &seen)))
+        .collect();
+    client_image(mirror, g, Some((&seen, &memos)))
+}
+
+/// [`psao_image`], with the test of [`psao_image_seen`] when `seen` (and
+/// its memos) is given.
+fn client_image(
+    mirror: &Mirror,
+    g: &GBuffer,
+    seen: Option<(&SeenSurfaces, &HashMap<u32, HiddenMemo>)>,
+) -> Result<ClientImage, SceneError> {
     g.check()?;
     let w = g.width as usize;
     let rows: Vec<(Vec<f32>, usize)> = (0..g.height as usize)
@@ -70,7 +126,14 @@ pub fn psao_image(mirror: &Mirror, g: &GBuffer) -> Result<ClientImage, SceneErro
                     }
                     let local = space.local(g, k);
                     match local {
-                        Some((inst, (x, n))) => reconstruct_ao(inst, x, n),
+                        Some((inst, (x, n))) => {
+                            match seen.and_then(|(s, m)| Some((s, m.get(&id)?))) {
+                                Some((seen, memo)) => {
+                                    reconstruct_ao_seen(inst, id, x, n, g.position[k], seen, memo)
+                                }
+                                None => reconstruct_ao(inst, x, n),
+                            }
+                        }
                         None => {
                             unknown += 1;
                             1.0

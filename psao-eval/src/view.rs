@@ -80,6 +80,19 @@ impl View {
         Affine3A::from_mat4(glam::camera::rh::view::look_at_mat4(c.eye, c.target, up))
     }
 
+    /// World-to-clip matrix of this view in the convention of
+    /// [`psao_codec::SeenSurfaces`]: a world point `P` with
+    /// `c = world_to_clip() * (P, 1)` lies at pixel coordinates
+    /// `u = (c.x / c.w + 1) / 2 * width`, `v = (1 - c.y / c.w) / 2 * height`,
+    /// the same place as the module's pixel convention puts it, and
+    /// `c.w` is its depth (in front of the camera when positive).
+    pub fn world_to_clip(&self) -> glam::Mat4 {
+        let aspect = self.width as f32 / self.height as f32;
+        // WebGPU clip space (y up); near and far do not enter x, y or w.
+        glam::camera::rh::proj::directx::perspective(self.camera.fov_y, aspect, 1e-3, 1e3)
+            * glam::Mat4::from(self.world_to_view())
+    }
+
     /// View-space direction (not normalized, `z = -1`) through the centre
     /// of pixel `(px, py)`.
     pub fn view_dir(&self, px: u32, py: u32) -> Vec3 {

@@ -451,3 +451,69 @@ fn the_shaded_side_follows_the_face_not_a_leaning_vertex_normal() {
     assert!(g.normal.iter().all(|n| (*n + Vec3::Y).length() < 1e-5));
     assert!(g.bind_normal.iter().all(|n| (*n + Vec3::Y).length() < 1e-5));
 }
+
+#[test]
+fn the_world_to_clip_matrix_puts_each_pixels_surface_at_its_centre() {
+    // A slanted view of the floor and the box, wider than high.
+    let view = View::new(
+        Camera {
+            eye: Vec3::new(-3.0, 2.5, 4.0),
+            target: Vec3::new(0.2, 0.3, -0.1),
+            fov_y: 0.9,
+        },
+        40,
+        24,
+    )
+    .unwrap();
+    let posed = PosedScene::new(&floor_and_box(), 0.0).unwrap();
+    let g = posed.gbuffer(&view);
+    let to_clip = view.world_to_clip();
+    let mut checked = 0;
+    for py in 0..view.height {
+        for px in 0..view.width {
+            let k = (py * view.width + px) as usize;
+            if g.instance[k] == NO_INSTANCE {
+                continue;
+            }
+            let c = to_clip * g.position[k].extend(1.0);
+            let u = (c.x / c.w + 1.0) / 2.0 * view.width as f32;
+            let v = (1.0 - c.y / c.w) / 2.0 * view.height as f32;
+            assert!(
+                (u - (px as f32 + 0.5)).abs() < 1e-3,
+                "pixel ({px}, {py}): u {u}"
+            );
+            assert!(
+                (v - (py as f32 + 0.5)).abs() < 1e-3,
+                "pixel ({px}, {py}): v {v}"
+            );
+            assert!(
+                (c.w - g.depth[k]).abs() < 1e-4 * g.depth[k],
+                "pixel ({px}, {py}): w {}",
+                c.w
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked > 200, "{checked} pixels see something");
+}
+
+#[test]
+fn the_hidden_test_changes_nothing_where_nothing_stands_between() {
+    // The floor and the box from above: no surface covers another's points
+    // and faces a pixel, so every pixel is eq. 2-4's, bit for bit.
+    let scene = floor_and_box();
+    let mut pipeline = Pipeline::new(
+        scene.clone(),
+        PipelineConfig::with_density_and_rays(64.0, 16),
+    )
+    .unwrap();
+    let mut client = Decoder::new(Limits::default());
+    client.receive(&pipeline.keyframe().unwrap().bytes).unwrap();
+    let view = looking_down(48, 32);
+    let g = PosedScene::new(&scene, 0.0).unwrap().gbuffer(&view);
+    let plain = psao_image(client.mirror(), &g).unwrap();
+    let seen = psao_image_seen(client.mirror(), &g, &view).unwrap();
+    assert_eq!(plain, seen);
+    // A view of another size than the G-buffer's is an error.
+    assert!(psao_image_seen(client.mirror(), &g, &looking_down(48, 31)).is_err());
+}

@@ -38,7 +38,8 @@ use anyhow::Context as _;
 use indicatif::ProgressBar;
 use psao_codec::{Decoder, Limits};
 use psao_eval::{
-    NO_INSTANCE, PosedScene, SaoParams, View, psao_image, ray_traced_ao, rmse, sao, ssim,
+    NO_INSTANCE, PosedScene, SaoParams, View, psao_image, psao_image_seen, ray_traced_ao, rmse,
+    sao, ssim,
 };
 use psao_scene::{
     AoBackend, AoParams, Camera, Estimator, Pipeline, PipelineConfig, RayBudget, Scene,
@@ -168,6 +169,11 @@ pub struct Settings {
     /// ([`PipelineConfig::skip_open`](psao_scene::PipelineConfig::skip_open)),
     /// or (false: the baseline) trace it.
     pub skip_open: bool,
+    /// The PSAO client also leaves out candidate points its view shows
+    /// hidden behind another surface that faces the pixel
+    /// (spec/wire-format.md 7.3.1, [`psao_eval::psao_image_seen`]), or
+    /// (false, the default) weighs every candidate by eq. 2-3 alone.
+    pub hidden_test: bool,
     /// Which measured frames are saved as images.
     pub image_frames: ImageFrames,
 }
@@ -275,6 +281,7 @@ impl Settings {
             early: false,
             ray_reuse: true,
             skip_open: true,
+            hidden_test: false,
             image_frames: ImageFrames::List(vec![0]),
         }
     }
@@ -832,7 +839,13 @@ fn measure_psao(
                 }
             }
         }
-        let (img, t) = timed(|| Ok(psao_image(client.mirror(), &f.gbuffer)?))?;
+        let (img, t) = timed(|| {
+            Ok(if s.hidden_test {
+                psao_image_seen(client.mirror(), &f.gbuffer, &f.view)?
+            } else {
+                psao_image(client.mirror(), &f.gbuffer)?
+            })
+        })?;
         ms += t;
         unknown += img.unknown;
         errors.add(f, &img.ao)?;

@@ -174,6 +174,13 @@ pub struct BenchArgs {
     /// choices).
     #[arg(long)]
     no_skip_open: bool,
+    /// The PSAO client also leaves out candidate points its view shows
+    /// hidden behind another surface that faces the pixel
+    /// (spec/wire-format.md 7.3.1; more accurate where thin parts stand on
+    /// surfaces, at 1.1-1.3x the client time), instead of weighing every
+    /// candidate by eq. 2-3 alone.
+    #[arg(long)]
+    hidden_test: bool,
     /// Under --ray-budget, trace a moving instance's own points every tick
     /// it moves, whatever the budget (no AO lagging its transform).
     #[arg(long)]
@@ -230,6 +237,7 @@ impl BenchArgs {
         settings.max_wait_limit = self.max_wait_limit;
         settings.ray_reuse = !self.no_ray_reuse;
         settings.skip_open = !self.no_skip_open;
+        settings.hidden_test = self.hidden_test;
         settings.movers_every_step = self.movers_every_frame;
         settings.movers_whole = self.movers_whole;
         settings.early = self.early_decisions;

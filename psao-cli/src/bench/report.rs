@@ -83,7 +83,7 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}; {}; {}; {}; {}; {}); client times are the AO work per frame on {} threads, the median of {} runs back to back.\n",
+        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}; {}; {}; {}; {}; {}; {}); client times are the AO work per frame on {} threads, the median of {} runs back to back.\n",
         s.width,
         s.height,
         s.frames,
@@ -125,6 +125,11 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
             n => format!(
                 "points whose AO stopped changing sent {n} or more steps (1/255) from what clients hold"
             ),
+        },
+        if s.hidden_test {
+            "the client leaves out points its view shows hidden behind a surface facing the pixel: --hidden-test"
+        } else {
+            "the client weighs every point by eq. 2-3 (spec/wire-format.md 7.3)"
         },
         std::thread::available_parallelism().map_or(1, |n| n.get()),
         super::measure::TIMED_RUNS

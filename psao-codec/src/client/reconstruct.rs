@@ -82,12 +82,29 @@ pub fn base_cell(inst: &InstanceMirror, x: Vec3) -> IVec3 {
 /// radius (spec/wire-format.md 7.3); when those are zero too, or `x` or `n`
 /// is not finite, the result is 1 (open).
 pub fn reconstruct_ao(inst: &InstanceMirror, x: Vec3, n: Vec3) -> f32 {
+    reconstruct_ao_keeping(inst, x, n, |_, _, _| true)
+}
+
+/// [`reconstruct_ao`] with a filter on the candidates: a point that passes
+/// eq. 2-3 with a weight above 0 counts only when
+/// `keep(word, position, normal)` is true, in both passes (`word`: the
+/// point's index in [`InstanceMirror::words`]; position and normal in
+/// local space). With a filter that keeps every point this is
+/// [`reconstruct_ao`], bit for bit. The optional test of
+/// spec/wire-format.md 7.3.1 is such a filter
+/// ([`reconstruct_ao_seen`](crate::reconstruct_ao_seen)).
+pub fn reconstruct_ao_keeping(
+    inst: &InstanceMirror,
+    x: Vec3,
+    n: Vec3,
+    mut keep: impl FnMut(usize, Vec3, Vec3) -> bool,
+) -> f32 {
     let d = *inst.def();
     if !x.is_finite() || !n.is_finite() {
         return 1.0;
     }
     let params = WeightParams::of(&d);
-    let (sum_w, sum) = weighted_sum(inst, x, n, &params);
+    let (sum_w, sum) = weighted_sum(inst, x, n, &params, &mut keep);
     if sum_w > 0.0 {
         return sum / sum_w;
     }
@@ -100,16 +117,25 @@ pub fn reconstruct_ao(inst: &InstanceMirror, x: Vec3, n: Vec3) -> f32 {
         radius: 2.0 * params.radius,
         ..params
     };
-    let (sum_w, sum) = weighted_sum(inst, x, n, &wide);
+    let (sum_w, sum) = weighted_sum(inst, x, n, &wide, &mut keep);
     if sum_w > 0.0 { sum / sum_w } else { 1.0 }
 }
 
 /// The weight sum and the weighted AO sum of eq. 4 over the 2x2x2 cells
-/// around `x`.
-fn weighted_sum(inst: &InstanceMirror, x: Vec3, n: Vec3, params: &WeightParams) -> (f32, f32) {
+/// around `x`, over the points `keep` keeps among those of weight above 0.
+fn weighted_sum(
+    inst: &InstanceMirror,
+    x: Vec3,
+    n: Vec3,
+    params: &WeightParams,
+    keep: &mut impl FnMut(usize, Vec3, Vec3) -> bool,
+) -> (f32, f32) {
     let (mut sum_w, mut sum) = (0.0f32, 0.0f32);
-    for_each_candidate(inst, x, |p, n_p, ao| {
+    for_each_indexed_candidate(inst, x, |word, p, n_p, ao| {
         let a = weight(p, n_p, x, n, params);
+        if a > 0.0 && !keep(word, p, n_p) {
+            return;
+        }
         sum_w += a;
         sum += a * ao;
     });
@@ -120,7 +146,18 @@ fn weighted_sum(inst: &InstanceMirror, x: Vec3, n: Vec3, params: &WeightParams) 
 /// instance-local `x`: the points of the 2x2x2 cells around it, each
 /// cell's whole overflow chain included, in local space.
 pub fn for_each_candidate(inst: &InstanceMirror, x: Vec3, mut f: impl FnMut(Vec3, Vec3, f32)) {
+    for_each_indexed_candidate(inst, x, |_, p, n_p, ao| f(p, n_p, ao));
+}
+
+/// [`for_each_candidate`] with each point's index in
+/// [`InstanceMirror::words`] first.
+fn for_each_indexed_candidate(
+    inst: &InstanceMirror,
+    x: Vec3,
+    mut f: impl FnMut(usize, Vec3, Vec3, f32),
+) {
     let d = *inst.def();
+    let cap = d.cell_capacity as usize;
     let normals = normal_table();
     let base = base_cell(inst, x);
     let dims = d.dims.as_ivec3();
@@ -134,9 +171,10 @@ pub fn for_each_candidate(inst: &InstanceMirror, x: Vec3, mut f: impl FnMut(Vec3
                 let c = c.as_uvec3();
                 let min = d.cell_min(c);
                 for cell in inst.chain(d.key(c)) {
-                    for w in inst.cell_points(cell) {
+                    for (slot, w) in inst.cell_points(cell).enumerate() {
                         let p = min + w.frac() * d.cell_size;
-                        f(p, normals[w.fields().normal as usize], w.ao());
+                        let word = cell as usize * cap + slot;
+                        f(word, p, normals[w.fields().normal as usize], w.ao());
                     }
                 }
             }

@@ -1,0 +1,320 @@
+//! The optional test of spec/wire-format.md 7.3.1: a candidate point that
+//! the camera cannot see, because another surface stands in front of it
+//! and between it and the pixel being shaded, is left out of eq. 4.
+//!
+//! Eq. 2-3 weigh a point by its distance and normal alone. Where a thin
+//! part stands on a surface (a plate leaning on a floor, a table top over
+//! a floor), the dark points under it lie in the same plane, with the same
+//! normal, as the floor beside it, and leak into the floor pixels just
+//! outside its foot. The reconstruction cannot see the part; the pixels of
+//! the view can. [`SeenSurfaces`] holds what each pixel of the view sees
+//! (world position, normal facing the camera, instance), and
+//! [`reconstruct_ao_seen`] asks it, for every candidate, whether a surface
+//! seen near the candidate's own pixel covers the candidate and faces the
+//! pixel being shaded.
+
+use std::sync::atomic::{AtomicU8, Ordering};
+
+use glam::{Affine3A, Mat3A, Mat4, Vec3, Vec4};
+use thiserror::Error;
+
+use crate::client::mirror::InstanceMirror;
+use crate::client::reconstruct::{reconstruct_ao, reconstruct_ao_keeping};
+
+/// The instance id of a pixel that sees nothing.
+pub const NO_SURFACE: u32 = u32::MAX;
+
+/// A [`SeenSurfaces`] that cannot be built: what was wrong.
+#[derive(Clone, Debug, PartialEq, Eq, Error)]
+#[non_exhaustive]
+pub enum SeenSurfacesError {
+    /// Width or height is 0.
+    #[error("the view must be at least one pixel wide and high ({width}x{height})")]
+    Empty {
+        /// Width, pixels.
+        width: u32,
+        /// Height, pixels.
+        height: u32,
+    },
+    /// A per-pixel slice does not hold `width x height` values.
+    #[error("{what} holds {len} values, the view has {pixels} pixels")]
+    Length {
+        /// Which slice.
+        what: &'static str,
+        /// Its length.
+        len: usize,
+        /// `width x height`.
+        pixels: usize,
+    },
+    /// The world-to-clip matrix has a NaN or infinite element.
+    #[error("the world-to-clip matrix is not finite")]
+    Matrix,
+}
+
+/// What each pixel of a view sees, for the test of spec/wire-format.md
+/// 7.3.1: the view's world-to-clip matrix and, per pixel (row-major, row 0
+/// at the top), the world position, the unit world normal facing the
+/// camera, and the instance id ([`NO_SURFACE`] where nothing is seen).
+///
+/// Clip space is that of wgpu and Vulkan-style projections: a world point
+/// `P` maps to `c = to_clip * (P, 1)`; it is in front of the camera when
+/// `c.w > 0`, and its pixel coordinates are
+/// `u = (c.x / c.w + 1) / 2 * width`, `v = (1 - c.y / c.w) / 2 * height`
+/// (pixel `(i, j)` covers `[i, i + 1) x [j, j + 1)`).
+#[derive(Clone, Copy, Debug)]
+pub struct SeenSurfaces<'a> {
+    to_clip: Mat4,
+    width: u32,
+    height: u32,
+    position: &'a [Vec3],
+    normal: &'a [Vec3],
+    instance: &'a [u32],
+}
+
+impl<'a> SeenSurfaces<'a> {
+    /// Checks and holds a view's surfaces: a finite matrix, a view of at
+    /// least one pixel, and one value per pixel in every slice.
+    pub fn new(
+        to_clip: Mat4,
+        width: u32,
+        height: u32,
+        position: &'a [Vec3],
+        normal: &'a [Vec3],
+        instance: &'a [u32],
+    ) -> Result<SeenSurfaces<'a>, SeenSurfacesError> {
+        if width == 0 || height == 0 {
+            return Err(SeenSurfacesError::Empty { width, height });
+        }
+        if !to_clip.is_finite() {
+            return Err(SeenSurfacesError::Matrix);
+        }
+        let pixels = width as usize * height as usize;
+        for (what, len) in [
+            ("position", position.len()),
+            ("normal", normal.len()),
+            ("instance", instance.len()),
+        ] {
+            if len != pixels {
+                return Err(SeenSurfacesError::Length { what, len, pixels });
+            }
+        }
+        Ok(SeenSurfaces {
+            to_clip,
+            width,
+            height,
+            position,
+            normal,
+            instance,
+        })
+    }
+
+    /// Whether the candidate at world position `p` with unit world normal
+    /// `n_p`, weighed for the pixel at world position `x` on instance
+    /// `own`, is hidden (spec/wire-format.md 7.3.1): one of the (up to) four
+    /// pixels whose centres surround the candidate's projection sees a
+    /// surface that
+    /// - is not the candidate's own surface (another instance, or a normal
+    ///   `m` with `n_p . m <= t_n`),
+    /// - covers the candidate's side (`n_p . m > 0`),
+    /// - has `x` on its front side (`(x - q) . m >= 0`, `q` its position),
+    /// - and has `p` behind it by more than `tol`: `(p - q) . m < -tol`.
+    ///
+    /// A candidate behind the camera or outside the view is never hidden;
+    /// NaNs anywhere hide nothing.
+    pub fn hides(&self, p: Vec3, n_p: Vec3, x: Vec3, own: u32, t_n: f32, tol: f32) -> bool {
+        self.around(self.to_clip * p.extend(1.0))
+            .is_some_and(|quad| {
+                quad.into_iter()
+                    .any(|k| self.pixel_may_hide(k, p, n_p, own, t_n, tol) && self.faces(k, x))
+            })
+    }
+
+    /// The four pixels (repeated at the view's last column or row) whose
+    /// centres surround the projection of a point at clip coordinates `c`,
+    /// or `None` when it lies behind the camera or outside the view (or
+    /// `c` holds a NaN).
+    fn around(&self, c: Vec4) -> Option<[usize; 4]> {
+        // (NaN fails every comparison, so a NaN w is out too.)
+        if c.w.is_nan() || c.w <= 0.0 {
+            return None;
+        }
+        let (w, h) = (self.width as f32, self.height as f32);
+        let u = (c.x / c.w + 1.0) * 0.5 * w;
+        let v = (1.0 - c.y / c.w) * 0.5 * h;
+        if !(u >= 0.0 && u < w && v >= 0.0 && v < h) {
+            return None;
+        }
+        let (wi, hi) = (self.width as usize, self.height as usize);
+        // Columns i0, i0 + 1 and rows j0, j0 + 1, clamped to the view.
+        let i0 = ((u - 0.5).floor().max(0.0) as usize).min(wi - 1);
+        let j0 = ((v - 0.5).floor().max(0.0) as usize).min(hi - 1);
+        let i1 = (i0 + 1).min(wi - 1);
+        let j1 = (j0 + 1).min(hi - 1);
+        Some([j0 * wi + i0, j0 * wi + i1, j1 * wi + i0, j1 * wi + i1])
+    }
+
+    /// The conditions of [`hides`](Self::hides) on the surface seen at
+    /// pixel `k` that do not depend on the pixel being shaded.
+    #[inline]
+    fn pixel_may_hide(&self, k: usize, p: Vec3, n_p: Vec3, own: u32, t_n: f32, tol: f32) -> bool {
+        let seen = self.instance[k];
+        if seen == NO_SURFACE {
+            return false;
+        }
+        let m = self.normal[k];
+        let facing = n_p.dot(m);
+        // The candidate's own surface: its position is quantized (up to
+        // |cell_size| / 64 off the surface), so it may lie a little behind
+        // the surface it was traced on.
+        if seen == own && facing > t_n {
+            return false;
+        }
+        facing > 0.0 && (p - self.position[k]).dot(m) < -tol
+    }
+
+    /// Whether the pixel being shaded, at world `x`, is on the front side
+    /// of the surface seen at pixel `k`.
+    #[inline]
+    fn faces(&self, k: usize, x: Vec3) -> bool {
+        (x - self.position[k]).dot(self.normal[k]) >= 0.0
+    }
+}
+
+/// An instance's transforms for the test, in one view: local to world for
+/// positions and for normals, local to clip, and the tolerance.
+#[derive(Clone, Copy, Debug)]
+struct SeenFrame {
+    to_world: Affine3A,
+    normals: Mat3A,
+    to_clip: Mat4,
+    tol: f32,
+}
+
+impl SeenFrame {
+    /// `None` for an instance in bind space, without a transform, or with
+    /// a singular or non-finite one.
+    fn of(inst: &InstanceMirror, seen: &SeenSurfaces) -> Option<SeenFrame> {
+        let def = inst.def();
+        if def.bind_space() {
+            return None;
+        }
+        let to_world = inst.transform()?.affine();
+        let det = to_world.matrix3.determinant();
+        if !det.is_finite() || det.abs() <= f32::MIN_POSITIVE {
+            return None;
+        }
+        Some(SeenFrame {
+            to_world,
+            // Normals map by the inverse transpose of the linear part.
+            normals: to_world.matrix3.inverse().transpose(),
+            to_clip: seen.to_clip * Mat4::from(to_world),
+            tol: def.radius / 100.0 * det.abs().cbrt(),
+        })
+    }
+}
+
+/// What [`reconstruct_ao_seen`] learned about each point of one instance in
+/// one view, so that a point weighed for many pixels is projected once:
+/// whether any surface the view sees could hide it. Make one per instance
+/// and view (or frame), share it between the pixels of that view (threads
+/// included), and drop it when the view or the mirror changes.
+#[derive(Debug)]
+pub struct HiddenMemo {
+    /// Per point word: [`UNKNOWN`], [`NEVER`] or [`MAYBE`].
+    state: Vec<AtomicU8>,
+    /// The instance's transforms in the view, when the test applies.
+    frame: Option<SeenFrame>,
+}
+
+/// Not yet looked at.
+const UNKNOWN: u8 = 0;
+/// No surface around the point can hide it, whatever the pixel.
+const NEVER: u8 = 1;
+/// Some surface around it may hide it: test each pixel.
+const MAYBE: u8 = 2;
+
+impl HiddenMemo {
+    /// An empty memo for the points of `inst`, as the mirror holds them
+    /// now, in the view of `seen`.
+    pub fn new(inst: &InstanceMirror, seen: &SeenSurfaces) -> HiddenMemo {
+        let frame = SeenFrame::of(inst, seen);
+        let len = if frame.is_some() {
+            inst.words().len()
+        } else {
+            0
+        };
+        HiddenMemo {
+            state: (0..len).map(|_| AtomicU8::new(UNKNOWN)).collect(),
+            frame,
+        }
+    }
+}
+
+/// [`reconstruct_ao`] with the test of spec/wire-format.md 7.3.1: a
+/// candidate that `seen` shows hidden behind another surface, one that
+/// faces the pixel being shaded, is left out of both passes.
+///
+/// `x` and `n` are the pixel's surface point and unit normal in the
+/// instance's lookup space, as for [`reconstruct_ao`]; `x_world` is the
+/// same point in world space, and `id` the instance's id. `memo`, made for
+/// this instance and view ([`HiddenMemo::new`]), holds the instance's
+/// transforms and what earlier pixels of the view learned about its points;
+/// one made for an instance with another number of point words is not
+/// trusted (the test is then made from scratch for every candidate). The
+/// test needs a candidate's world position, so it applies to instances in
+/// local space with a transform; for an instance in bind space (point
+/// format 1), or one without a usable transform, this is
+/// [`reconstruct_ao`]. The tolerance is `r / 100` in local units, scaled
+/// to world units by the cube root of the transform's determinant.
+pub fn reconstruct_ao_seen(
+    inst: &InstanceMirror,
+    id: u32,
+    x: Vec3,
+    n: Vec3,
+    x_world: Vec3,
+    seen: &SeenSurfaces,
+    memo: &HiddenMemo,
+) -> f32 {
+    let fits = memo.state.len() == inst.words().len();
+    let Some(frame) = (if fits {
+        memo.frame
+    } else {
+        SeenFrame::of(inst, seen)
+    }) else {
+        return reconstruct_ao(inst, x, n);
+    };
+    let states = fits.then_some(&memo.state[..]);
+    let t_n = inst.def().t_n;
+    reconstruct_ao_keeping(inst, x, n, |word, p, n_p| {
+        let state = states.and_then(|m| m.get(word));
+        let known = state.map_or(UNKNOWN, |s| s.load(Ordering::Relaxed));
+        if known == NEVER {
+            return true;
+        }
+        let Some(quad) = seen.around(frame.to_clip * p.extend(1.0)) else {
+            if let Some(s) = state {
+                s.store(NEVER, Ordering::Relaxed);
+            }
+            return true;
+        };
+        let pw = frame.to_world.transform_point3(p);
+        let nw = (frame.normals * n_p).normalize_or_zero();
+        // Which of the four pixels may hide the point, as bits.
+        let mut may = 0u8;
+        for (bit, &k) in quad.iter().enumerate() {
+            if seen.pixel_may_hide(k, pw, nw, id, t_n, frame.tol) {
+                may |= 1 << bit;
+            }
+        }
+        if let (UNKNOWN, Some(s)) = (known, state) {
+            // Every thread that looks computes the same value, so the order
+            // of stores does not matter.
+            s.store(if may != 0 { MAYBE } else { NEVER }, Ordering::Relaxed);
+        }
+        let mut hidden = false;
+        for (bit, &k) in quad.iter().enumerate() {
+            hidden |= may & (1 << bit) != 0 && seen.faces(k, x_world);
+        }
+        !hidden
+    })
+}

@@ -1,0 +1,285 @@
+//! The optional test of spec/wire-format.md 7.3.1 against hand-built views:
+//! a candidate hidden behind another surface that covers it and faces the
+//! pixel is left out; in every other case the result is eq. 2-4's.
+
+mod common;
+
+use common::*;
+use glam::{Mat4, Vec3, Vec4};
+use psao_codec::*;
+
+/// A 4x4 view looking straight down: world x in [-0.2, 0.2] maps to
+/// columns 0..4, world z in [-0.2, 0.2] to rows 0..4 (as a WebGPU
+/// orthographic projection: `c = (x / 0.2, -z / 0.2, 0, 1)`).
+fn top_view() -> Mat4 {
+    Mat4::from_cols(
+        Vec4::new(5.0, 0.0, 0.0, 0.0),
+        Vec4::ZERO,
+        Vec4::new(0.0, -5.0, 0.0, 0.0),
+        Vec4::new(0.0, 0.0, 0.0, 1.0),
+    )
+}
+
+const SIDE: u32 = 4;
+const PIXELS: usize = (SIDE * SIDE) as usize;
+
+/// A floor of instance 1 at y = 0.3 (identity transform) with a dark point
+/// at x = 0 (under a plate leaning over x < 0.05) and an open one at
+/// x = 0.12, and the view's surfaces: every pixel sees `surface`.
+struct Case {
+    decoder: Decoder,
+    dark: f32,
+    open: f32,
+}
+
+fn floor_with_two_points() -> Case {
+    let def = small_def(); // r = 0.2, cells of 0.25 from (-1, 0, -1)
+    let mut t = GridTable::new(1, def, 4).unwrap();
+    t.set_point(0, Vec3::new(0.0, 0.3, 0.0), Vec3::Y, 0.1)
+        .unwrap();
+    t.set_point(1, Vec3::new(0.12, 0.3, 0.0), Vec3::Y, 0.9)
+        .unwrap();
+    t.take_dirty();
+    let ao_of = |id| {
+        let Placement::Stored { cell, slot } = t.placement(id) else {
+            panic!("point {id} is stored")
+        };
+        PointWord(t.cell(cell)[slot as usize]).ao()
+    };
+    let (dark, open) = (ao_of(0), ao_of(1));
+    let mut enc = Encoder::new(EncoderConfig::default());
+    let mut f = enc.keyframe();
+    f.snapshot(&t).unwrap();
+    f.transform(
+        1,
+        1,
+        &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+    );
+    let frame = f.finish().unwrap().unwrap();
+    let mut decoder = Decoder::new(Limits::default());
+    decoder.receive(&frame.bytes).unwrap();
+    Case {
+        decoder,
+        dark,
+        open,
+    }
+}
+
+/// The pixel being shaded: on the floor at x = 0.1, between the points.
+const X: Vec3 = Vec3::new(0.1, 0.3, 0.0);
+
+/// A plate leaning at 45 degrees over x < 0.05, its foot on the floor at
+/// x = 0.05, its normal facing up and towards +x.
+fn plate() -> (Vec3, Vec3) {
+    (
+        Vec3::new(0.05, 0.3, 0.0),
+        Vec3::new(1.0, 1.0, 0.0).normalize(),
+    )
+}
+
+struct Surfaces {
+    position: Vec<Vec3>,
+    normal: Vec<Vec3>,
+    instance: Vec<u32>,
+}
+
+fn every_pixel_sees(q: Vec3, m: Vec3, id: u32) -> Surfaces {
+    Surfaces {
+        position: vec![q; PIXELS],
+        normal: vec![m; PIXELS],
+        instance: vec![id; PIXELS],
+    }
+}
+
+fn seen<'a>(s: &'a Surfaces, to_clip: Mat4) -> SeenSurfaces<'a> {
+    SeenSurfaces::new(to_clip, SIDE, SIDE, &s.position, &s.normal, &s.instance).unwrap()
+}
+
+/// `reconstruct_ao_seen` at local `x` (the world point too: the transform
+/// is the identity) with normal Y, with a fresh memo, then again with the
+/// same memo (its second answer must be the first's).
+fn ao_seen(m: &InstanceMirror, x: Vec3, s: &Surfaces, to_clip: Mat4) -> f32 {
+    let view = seen(s, to_clip);
+    let memo = HiddenMemo::new(m, &view);
+    let first = reconstruct_ao_seen(m, 1, x, Vec3::Y, x, &view, &memo);
+    let again = reconstruct_ao_seen(m, 1, x, Vec3::Y, x, &view, &memo);
+    assert_eq!(first.to_bits(), again.to_bits(), "the memo changes nothing");
+    first
+}
+
+#[test]
+fn a_point_under_a_plate_that_faces_the_pixel_is_left_out() {
+    let case = floor_with_two_points();
+    let m = case.decoder.mirror().instance(1).unwrap();
+    let plain = reconstruct_ao(m, X, Vec3::Y);
+    // Both points weigh in eq. 2-4: the result lies strictly between.
+    assert!(
+        plain > case.dark + 0.05 && plain < case.open - 0.05,
+        "{plain}"
+    );
+    let (q, n) = plate();
+    let s = every_pixel_sees(q, n, 2);
+    let got = ao_seen(m, X, &s, top_view());
+    assert!(
+        (got - case.open).abs() < 1e-6,
+        "only the open point counts: {got}, its AO {}",
+        case.open
+    );
+}
+
+#[test]
+fn where_nothing_is_hidden_the_result_is_eq_2_to_4_bit_for_bit() {
+    let case = floor_with_two_points();
+    let m = case.decoder.mirror().instance(1).unwrap();
+    let plain = reconstruct_ao(m, X, Vec3::Y);
+    let (q, n) = plate();
+    let cases: Vec<(&str, Surfaces, Mat4)> = vec![
+        (
+            "nothing seen",
+            every_pixel_sees(q, n, NO_SURFACE),
+            top_view(),
+        ),
+        (
+            "the candidate's own surface (same instance, same facing)",
+            every_pixel_sees(q, Vec3::Y, 1),
+            top_view(),
+        ),
+        (
+            "a wall that does not cover the candidate (N . m = 0)",
+            every_pixel_sees(q, Vec3::X, 2),
+            top_view(),
+        ),
+        (
+            "a surface facing away from the candidate's side",
+            every_pixel_sees(q, -n, 2),
+            top_view(),
+        ),
+        (
+            "points behind the camera (c.w < 0)",
+            every_pixel_sees(q, n, 2),
+            Mat4::from_cols(Vec4::X, Vec4::ZERO, Vec4::Y, Vec4::new(0.0, 0.0, 0.0, -1.0)),
+        ),
+        (
+            "points projected outside the view",
+            every_pixel_sees(q, n, 2),
+            Mat4::from_cols(Vec4::X, Vec4::ZERO, Vec4::Y, Vec4::new(10.0, 0.0, 0.0, 1.0)),
+        ),
+        (
+            "a NaN normal in the view",
+            every_pixel_sees(q, Vec3::NAN, 2),
+            top_view(),
+        ),
+    ];
+    for (what, s, to_clip) in cases {
+        let got = ao_seen(m, X, &s, to_clip);
+        assert_eq!(
+            got.to_bits(),
+            plain.to_bits(),
+            "{what}: {got} against {plain}"
+        );
+    }
+    // A pixel behind the plate itself (under it, at x = 0.02) keeps both.
+    let under = Vec3::new(0.02, 0.3, 0.0);
+    let s = every_pixel_sees(q, n, 2);
+    let got = ao_seen(m, under, &s, top_view());
+    assert_eq!(got.to_bits(), reconstruct_ao(m, under, Vec3::Y).to_bits());
+}
+
+#[test]
+fn a_surface_seen_at_one_of_the_four_pixels_around_the_candidate_is_enough() {
+    let case = floor_with_two_points();
+    let m = case.decoder.mirror().instance(1).unwrap();
+    // The dark point projects to (u, v) = (2, 2): pixels 1 and 2 in each
+    // direction surround it. Only pixel (2, 2) sees the plate.
+    let (q, n) = plate();
+    let mut s = every_pixel_sees(q, Vec3::Y, 1);
+    let k = (2 * SIDE + 2) as usize;
+    s.instance[k] = 2;
+    s.normal[k] = n;
+    let got = ao_seen(m, X, &s, top_view());
+    assert!((got - case.open).abs() < 1e-6, "{got}");
+    // Pixel (3, 3) does not surround it: nothing is hidden.
+    let mut s = every_pixel_sees(q, Vec3::Y, 1);
+    let k = (3 * SIDE + 3) as usize;
+    s.instance[k] = 2;
+    s.normal[k] = n;
+    let got = ao_seen(m, X, &s, top_view());
+    assert_eq!(got.to_bits(), reconstruct_ao(m, X, Vec3::Y).to_bits());
+}
+
+#[test]
+fn a_point_in_bind_space_is_never_tested() {
+    let def = InstanceDef {
+        point_format: POINT_FORMAT_BIND32,
+        ..small_def()
+    };
+    let mut t = GridTable::new(1, def, 4).unwrap();
+    t.set_point(0, Vec3::new(0.0, 0.3, 0.0), Vec3::Y, 0.1)
+        .unwrap();
+    t.set_point(1, Vec3::new(0.12, 0.3, 0.0), Vec3::Y, 0.9)
+        .unwrap();
+    t.take_dirty();
+    let mut decoder = Decoder::new(Limits::default());
+    let mut enc = Encoder::new(EncoderConfig::default());
+    decoder.receive(&keyframe(&mut enc, &[&t]).bytes).unwrap();
+    let m = decoder.mirror().instance(1).unwrap();
+    let (q, n) = plate();
+    let s = every_pixel_sees(q, n, 2);
+    let got = ao_seen(m, X, &s, top_view());
+    assert_eq!(got.to_bits(), reconstruct_ao(m, X, Vec3::Y).to_bits());
+}
+
+#[test]
+fn a_view_that_does_not_fit_its_surfaces_is_an_error_naming_what() {
+    let s = every_pixel_sees(Vec3::ZERO, Vec3::Y, 0);
+    let short = &s.position[..PIXELS - 1];
+    assert_eq!(
+        SeenSurfaces::new(top_view(), SIDE, SIDE, short, &s.normal, &s.instance).unwrap_err(),
+        SeenSurfacesError::Length {
+            what: "position",
+            len: PIXELS - 1,
+            pixels: PIXELS
+        }
+    );
+    assert_eq!(
+        SeenSurfaces::new(top_view(), 0, SIDE, &[], &[], &[]).unwrap_err(),
+        SeenSurfacesError::Empty {
+            width: 0,
+            height: SIDE
+        }
+    );
+    let nan = Mat4::from_cols(Vec4::NAN, Vec4::ZERO, Vec4::ZERO, Vec4::W);
+    assert_eq!(
+        SeenSurfaces::new(nan, SIDE, SIDE, &s.position, &s.normal, &s.instance).unwrap_err(),
+        SeenSurfacesError::Matrix
+    );
+    let huge = SeenSurfaces::new(top_view(), u32::MAX, 2, &s.position, &s.normal, &s.instance);
+    assert!(matches!(huge, Err(SeenSurfacesError::Length { .. })));
+}
+
+#[test]
+fn the_pixel_grid_is_the_one_the_spec_gives() {
+    // The dark point projects within 0.05 of (u, v) = (2, 2), so
+    // i0 = floor(u - 0.5) = 1 and j0 = 1: pixels 1 and 2 in each direction
+    // surround it, and no other. Only one pixel sees the plate each time.
+    let case = floor_with_two_points();
+    let m = case.decoder.mirror().instance(1).unwrap();
+    let (q, n) = plate();
+    for (i, j, hides) in [
+        (1, 1, true),
+        (2, 2, true),
+        (1, 2, true),
+        (2, 1, true),
+        (0, 0, false),
+        (3, 2, false),
+        (2, 3, false),
+    ] {
+        let mut s = every_pixel_sees(q, Vec3::Y, 1);
+        let k = (j * SIDE + i) as usize;
+        s.instance[k] = 2;
+        s.normal[k] = n;
+        let got = ao_seen(m, X, &s, top_view());
+        let hidden = (got - case.open).abs() < 1e-6;
+        assert_eq!(hidden, hides, "pixel ({i}, {j}): {got}");
+    }
+}
