@@ -100,9 +100,9 @@ fn seen<'a>(s: &'a Surfaces, to_clip: Mat4) -> SeenSurfaces<'a> {
 /// same memo (its second answer must be the first's).
 fn ao_seen(m: &InstanceMirror, x: Vec3, s: &Surfaces, to_clip: Mat4) -> f32 {
     let view = seen(s, to_clip);
-    let memo = HiddenMemo::new(m, &view);
-    let first = reconstruct_ao_seen(m, 1, x, Vec3::Y, x, &view, &memo);
-    let again = reconstruct_ao_seen(m, 1, x, Vec3::Y, x, &view, &memo);
+    let memo = HiddenMemo::new(m, 1, &view);
+    let first = reconstruct_ao_seen(&memo, x, Vec3::Y, x);
+    let again = reconstruct_ao_seen(&memo, x, Vec3::Y, x);
     assert_eq!(first.to_bits(), again.to_bits(), "the memo changes nothing");
     first
 }
@@ -140,8 +140,8 @@ fn where_nothing_is_hidden_the_result_is_eq_2_to_4_bit_for_bit() {
             top_view(),
         ),
         (
-            "the candidate's own surface (same instance, same facing)",
-            every_pixel_sees(q, Vec3::Y, 1),
+            "the candidate's own instance, facing within T_n of it (the plate as part of the floor's mesh)",
+            every_pixel_sees(q, n, 1),
             top_view(),
         ),
         (
@@ -282,4 +282,95 @@ fn the_pixel_grid_is_the_one_the_spec_gives() {
         let hidden = (got - case.open).abs() < 1e-6;
         assert_eq!(hidden, hides, "pixel ({i}, {j}): {got}");
     }
+}
+
+#[test]
+fn what_one_pixel_learns_about_a_point_does_not_decide_for_the_next() {
+    let case = floor_with_two_points();
+    let m = case.decoder.mirror().instance(1).unwrap();
+    let (q, n) = plate();
+    let s = every_pixel_sees(q, n, 2);
+    let view = seen(&s, top_view());
+    let memo = HiddenMemo::new(m, 1, &view);
+    // First a pixel under the plate: it is behind the plate too, so the
+    // dark point counts for it (condition (c) fails)...
+    let under = Vec3::new(0.02, 0.3, 0.0);
+    let got = reconstruct_ao_seen(&memo, under, Vec3::Y, under);
+    assert_eq!(got.to_bits(), reconstruct_ao(m, under, Vec3::Y).to_bits());
+    // ...then, with the same memo, the pixel in front of the foot: hidden.
+    let got = reconstruct_ao_seen(&memo, X, Vec3::Y, X);
+    assert!((got - case.open).abs() < 1e-6, "{got}");
+}
+
+#[test]
+fn a_point_of_a_moved_and_scaled_instance_is_tested_where_the_transform_puts_it() {
+    // The floor's instance moved by (0.5, 0, 0.2) and scaled by 2 in x; the
+    // view and the plate moved with it, so the dark point is hidden as
+    // before, in world space. Projecting the local point with the view's
+    // matrix alone would put it outside the view.
+    let def = small_def();
+    let mut t = GridTable::new(1, def, 4).unwrap();
+    t.set_point(0, Vec3::new(0.0, 0.3, 0.0), Vec3::Y, 0.1)
+        .unwrap();
+    t.set_point(1, Vec3::new(0.06, 0.3, 0.0), Vec3::Y, 0.9)
+        .unwrap();
+    t.take_dirty();
+    let mut enc = Encoder::new(EncoderConfig::default());
+    let mut f = enc.keyframe();
+    f.snapshot(&t).unwrap();
+    let (sx, d) = (2.0, Vec3::new(0.5, 0.0, 0.2));
+    f.transform(
+        1,
+        1,
+        &[sx, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, d.x, d.y, d.z],
+    );
+    let mut decoder = Decoder::new(Limits::default());
+    decoder
+        .receive(&f.finish().unwrap().unwrap().bytes)
+        .unwrap();
+    let m = decoder.mirror().instance(1).unwrap();
+    let to_clip = top_view() * Mat4::from_translation(-d);
+    let (q, n) = plate();
+    let s = every_pixel_sees(q + d, n, 2);
+    let view = seen(&s, to_clip);
+    let memo = HiddenMemo::new(m, 1, &view);
+    assert!(memo.applies());
+    // The pixel at local x = 0.05 is at world x = 0.6, in front of the foot
+    // at world 0.55; the dark point at world 0.5 is behind the plate.
+    let x = Vec3::new(0.05, 0.3, 0.0);
+    let x_world = Vec3::new(0.5 + sx * 0.05, 0.3, 0.2);
+    let plain = reconstruct_ao(m, x, Vec3::Y);
+    let got = reconstruct_ao_seen(&memo, x, Vec3::Y, x_world);
+    let open = {
+        let Placement::Stored { cell, slot } = t.placement(1) else {
+            panic!()
+        };
+        PointWord(t.cell(cell)[slot as usize]).ao()
+    };
+    assert!(
+        plain < open - 0.05,
+        "both points weigh without the test: {plain}"
+    );
+    assert!((got - open).abs() < 1e-6, "{got} against {open}");
+}
+
+#[test]
+fn a_point_projected_in_the_last_half_pixel_tests_the_last_column_and_row() {
+    let case = floor_with_two_points();
+    let m = case.decoder.mirror().instance(1).unwrap();
+    // The dark point at (u, v) = (3.8, 3.8): only pixel (3, 3) surrounds
+    // it, clamped; the open point falls outside the view.
+    let to_clip = Mat4::from_cols(
+        Vec4::new(5.0, 0.0, 0.0, 0.0),
+        Vec4::ZERO,
+        Vec4::new(0.0, -5.0, 0.0, 0.0),
+        Vec4::new(0.9, -0.9, 0.0, 1.0),
+    );
+    let (q, n) = plate();
+    let mut s = every_pixel_sees(q, Vec3::Y, 1);
+    let k = PIXELS - 1;
+    s.instance[k] = 2;
+    s.normal[k] = n;
+    let got = ao_seen(m, X, &s, to_clip);
+    assert!((got - case.open).abs() < 1e-6, "{got}");
 }

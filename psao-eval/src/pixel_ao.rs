@@ -61,6 +61,7 @@ pub struct ClientImage {
 /// does not depend on the thread count. A G-buffer whose attributes do not
 /// hold `width x height` values is an error.
 pub fn psao_image(mirror: &Mirror, g: &GBuffer) -> Result<ClientImage, SceneError> {
+    g.check()?;
     client_image(mirror, g, None)
 }
 
@@ -76,6 +77,17 @@ pub fn psao_image_seen(
     view: &View,
 ) -> Result<ClientImage, SceneError> {
     g.check()?;
+    if (view.width, view.height) != (g.width, g.height) {
+        return Err(SceneError::Camera {
+            reason: format!(
+                "a {}x{} view for a {}x{} G-buffer",
+                view.width, view.height, g.width, g.height
+            ),
+        });
+    }
+    if g.pixels() == 0 {
+        return client_image(mirror, g, None);
+    }
     let seen = SeenSurfaces::new(
         view.world_to_clip(),
         g.width,
@@ -85,33 +97,33 @@ pub fn psao_image_seen(
         &g.instance,
     )
     .map_err(|e| SceneError::Camera {
-        reason: format!("the view does not fit the G-buffer: {e}"),
+        reason: format!("the view's surfaces for the hidden test: {e}"),
     })?;
-    if (view.width, view.height) != (g.width, g.height) {
-        return Err(SceneError::Camera {
-            reason: format!(
-                "a {}x{} view for a {}x{} G-buffer",
-                view.width, view.height, g.width, g.height
-            ),
-        });
+    // One memo per instance the view sees, shared by every row. (Runs of
+    // pixels share an instance, so its ids are gathered run by run.)
+    let mut ids: Vec<u32> = Vec::new();
+    let mut last = NO_INSTANCE;
+    for &id in &g.instance {
+        if id != last && id != NO_INSTANCE && !ids.contains(&id) {
+            ids.push(id);
+        }
+        last = id;
     }
-    // One memo per instance in local space, shared by every row.
-    let memos: HashMap<u32, HiddenMemo> = mirror
-        .instances()
-        .filter(|(_, inst)| !inst.def().bind_space())
-        .map(|(id, inst)| (id, HiddenMemo::new(inst, &seen)))
+    let memos: HashMap<u32, HiddenMemo> = ids
+        .into_iter()
+        .filter_map(|id| Some((id, HiddenMemo::new(mirror.instance(id)?, id, &seen))))
+        .filter(|(_, memo)| memo.applies())
         .collect();
-    client_image(mirror, g, Some((&seen, &memos)))
+    client_image(mirror, g, Some(&memos))
 }
 
-/// [`psao_image`], with the test of [`psao_image_seen`] when `seen` (and
-/// its memos) is given.
+/// [`psao_image`], with the test of [`psao_image_seen`] for the instances
+/// `memos` holds, when given (`g` checked).
 fn client_image(
     mirror: &Mirror,
     g: &GBuffer,
-    seen: Option<(&SeenSurfaces, &HashMap<u32, HiddenMemo>)>,
+    memos: Option<&HashMap<u32, HiddenMemo>>,
 ) -> Result<ClientImage, SceneError> {
-    g.check()?;
     let w = g.width as usize;
     let rows: Vec<(Vec<f32>, usize)> = (0..g.height as usize)
         .into_par_iter()
@@ -126,14 +138,10 @@ fn client_image(
                     }
                     let local = space.local(g, k);
                     match local {
-                        Some((inst, (x, n))) => {
-                            match seen.and_then(|(s, m)| Some((s, m.get(&id)?))) {
-                                Some((seen, memo)) => {
-                                    reconstruct_ao_seen(inst, id, x, n, g.position[k], seen, memo)
-                                }
-                                None => reconstruct_ao(inst, x, n),
-                            }
-                        }
+                        Some((inst, (x, n))) => match memos.and_then(|m| m.get(&id)) {
+                            Some(memo) => reconstruct_ao_seen(memo, x, n, g.position[k]),
+                            None => reconstruct_ao(inst, x, n),
+                        },
                         None => {
                             unknown += 1;
                             1.0

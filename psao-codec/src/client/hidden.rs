@@ -28,8 +28,10 @@ pub const NO_SURFACE: u32 = u32::MAX;
 #[derive(Clone, Debug, PartialEq, Eq, Error)]
 #[non_exhaustive]
 pub enum SeenSurfacesError {
-    /// Width or height is 0.
-    #[error("the view must be at least one pixel wide and high ({width}x{height})")]
+    /// Width or height is 0, or `width x height` does not fit in `usize`.
+    #[error(
+        "the view must be at least one pixel wide and high, and its pixels countable ({width}x{height})"
+    )]
     Empty {
         /// Width, pixels.
         width: u32,
@@ -61,6 +63,10 @@ pub enum SeenSurfacesError {
 /// `c.w > 0`, and its pixel coordinates are
 /// `u = (c.x / c.w + 1) / 2 * width`, `v = (1 - c.y / c.w) / 2 * height`
 /// (pixel `(i, j)` covers `[i, i + 1) x [j, j + 1)`).
+///
+/// The instance ids must be those the mirror uses ([`NO_SURFACE`] is
+/// `u32::MAX`). Normals and positions are taken as given: a NaN in a
+/// pixel's makes that pixel hide nothing.
 #[derive(Clone, Copy, Debug)]
 pub struct SeenSurfaces<'a> {
     to_clip: Mat4,
@@ -88,7 +94,9 @@ impl<'a> SeenSurfaces<'a> {
         if !to_clip.is_finite() {
             return Err(SeenSurfacesError::Matrix);
         }
-        let pixels = width as usize * height as usize;
+        let pixels = (width as usize)
+            .checked_mul(height as usize)
+            .ok_or(SeenSurfacesError::Empty { width, height })?;
         for (what, len) in [
             ("position", position.len()),
             ("normal", normal.len()),
@@ -119,8 +127,14 @@ impl<'a> SeenSurfaces<'a> {
     /// - has `x` on its front side (`(x - q) . m >= 0`, `q` its position),
     /// - and has `p` behind it by more than `tol`: `(p - q) . m < -tol`.
     ///
-    /// A candidate behind the camera or outside the view is never hidden;
-    /// NaNs anywhere hide nothing.
+    /// `tol` is the spec's `h`; `n_p` is used as given (unit length
+    /// expected). A candidate behind the camera or outside the view
+    /// (`0 <= u < width`, `0 <= v < height`) is never hidden, and a pixel
+    /// whose position or normal holds a NaN hides nothing. This projects
+    /// the world point with the view's matrix; [`reconstruct_ao_seen`]
+    /// projects local points with the product of the view's matrix and the
+    /// instance's transform, whose rounding may differ for a candidate on
+    /// the edge between two pixels.
     pub fn hides(&self, p: Vec3, n_p: Vec3, x: Vec3, own: u32, t_n: f32, tol: f32) -> bool {
         self.around(self.to_clip * p.extend(1.0))
             .is_some_and(|quad| {
@@ -203,27 +217,40 @@ impl SeenFrame {
         if !det.is_finite() || det.abs() <= f32::MIN_POSITIVE {
             return None;
         }
-        Some(SeenFrame {
+        let frame = SeenFrame {
             to_world,
             // Normals map by the inverse transpose of the linear part.
             normals: to_world.matrix3.inverse().transpose(),
             to_clip: seen.to_clip * Mat4::from(to_world),
             tol: def.radius / 100.0 * det.abs().cbrt(),
-        })
+        };
+        // A finite but huge transform can overflow the products.
+        let finite = to_world.is_finite()
+            && frame.normals.is_finite()
+            && frame.to_clip.is_finite()
+            && frame.tol.is_finite();
+        finite.then_some(frame)
     }
 }
 
-/// What [`reconstruct_ao_seen`] learned about each point of one instance in
-/// one view, so that a point weighed for many pixels is projected once:
-/// whether any surface the view sees could hide it. Make one per instance
-/// and view (or frame), share it between the pixels of that view (threads
-/// included), and drop it when the view or the mirror changes.
+/// One instance in one view, for [`reconstruct_ao_seen`]: the instance as
+/// the mirror holds it, its id, the view's surfaces, the instance's
+/// transforms in that view, and what earlier pixels learned about each of
+/// its points (whether any surface around it could hide it), so that a
+/// point weighed for many pixels is projected once. It borrows the mirror's
+/// instance and the view, so neither can change while it lives; make one
+/// per instance and view (or frame) and share it between the pixels of that
+/// view, threads included.
 #[derive(Debug)]
-pub struct HiddenMemo {
-    /// Per point word: [`UNKNOWN`], [`NEVER`] or [`MAYBE`].
-    state: Vec<AtomicU8>,
+pub struct HiddenMemo<'a> {
+    inst: &'a InstanceMirror,
+    id: u32,
+    seen: SeenSurfaces<'a>,
     /// The instance's transforms in the view, when the test applies.
     frame: Option<SeenFrame>,
+    /// Per point word: [`UNKNOWN`], [`NEVER`] or [`MAYBE`] (empty when the
+    /// test does not apply).
+    state: Vec<AtomicU8>,
 }
 
 /// Not yet looked at.
@@ -233,10 +260,10 @@ const NEVER: u8 = 1;
 /// Some surface around it may hide it: test each pixel.
 const MAYBE: u8 = 2;
 
-impl HiddenMemo {
-    /// An empty memo for the points of `inst`, as the mirror holds them
-    /// now, in the view of `seen`.
-    pub fn new(inst: &InstanceMirror, seen: &SeenSurfaces) -> HiddenMemo {
+impl<'a> HiddenMemo<'a> {
+    /// Instance `inst`, whose id (the one `seen` names its pixels by) is
+    /// `id`, in the view of `seen`; nothing learned yet.
+    pub fn new(inst: &'a InstanceMirror, id: u32, seen: &SeenSurfaces<'a>) -> HiddenMemo<'a> {
         let frame = SeenFrame::of(inst, seen);
         let len = if frame.is_some() {
             inst.words().len()
@@ -244,49 +271,42 @@ impl HiddenMemo {
             0
         };
         HiddenMemo {
-            state: (0..len).map(|_| AtomicU8::new(UNKNOWN)).collect(),
+            inst,
+            id,
+            seen: *seen,
             frame,
+            state: (0..len).map(|_| AtomicU8::new(UNKNOWN)).collect(),
         }
     }
-}
 
-/// [`reconstruct_ao`] with the test of spec/wire-format.md 7.3.1: a
-/// candidate that `seen` shows hidden behind another surface, one that
-/// faces the pixel being shaded, is left out of both passes.
+    /// Whether the test applies to the instance (local space, with a
+    /// usable transform): else [`reconstruct_ao_seen`] is
+    /// [`reconstruct_ao`].
+    pub fn applies(&self) -> bool {
+        self.frame.is_some()
+    }
+}
+/// [`reconstruct_ao`] with the test of spec/wire-format.md 7.3.1 for the
+/// instance and view of `memo`: a candidate that the view shows hidden
+/// behind another surface, one that faces the pixel being shaded, is left
+/// out of both passes.
 ///
 /// `x` and `n` are the pixel's surface point and unit normal in the
 /// instance's lookup space, as for [`reconstruct_ao`]; `x_world` is the
-/// same point in world space, and `id` the instance's id. `memo`, made for
-/// this instance and view ([`HiddenMemo::new`]), holds the instance's
-/// transforms and what earlier pixels of the view learned about its points;
-/// one made for an instance with another number of point words is not
-/// trusted (the test is then made from scratch for every candidate). The
-/// test needs a candidate's world position, so it applies to instances in
-/// local space with a transform; for an instance in bind space (point
-/// format 1), or one without a usable transform, this is
-/// [`reconstruct_ao`]. The tolerance is `r / 100` in local units, scaled
-/// to world units by the cube root of the transform's determinant.
-pub fn reconstruct_ao_seen(
-    inst: &InstanceMirror,
-    id: u32,
-    x: Vec3,
-    n: Vec3,
-    x_world: Vec3,
-    seen: &SeenSurfaces,
-    memo: &HiddenMemo,
-) -> f32 {
-    let fits = memo.state.len() == inst.words().len();
-    let Some(frame) = (if fits {
-        memo.frame
-    } else {
-        SeenFrame::of(inst, seen)
-    }) else {
+/// same point in world space. The test needs a candidate's world position,
+/// so it applies to instances in local space with a transform; for an
+/// instance in bind space (point format 1), or one without a usable
+/// transform, this is [`reconstruct_ao`] ([`HiddenMemo::applies`]). The
+/// tolerance `h` is `r / 100` in local units, scaled to world units by the
+/// cube root of the transform's determinant.
+pub fn reconstruct_ao_seen(memo: &HiddenMemo, x: Vec3, n: Vec3, x_world: Vec3) -> f32 {
+    let (inst, id, seen) = (memo.inst, memo.id, &memo.seen);
+    let Some(frame) = memo.frame else {
         return reconstruct_ao(inst, x, n);
     };
-    let states = fits.then_some(&memo.state[..]);
     let t_n = inst.def().t_n;
     reconstruct_ao_keeping(inst, x, n, |word, p, n_p| {
-        let state = states.and_then(|m| m.get(word));
+        let state = memo.state.get(word);
         let known = state.map_or(UNKNOWN, |s| s.load(Ordering::Relaxed));
         if known == NEVER {
             return true;
@@ -307,8 +327,9 @@ pub fn reconstruct_ao_seen(
             }
         }
         if let (UNKNOWN, Some(s)) = (known, state) {
-            // Every thread that looks computes the same value, so the order
-            // of stores does not matter.
+            // Every thread that looks computes the same value (it does not
+            // depend on the pixel being shaded), so the order of stores
+            // does not matter.
             s.store(if may != 0 { MAYBE } else { NEVER }, Ordering::Relaxed);
         }
         let mut hidden = false;
