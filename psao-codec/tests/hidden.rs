@@ -32,14 +32,21 @@ struct Case {
     open: f32,
 }
 
-fn floor_with_two_points() -> Case {
-    let def = small_def(); // r = 0.2, cells of 0.25 from (-1, 0, -1)
+/// Instance 1's table: a dark point (AO 0.1) at local (0, 0.3, 0) and an
+/// open one (0.9) at (`open_x`, 0.3, 0), both facing +Y, changes taken.
+fn two_points(def: InstanceDef, open_x: f32) -> GridTable {
     let mut t = GridTable::new(1, def, 4).unwrap();
     t.set_point(0, Vec3::new(0.0, 0.3, 0.0), Vec3::Y, 0.1)
         .unwrap();
-    t.set_point(1, Vec3::new(0.12, 0.3, 0.0), Vec3::Y, 0.9)
+    t.set_point(1, Vec3::new(open_x, 0.3, 0.0), Vec3::Y, 0.9)
         .unwrap();
     t.take_dirty();
+    t
+}
+
+fn floor_with_two_points() -> Case {
+    let def = small_def(); // r = 0.2, cells of 0.25 from (-1, 0, -1)
+    let t = two_points(def, 0.12);
     let ao_of = |id| {
         let Placement::Stored { cell, slot } = t.placement(id) else {
             panic!("point {id} is stored")
@@ -213,12 +220,7 @@ fn a_point_in_bind_space_is_never_tested() {
         point_format: POINT_FORMAT_BIND32,
         ..small_def()
     };
-    let mut t = GridTable::new(1, def, 4).unwrap();
-    t.set_point(0, Vec3::new(0.0, 0.3, 0.0), Vec3::Y, 0.1)
-        .unwrap();
-    t.set_point(1, Vec3::new(0.12, 0.3, 0.0), Vec3::Y, 0.9)
-        .unwrap();
-    t.take_dirty();
+    let t = two_points(def, 0.12);
     let mut decoder = Decoder::new(Limits::default());
     let mut enc = Encoder::new(EncoderConfig::default());
     decoder.receive(&keyframe(&mut enc, &[&t]).bytes).unwrap();
@@ -309,12 +311,7 @@ fn a_point_of_a_moved_and_scaled_instance_is_tested_where_the_transform_puts_it(
     // before, in world space. Projecting the local point with the view's
     // matrix alone would put it outside the view.
     let def = small_def();
-    let mut t = GridTable::new(1, def, 4).unwrap();
-    t.set_point(0, Vec3::new(0.0, 0.3, 0.0), Vec3::Y, 0.1)
-        .unwrap();
-    t.set_point(1, Vec3::new(0.06, 0.3, 0.0), Vec3::Y, 0.9)
-        .unwrap();
-    t.take_dirty();
+    let t = two_points(def, 0.06);
     let mut enc = Encoder::new(EncoderConfig::default());
     let mut f = enc.keyframe();
     f.snapshot(&t).unwrap();
