@@ -66,7 +66,7 @@ pub enum SeenSurfacesError {
 ///
 /// The instance ids must be those the mirror uses ([`NO_SURFACE`] is
 /// `u32::MAX`). Normals and positions are taken as given: a NaN in a
-/// pixel's makes that pixel hide nothing.
+/// pixel's position or normal makes that pixel hide nothing.
 #[derive(Clone, Copy, Debug)]
 pub struct SeenSurfaces<'a> {
     to_clip: Mat4,
