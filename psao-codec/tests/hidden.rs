@@ -6,6 +6,7 @@ mod common;
 
 use common::*;
 use glam::{Mat4, Vec3, Vec4};
+use proptest::prelude::*;
 use psao_codec::*;
 
 /// A 4x4 view looking straight down: world x in [-0.2, 0.2] maps to
@@ -370,4 +371,55 @@ fn a_point_projected_in_the_last_half_pixel_tests_the_last_column_and_row() {
     s.normal[k] = n;
     let got = ao_seen(m, X, &s, to_clip);
     assert!((got - case.open).abs() < 1e-6, "{got}");
+}
+
+/// Any float, NaN and the infinities included, often.
+fn any_f32() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        4 => -2.0f32..2.0,
+        1 => Just(f32::NAN),
+        1 => Just(f32::INFINITY),
+        1 => Just(-f32::INFINITY),
+        1 => Just(f32::MAX),
+        1 => Just(0.0f32),
+    ]
+}
+
+fn any_vec3() -> impl Strategy<Value = Vec3> {
+    (any_f32(), any_f32(), any_f32()).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+}
+
+proptest! {
+    /// Whatever the view holds (NaNs, infinities, huge values, ids of any
+    /// instance) and whatever its matrix (finite, as `SeenSurfaces::new`
+    /// requires, but huge), the test never panics, and the result is a
+    /// number in [0, 1] that equals eq. 2-4 or one of the point's AO
+    /// values' weighted means (here: the open point's alone).
+    #[test]
+    fn odd_views_never_panic_and_give_ao_in_range(
+        surfaces in proptest::collection::vec((any_vec3(), any_vec3(), 0u32..4), PIXELS),
+        cols in proptest::collection::vec(prop_oneof![4 => -10.0f32..10.0, 1 => Just(f32::MAX), 1 => Just(-f32::MAX), 1 => Just(0.0f32)], 16),
+        x in any_vec3(),
+        x_world in any_vec3(),
+    ) {
+        let case = floor_with_two_points();
+        let m = case.decoder.mirror().instance(1).unwrap();
+        let s = Surfaces {
+            position: surfaces.iter().map(|v| v.0).collect(),
+            normal: surfaces.iter().map(|v| v.1).collect(),
+            instance: surfaces.iter().map(|v| if v.2 == 3 { NO_SURFACE } else { v.2 }).collect(),
+        };
+        let to_clip = Mat4::from_cols_slice(&cols);
+        let view = seen(&s, to_clip);
+        let memo = HiddenMemo::new(m, 1, &view);
+        for shaded in [x, X] {
+            let got = reconstruct_ao_seen(&memo, shaded, Vec3::Y, x_world);
+            prop_assert!((0.0..=1.0).contains(&got), "{got}");
+            let plain = reconstruct_ao(m, shaded, Vec3::Y);
+            prop_assert!(
+                got == plain || (got - case.open).abs() < 1e-6 || (got - case.dark).abs() < 1e-6 || got == 1.0,
+                "{got} against eq. 2-4's {plain}"
+            );
+        }
+    }
 }
