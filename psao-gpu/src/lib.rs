@@ -43,7 +43,7 @@ mod server;
 
 pub use client::gbuffer::{GBufferSlices, NO_INSTANCE};
 pub use client::mirror::{GpuMirror, MAX_GPU_INSTANCE_ID};
-pub use client::reconstruct::{GpuReconstruct, RECONSTRUCT_WGSL};
+pub use client::reconstruct::{GpuReconstruct, RECONSTRUCT_SEEN_WGSL, RECONSTRUCT_WGSL};
 pub use context::{GpuContext, PassTimes};
 pub use error::GpuError;
 #[cfg(feature = "baseline")]

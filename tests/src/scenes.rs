@@ -1,6 +1,6 @@
 //! Small scenes for tests: a floor and a box sliding over it, so that
-//! something changes every frame, the pipeline settings tests use, and the
-//! points of a pipeline in world space.
+//! something changes every frame, a plate leaning on a floor, the pipeline
+//! settings tests use, and the points of a pipeline in world space.
 
 use glam::{Affine3A, Vec3};
 use psao_scene::{Animation, Mesh, Pipeline, PipelineConfig, Scene, Trs};
@@ -25,6 +25,35 @@ pub fn sliding_box() -> Scene {
         ],
     ));
     s
+}
+
+/// A 4 m floor, and a 1.2 m x 1.2 m plate 4 mm thick leaning at 40 degrees
+/// over x > 0, its lower edge on the floor along the z axis (issue 15's
+/// leaning plate: the floor points in the acute wedge under it are dark).
+pub fn leaning_plate() -> Scene {
+    let mut s = Scene::default();
+    s.add(
+        Mesh::quad(Vec3::new(-2.0, 0.0, -2.0), Vec3::Z * 4.0, Vec3::X * 4.0).subdivided(2),
+        Affine3A::IDENTITY,
+    );
+    s.add(
+        Mesh::cuboid(Vec3::new(0.0, 0.0, -0.6), Vec3::new(1.2, 0.004, 0.6)),
+        Affine3A::from_rotation_translation(
+            glam::Quat::from_rotation_z(40f32.to_radians()),
+            Vec3::ZERO,
+        ),
+    );
+    s
+}
+
+/// A camera on [`leaning_plate`]'s open side, above: it sees the plate's
+/// upper face and the floor in front of its foot, not the wedge under it.
+pub fn leaning_plate_camera() -> psao_scene::Camera {
+    psao_scene::Camera {
+        eye: Vec3::new(-2.2, 1.6, 0.4),
+        target: Vec3::new(0.1, 0.1, 0.0),
+        fov_y: 0.8,
+    }
 }
 
 /// A pipeline at `density` points per square metre with `rays` AO rays per

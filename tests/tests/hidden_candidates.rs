@@ -6,37 +6,14 @@
 //! the floor by the foot must come out closer with the test, and nothing
 //! else may get worse.
 
-use std::f32::consts::PI;
-
-use glam::{Affine3A, Quat, Vec3};
 use psao_codec::{Decoder, Limits};
 use psao_eval::{PosedScene, View, psao_image, psao_image_seen, ray_traced_ao};
-use psao_scene::{AoParams, Camera, Mesh, Pipeline, PipelineConfig, Scene};
+use psao_scene::{AoParams, Pipeline, PipelineConfig};
+use psao_tests::scenes::{leaning_plate, leaning_plate_camera};
 
-/// A 4 m floor, and a 1.2 m x 1.2 m plate 4 mm thick leaning at 40 degrees
-/// over x > 0, its lower edge on the floor along the z axis.
-fn leaning_plate() -> Scene {
-    let mut s = Scene::default();
-    s.add(
-        Mesh::quad(Vec3::new(-2.0, 0.0, -2.0), Vec3::Z * 4.0, Vec3::X * 4.0).subdivided(2),
-        Affine3A::IDENTITY,
-    );
-    s.add(
-        Mesh::cuboid(Vec3::new(0.0, 0.0, -0.6), Vec3::new(1.2, 0.004, 0.6)),
-        Affine3A::from_rotation_translation(Quat::from_rotation_z(40.0 * PI / 180.0), Vec3::ZERO),
-    );
-    s
-}
-
-/// A view from the plate's open side, above: the plate's upper face and the
-/// floor in front of its foot are seen; the wedge under it is not.
+/// A 96x64 view from the plate's open side.
 fn view() -> View {
-    let camera = Camera {
-        eye: Vec3::new(-2.2, 1.6, 0.4),
-        target: Vec3::new(0.1, 0.1, 0.0),
-        fov_y: 0.8,
-    };
-    View::new(camera, 96, 64).unwrap()
+    View::new(leaning_plate_camera(), 96, 64).unwrap()
 }
 
 /// Squared error of `image` against `reference` over the pixels `keep`

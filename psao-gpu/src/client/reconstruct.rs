@@ -18,11 +18,34 @@ use crate::error::GpuError;
 /// and normal instead (spec/wire-format.md 6.1).
 pub const RECONSTRUCT_WGSL: &str = include_str!("../shaders/reconstruct.wgsl");
 
+/// The optional hidden-candidate test of spec/wire-format.md 7.3.1, to
+/// append after [`RECONSTRUCT_WGSL`]: `psao_ao_seen(instance,
+/// position, normal, world_position)` is `psao_ao` leaving out the
+/// candidates the view shows hidden behind another surface that faces the
+/// pixel. Its bindings are group 0, bindings 4 (a uniform: the view's
+/// WebGPU world-to-clip matrix and its width and height) and 5 (per pixel
+/// of the view, two `vec4<f32>`: the world position with the instance id's
+/// bits in `w`, `0xFFFFFFFF` where nothing is seen, and the unit world
+/// normal facing the camera). A shader that calls only `psao_ao` need not
+/// append it.
+pub const RECONSTRUCT_SEEN_WGSL: &str = include_str!("../shaders/reconstruct_seen.wgsl");
+
 const WORKGROUP: u32 = 64;
 
 /// The reconstruction compute pass.
 #[derive(Debug)]
 pub struct GpuReconstruct {
+    pipeline: wgpu::ComputePipeline,
+    mirror_layout: wgpu::BindGroupLayout,
+    pass_layout: wgpu::BindGroupLayout,
+    /// The pass with the hidden-candidate test ([`Self::run_seen`]).
+    seen: SeenPass,
+}
+
+/// The compute pass of [`RECONSTRUCT_SEEN_WGSL`]: group 0 is the mirror
+/// and the view, group 1 the pixels' lookup attributes and the output.
+#[derive(Debug)]
+struct SeenPass {
     pipeline: wgpu::ComputePipeline,
     mirror_layout: wgpu::BindGroupLayout,
     pass_layout: wgpu::BindGroupLayout,
@@ -64,12 +87,169 @@ impl GpuReconstruct {
                 &source,
                 &[&mirror_layout, &pass_layout],
             );
+            let seen_source = format!(
+                "{RECONSTRUCT_WGSL}\n{RECONSTRUCT_SEEN_WGSL}\n{}",
+                include_str!("../shaders/reconstruct_seen_pass.wgsl")
+            );
+            let seen_mirror_layout =
+                ctx.device
+                    .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                        label: Some("psao-gpu mirror and view"),
+                        entries: &[
+                            storage_layout(0, true),
+                            storage_layout(1, true),
+                            storage_layout(2, true),
+                            storage_layout(3, true),
+                            uniform_layout(4),
+                            storage_layout(5, true),
+                        ],
+                    });
+            let seen_pass_layout =
+                ctx.device
+                    .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                        label: Some("psao-gpu reconstruct pass with the hidden test"),
+                        entries: &[
+                            storage_layout(0, true),
+                            storage_layout(1, false),
+                            uniform_layout(2),
+                        ],
+                    });
+            let seen_pipeline = ctx.compute_pipeline(
+                "psao-gpu reconstruct_seen.wgsl",
+                &seen_source,
+                &[&seen_mirror_layout, &seen_pass_layout],
+            );
             GpuReconstruct {
                 pipeline,
                 mirror_layout,
                 pass_layout,
+                seen: SeenPass {
+                    pipeline: seen_pipeline,
+                    mirror_layout: seen_mirror_layout,
+                    pass_layout: seen_pass_layout,
+                },
             }
         })
+    }
+
+    /// [`run`](Self::run) with the hidden-candidate test of
+    /// spec/wire-format.md 7.3.1 ([`RECONSTRUCT_SEEN_WGSL`]): `g` is what
+    /// the view whose WebGPU world-to-clip matrix is `to_clip` sees, one
+    /// value per pixel of a `width x height` view, row 0 at the top (as
+    /// psao-eval's `View::world_to_clip` and G-buffer). The same test as
+    /// psao-codec's `reconstruct_ao_seen`, up to the rounding of a
+    /// candidate's projection onto the edge between two pixels.
+    pub fn run_seen<'a>(
+        &self,
+        ctx: &GpuContext,
+        mirror: &GpuMirror,
+        g: impl Into<GBufferSlices<'a>>,
+        to_clip: glam::Mat4,
+        width: u32,
+        height: u32,
+    ) -> Result<Vec<f32>, GpuError> {
+        let g = g.into();
+        g.check()?;
+        let n = g.pixels();
+        if width as u64 * height as u64 != n as u64 {
+            return Err(GpuError::Input(format!(
+                "a {width}x{height} view for a G-buffer of {n} pixels"
+            )));
+        }
+        if !to_clip.is_finite() {
+            return Err(GpuError::Input(
+                "the view's world-to-clip matrix is not finite".into(),
+            ));
+        }
+        if n == 0 {
+            return Ok(Vec::new());
+        }
+        let limits = ctx.device.limits();
+        if (n as u64) * 32 > limits.max_storage_buffer_binding_size {
+            return Err(GpuError::Limits {
+                what: "G-buffer bytes",
+                needed: n as u64 * 32,
+                limit: limits.max_storage_buffer_binding_size,
+            });
+        }
+        let grid = ctx.grid(n, WORKGROUP);
+        let bind: Vec<bool> = g.instance.iter().map(|&i| mirror.bind_space(i)).collect();
+        if g.bind_position.is_empty() && bind.contains(&true) {
+            return Err(GpuError::Input(
+                "the mirror holds instances in bind space (point format 1): the G-buffer needs bind_position and bind_normal".into(),
+            ));
+        }
+        let mut surfaces: Vec<[f32; 4]> = Vec::with_capacity(2 * n);
+        let mut lookup: Vec<[f32; 4]> = Vec::with_capacity(2 * n);
+        for (k, &in_bind_space) in bind.iter().enumerate() {
+            let id = if g.instance[k] == NO_INSTANCE {
+                u32::MAX
+            } else {
+                g.instance[k]
+            };
+            surfaces.push(g.position[k].extend(f32::from_bits(id)).to_array());
+            surfaces.push(g.normal[k].extend(0.0).to_array());
+            let (p, nrm) = if in_bind_space {
+                (g.bind_position[k], g.bind_normal[k])
+            } else {
+                (g.position[k], g.normal[k])
+            };
+            lookup.push(p.extend(0.0).to_array());
+            lookup.push(nrm.extend(0.0).to_array());
+        }
+        let mut view = [0u32; 20];
+        for (k, v) in to_clip.to_cols_array().iter().enumerate() {
+            view[k] = v.to_bits();
+        }
+        view[16] = width;
+        view[17] = height;
+        let size = [n as u32, grid.0 * WORKGROUP, 0, 0];
+        let start = Instant::now();
+        let (commands, out) = ctx.checked("reconstruction pass with the hidden test", || {
+            let s = wgpu::BufferUsages::STORAGE;
+            let sb = ctx.buffer_with("psao-gpu view surfaces", bytemuck::cast_slice(&surfaces), s);
+            let lb = ctx.buffer_with("psao-gpu lookup", bytemuck::cast_slice(&lookup), s);
+            let vb = ctx.uniform("psao-gpu view", &view);
+            let ub = ctx.uniform("psao-gpu pass size", &size);
+            let out = ctx.storage_out("psao-gpu ao image", n as u64 * 4);
+            let mut mirror_entries = mirror.bind_entries().to_vec();
+            mirror_entries.push(wgpu::BindGroupEntry {
+                binding: 4,
+                resource: vb.as_entire_binding(),
+            });
+            mirror_entries.push(wgpu::BindGroupEntry {
+                binding: 5,
+                resource: sb.as_entire_binding(),
+            });
+            let mirror_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("psao-gpu mirror and view"),
+                layout: &self.seen.mirror_layout,
+                entries: &mirror_entries,
+            });
+            let entries: Vec<wgpu::BindGroupEntry<'_>> = [&lb, &out, &ub]
+                .into_iter()
+                .enumerate()
+                .map(|(k, b)| wgpu::BindGroupEntry {
+                    binding: k as u32,
+                    resource: b.as_entire_binding(),
+                })
+                .collect();
+            let pass_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("psao-gpu reconstruct pass with the hidden test"),
+                layout: &self.seen.pass_layout,
+                entries: &entries,
+            });
+            let mut enc = ctx.encoder("psao-gpu reconstruct with the hidden test");
+            GpuContext::record_pass(
+                &mut enc,
+                "psao-gpu reconstruct with the hidden test",
+                &self.seen.pipeline,
+                &[&mirror_group, &pass_group],
+                grid,
+            );
+            (enc.finish(), out)
+        })?;
+        ctx.timed_passes(commands, &out, n, start).map(|r| r.0)
     }
 
     /// AO per pixel of `g` from the mirror on the GPU (1 where nothing was
