@@ -24,9 +24,9 @@ pub const RECONSTRUCT_WGSL: &str = include_str!("../shaders/reconstruct.wgsl");
 /// candidates the view shows hidden behind another surface that faces the
 /// pixel. Its bindings are group 0, bindings 4 (a uniform: the view's
 /// WebGPU world-to-clip matrix and its width and height) and 5 (per pixel
-/// of the view, two `vec4<f32>`: the world position with the instance id's
-/// bits in `w`, `0xFFFFFFFF` where nothing is seen, and the unit world
-/// normal facing the camera). A shader that calls only `psao_ao` need not
+/// of the view, two `vec4<u32>`: the bits of the world position with the
+/// instance id in `w`, `0xFFFFFFFF` where nothing is seen, and the bits of
+/// the unit world normal facing the camera). A shader that calls only `psao_ao` need not
 /// append it.
 pub const RECONSTRUCT_SEEN_WGSL: &str = include_str!("../shaders/reconstruct_seen.wgsl");
 
@@ -178,6 +178,15 @@ impl GpuReconstruct {
             return Err(GpuError::Input(
                 "the mirror holds instances in bind space (point format 1): the G-buffer needs bind_position and bind_normal".into(),
             ));
+        }
+        // (The binding limit keeps n far below this; the shader indexes
+        // 2 n + 1 in u32.)
+        if n as u64 >= u32::MAX as u64 / 2 {
+            return Err(GpuError::Limits {
+                what: "pixels",
+                needed: n as u64,
+                limit: u32::MAX as u64 / 2 - 1,
+            });
         }
         let mut surfaces: Vec<[f32; 4]> = Vec::with_capacity(2 * n);
         let mut lookup: Vec<[f32; 4]> = Vec::with_capacity(2 * n);

@@ -16,21 +16,30 @@ struct PsaoView {
 }
 
 @group(0) @binding(4) var<uniform> psao_view: PsaoView;
-// Two per pixel, row-major, row 0 at the top: (world position q, the
-// instance id's bits or 0xFFFFFFFF where nothing is seen), (unit world
-// shading normal m facing the camera, unused).
-@group(0) @binding(5) var<storage, read> psao_view_surfaces: array<vec4<f32>>;
+// Two per pixel, row-major, row 0 at the top: (the bits of the world
+// position q, the instance id or 0xFFFFFFFF where nothing is seen), (the
+// bits of the unit world shading normal m facing the camera, unused).
+// Read as u32 so that ids pass through no float.
+@group(0) @binding(5) var<storage, read> psao_view_surfaces: array<vec4<u32>>;
 
 // The conditions of 7.3.1 on the surface seen at pixel k that do not
 // depend on the pixel being shaded, and then the one that does.
 fn psao_seen_pixel_hides(k: u32, p: vec3<f32>, n_p: vec3<f32>, x: vec3<f32>, own: u32, t_n: f32, tol: f32) -> bool {
+    if (2u * k + 1u >= arrayLength(&psao_view_surfaces)) {
+        return false;
+    }
     let a = psao_view_surfaces[2u * k];
-    let seen = bitcast<u32>(a.w);
+    let seen = a.w;
     if (seen == 0xFFFFFFFFu) {
         return false;
     }
-    let q = a.xyz;
-    let m = psao_view_surfaces[2u * k + 1u].xyz;
+    let q = bitcast<vec3<f32>>(a.xyz);
+    let m = bitcast<vec3<f32>>(psao_view_surfaces[2u * k + 1u].xyz);
+    // A NaN or infinite q or m hides nothing (tested on the bits: WGSL
+    // lets comparisons assume finite values).
+    if (!psao_finite3(q) || !psao_finite3(m)) {
+        return false;
+    }
     let facing = dot(n_p, m);
     if (seen == own && facing > t_n) {
         return false;
@@ -41,8 +50,13 @@ fn psao_seen_pixel_hides(k: u32, p: vec3<f32>, n_p: vec3<f32>, x: vec3<f32>, own
 // Whether the candidate at world p with world normal n_p, weighed for the
 // pixel at world x on instance `own`, is hidden (7.3.1).
 fn psao_seen_hidden(p: vec3<f32>, n_p: vec3<f32>, x: vec3<f32>, own: u32, t_n: f32, tol: f32) -> bool {
+    let w = psao_view.size.x;
+    let h = psao_view.size.y;
+    if (w == 0u || h == 0u) {
+        return false;
+    }
     let c = psao_view.to_clip * vec4<f32>(p, 1.0);
-    if (!(c.w > 0.0)) {
+    if (!psao_finite3(c.xyw) || !(c.w > 0.0)) {
         return false;
     }
     let size = vec2<f32>(psao_view.size.xy);
@@ -51,8 +65,6 @@ fn psao_seen_hidden(p: vec3<f32>, n_p: vec3<f32>, x: vec3<f32>, own: u32, t_n: f
     if (!(u >= 0.0 && u < size.x && v >= 0.0 && v < size.y)) {
         return false;
     }
-    let w = psao_view.size.x;
-    let h = psao_view.size.y;
     let i0 = min(u32(max(floor(u - 0.5), 0.0)), w - 1u);
     let j0 = min(u32(max(floor(v - 0.5), 0.0)), h - 1u);
     let i1 = min(i0 + 1u, w - 1u);
@@ -93,10 +105,11 @@ fn psao_seen_cell_sums(inst: PsaoInstance, found: u32, lo: vec3<f32>, x: vec3<f3
         if (a > 0.0) {
             let pw = f.m * p + f.t;
             let nl = f.normals * n_p;
-            let len = length(nl);
+            // As glam's normalize_or_zero (and psao_ao's normal).
+            let rcp = 1.0 / length(nl);
             var nw = vec3<f32>(0.0);
-            if (len > 0.0) {
-                nw = nl / len;
+            if ((bitcast<u32>(rcp) & 0x7F800000u) != 0x7F800000u && rcp > 0.0) {
+                nw = nl * rcp;
             }
             if (psao_seen_hidden(pw, nw, xw, f.own, inst.params.x, f.tol)) {
                 continue;
@@ -147,7 +160,11 @@ fn psao_seen_sums(inst: PsaoInstance, x: vec3<f32>, n: vec3<f32>, r: f32, f: Psa
 // `world_position` (for an instance of point format 1, `position` and
 // `normal` are the bind-space ones, as for psao_ao; the test does not
 // apply to it, nor to an instance whose transform's products are not
-// finite, and the result is psao_ao's).
+// finite, and the result is psao_ao's). The same test as psao-codec's
+// reconstruct_ao_seen up to rounding: the translation is rebuilt here
+// from the inverse's (so it rounds differently far from the origin),
+// pow() stands for the cube root, and a candidate's projection onto the
+// edge between two pixels may land on the other one.
 fn psao_ao_seen(instance: u32, position: vec3<f32>, normal: vec3<f32>, world_position: vec3<f32>) -> f32 {
     if (instance >= arrayLength(&psao_instances)) {
         return 1.0;

@@ -16,10 +16,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let a = psao_view_surfaces[2u * i];
-    let id = bitcast<u32>(a.w);
+    let id = a.w;
     if (id == 0xFFFFFFFFu) {
         seen_ao_out[i] = 1.0;
         return;
     }
-    seen_ao_out[i] = psao_ao_seen(id, seen_lookup[2u * i].xyz, seen_lookup[2u * i + 1u].xyz, a.xyz);
+    seen_ao_out[i] = psao_ao_seen(id, seen_lookup[2u * i].xyz, seen_lookup[2u * i + 1u].xyz, bitcast<vec3<f32>>(a.xyz));
 }
