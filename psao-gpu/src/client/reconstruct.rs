@@ -164,21 +164,7 @@ impl GpuReconstruct {
         if n == 0 {
             return Ok(Vec::new());
         }
-        let limits = ctx.device.limits();
-        if (n as u64) * 32 > limits.max_storage_buffer_binding_size {
-            return Err(GpuError::Limits {
-                what: "G-buffer bytes",
-                needed: n as u64 * 32,
-                limit: limits.max_storage_buffer_binding_size,
-            });
-        }
-        let grid = ctx.grid(n, WORKGROUP);
-        let bind: Vec<bool> = g.instance.iter().map(|&i| mirror.bind_space(i)).collect();
-        if g.bind_position.is_empty() && bind.contains(&true) {
-            return Err(GpuError::Input(
-                "the mirror holds instances in bind space (point format 1): the G-buffer needs bind_position and bind_normal".into(),
-            ));
-        }
+        let (grid, bind) = pixel_layout(ctx, mirror, &g, 32)?;
         // (The binding limit keeps n far below this; the shader indexes
         // 2 n + 1 in u32.)
         if n as u64 >= u32::MAX as u64 / 2 {
@@ -289,24 +275,7 @@ impl GpuReconstruct {
         if n == 0 {
             return Ok((Vec::new(), PassTimes::default()));
         }
-        let limits = ctx.device.limits();
-        if (n as u64) * 16 > limits.max_storage_buffer_binding_size {
-            return Err(GpuError::Limits {
-                what: "G-buffer bytes",
-                needed: n as u64 * 16,
-                limit: limits.max_storage_buffer_binding_size,
-            });
-        }
-        let grid = ctx.grid(n, WORKGROUP);
-        // Pixels of bind-space instances are looked up by their bind-space
-        // attributes (the shader's transform for them is the identity).
-        // (Each pixel's instance is looked up once.)
-        let bind: Vec<bool> = g.instance.iter().map(|&i| mirror.bind_space(i)).collect();
-        if g.bind_position.is_empty() && bind.contains(&true) {
-            return Err(GpuError::Input(
-                "the mirror holds instances in bind space (point format 1): the G-buffer needs bind_position and bind_normal".into(),
-            ));
-        }
+        let (grid, bind) = pixel_layout(ctx, mirror, &g, 16)?;
         let pick = |world: &[glam::Vec3], local: &[glam::Vec3]| -> Vec<[f32; 4]> {
             bind.iter()
                 .enumerate()
@@ -358,4 +327,34 @@ impl GpuReconstruct {
         })?;
         ctx.timed_passes(commands, &out, n, start)
     }
+}
+
+/// What both passes check and need before their buffers: that the largest
+/// per-pixel buffer (`bytes` a pixel) fits a storage binding, the grid of
+/// workgroups, and which pixels are looked up by their bind-space
+/// attributes (instances of point format 1: the shader's transform for
+/// them is the identity), each pixel's instance looked up once. A mirror
+/// in bind space needs the G-buffer's bind-space slices.
+fn pixel_layout(
+    ctx: &GpuContext,
+    mirror: &GpuMirror,
+    g: &GBufferSlices<'_>,
+    bytes: u64,
+) -> Result<((u32, u32), Vec<bool>), GpuError> {
+    let n = g.pixels();
+    let limits = ctx.device.limits();
+    if (n as u64) * bytes > limits.max_storage_buffer_binding_size {
+        return Err(GpuError::Limits {
+            what: "G-buffer bytes",
+            needed: n as u64 * bytes,
+            limit: limits.max_storage_buffer_binding_size,
+        });
+    }
+    let bind: Vec<bool> = g.instance.iter().map(|&i| mirror.bind_space(i)).collect();
+    if g.bind_position.is_empty() && bind.contains(&true) {
+        return Err(GpuError::Input(
+            "the mirror holds instances in bind space (point format 1): the G-buffer needs bind_position and bind_normal".into(),
+        ));
+    }
+    Ok((ctx.grid(n, WORKGROUP), bind))
 }
