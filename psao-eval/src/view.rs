@@ -86,6 +86,10 @@ impl View {
     /// `u = (c.x / c.w + 1) / 2 * width`, `v = (1 - c.y / c.w) / 2 * height`,
     /// the same place as the module's pixel convention puts it, and
     /// `c.w` is its depth (in front of the camera when positive).
+    ///
+    /// (Not `Camera::view_projection`: that picks its up vector by another
+    /// rule near the vertical, and this must match the G-buffer's
+    /// [`world_to_view`](Self::world_to_view).)
     pub fn world_to_clip(&self) -> glam::Mat4 {
         let aspect = self.width as f32 / self.height as f32;
         // WebGPU clip space (y up); near and far do not enter x, y or w.

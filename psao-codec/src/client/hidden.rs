@@ -65,8 +65,8 @@ pub enum SeenSurfacesError {
 /// (pixel `(i, j)` covers `[i, i + 1) x [j, j + 1)`).
 ///
 /// The instance ids must be those the mirror uses ([`NO_SURFACE`] is
-/// `u32::MAX`). Normals and positions are taken as given: a NaN in a
-/// pixel's position or normal makes that pixel hide nothing.
+/// `u32::MAX`). Normals and positions are taken as given: a pixel whose
+/// position or normal is not finite hides nothing.
 #[derive(Clone, Copy, Debug)]
 pub struct SeenSurfaces<'a> {
     to_clip: Mat4,
@@ -129,8 +129,9 @@ impl<'a> SeenSurfaces<'a> {
     ///
     /// `tol` is the spec's `h`; `n_p` is used as given (unit length
     /// expected). A candidate behind the camera or outside the view
-    /// (`0 <= u < width`, `0 <= v < height`) is never hidden, and a pixel
-    /// whose position or normal holds a NaN hides nothing. This projects
+    /// (`0 <= u < width`, `0 <= v < height`), or whose clip coordinates
+    /// are not finite, is never hidden, and a pixel
+    /// whose position or normal is not finite hides nothing. This projects
     /// the world point with the view's matrix; [`reconstruct_ao_seen`]
     /// projects local points with the product of the view's matrix and the
     /// instance's transform, whose rounding may differ for a candidate on
@@ -145,11 +146,11 @@ impl<'a> SeenSurfaces<'a> {
 
     /// The four pixels (repeated at the view's last column or row) whose
     /// centres surround the projection of a point at clip coordinates `c`,
-    /// or `None` when it lies behind the camera or outside the view (or
-    /// `c` holds a NaN).
+    /// or `None` when it lies behind the camera or outside the view, or
+    /// `c.x`, `c.y` or `c.w` is not finite (an infinite `w` would put any
+    /// point at the view's centre).
     fn around(&self, c: Vec4) -> Option<[usize; 4]> {
-        // (NaN fails every comparison, so a NaN w is out too.)
-        if c.w.is_nan() || c.w <= 0.0 {
+        if !(c.x.is_finite() && c.y.is_finite() && c.w.is_finite()) || c.w <= 0.0 {
             return None;
         }
         let (w, h) = (self.width as f32, self.height as f32);
@@ -175,7 +176,11 @@ impl<'a> SeenSurfaces<'a> {
         if seen == NO_SURFACE {
             return false;
         }
-        let m = self.normal[k];
+        let (q, m) = (self.position[k], self.normal[k]);
+        // A pixel whose surface is not finite hides nothing (as on the GPU).
+        if !q.is_finite() || !m.is_finite() {
+            return false;
+        }
         let facing = n_p.dot(m);
         // The candidate's own surface: its position is quantized (up to
         // |cell_size| / 64 off the surface), so it may lie a little behind
@@ -183,7 +188,7 @@ impl<'a> SeenSurfaces<'a> {
         if seen == own && facing > t_n {
             return false;
         }
-        facing > 0.0 && (p - self.position[k]).dot(m) < -tol
+        facing > 0.0 && (p - q).dot(m) < -tol
     }
 
     /// Whether the pixel being shaded, at world `x`, is on the front side
@@ -286,6 +291,7 @@ impl<'a> HiddenMemo<'a> {
         self.frame.is_some()
     }
 }
+
 /// [`reconstruct_ao`] with the test of spec/wire-format.md 7.3.1 for the
 /// instance and view of `memo`: a candidate that the view shows hidden
 /// behind another surface, one that faces the pixel being shaded, is left

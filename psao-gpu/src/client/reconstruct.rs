@@ -26,8 +26,8 @@ pub const RECONSTRUCT_WGSL: &str = include_str!("../shaders/reconstruct.wgsl");
 /// WebGPU world-to-clip matrix and its width and height) and 5 (per pixel
 /// of the view, two `vec4<u32>`: the bits of the world position with the
 /// instance id in `w`, `0xFFFFFFFF` where nothing is seen, and the bits of
-/// the unit world normal facing the camera). A shader that calls only `psao_ao` need not
-/// append it.
+/// the unit world normal facing the camera). A shader that calls only
+/// `psao_ao` need not append it.
 pub const RECONSTRUCT_SEEN_WGSL: &str = include_str!("../shaders/reconstruct_seen.wgsl");
 
 const WORKGROUP: u32 = 64;
@@ -137,8 +137,10 @@ impl GpuReconstruct {
     /// the view whose WebGPU world-to-clip matrix is `to_clip` sees, one
     /// value per pixel of a `width x height` view, row 0 at the top (as
     /// psao-eval's `View::world_to_clip` and G-buffer). The same test as
-    /// psao-codec's `reconstruct_ao_seen`, up to the rounding of a
-    /// candidate's projection onto the edge between two pixels.
+    /// psao-codec's `reconstruct_ao_seen` up to rounding: the shader
+    /// rebuilds the instance's translation from its inverse's and takes
+    /// the cube root with `pow`, and a candidate projected onto the edge
+    /// between two pixels may land on the other one.
     pub fn run_seen<'a>(
         &self,
         ctx: &GpuContext,
@@ -174,16 +176,15 @@ impl GpuReconstruct {
                 limit: u32::MAX as u64 / 2 - 1,
             });
         }
-        let mut surfaces: Vec<[f32; 4]> = Vec::with_capacity(2 * n);
+        // The view's surfaces as the shader reads them: u32 words, the
+        // floats by their bits, the id as it is (NO_INSTANCE is the
+        // shader's 0xFFFFFFFF).
+        let bits = |v: glam::Vec3, w: u32| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits(), w];
+        let mut surfaces: Vec<[u32; 4]> = Vec::with_capacity(2 * n);
         let mut lookup: Vec<[f32; 4]> = Vec::with_capacity(2 * n);
         for (k, &in_bind_space) in bind.iter().enumerate() {
-            let id = if g.instance[k] == NO_INSTANCE {
-                u32::MAX
-            } else {
-                g.instance[k]
-            };
-            surfaces.push(g.position[k].extend(f32::from_bits(id)).to_array());
-            surfaces.push(g.normal[k].extend(0.0).to_array());
+            surfaces.push(bits(g.position[k], g.instance[k]));
+            surfaces.push(bits(g.normal[k], 0));
             let (p, nrm) = if in_bind_space {
                 (g.bind_position[k], g.bind_normal[k])
             } else {
