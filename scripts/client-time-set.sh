@@ -3,19 +3,31 @@
 # (scripts/bench-set.sh's groups, each at its densest N and its radius),
 # with psao-eval's client_time example: many images per scene, medians.
 # Usage: scripts/client-time-set.sh [extra client_time options...]
+# With CLIENT_TIME="BIN_A BIN_B ..." (client_time binaries, say built at
+# two commits), each scene is run by each binary in turn, one after the
+# other, instead of by this checkout's build.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 shared=../shared/scenes
-cargo build --release -p psao-eval --example client_time
-ct=target/release/examples/client_time
-for s in default cesium-man; do "$ct" --scene "$s" --density 1024 --radius 0.6 "$@"; done
+if [ -z "${CLIENT_TIME:-}" ]; then
+  cargo build --release -p psao-eval --example client_time
+  CLIENT_TIME=target/release/examples/client_time
+fi
+read -r -a bins <<< "$CLIENT_TIME"
+ct() {
+  for b in "${bins[@]}"; do
+    if [ "${#bins[@]}" -gt 1 ]; then echo -n "$b: "; fi
+    "$b" "$@"
+  done
+}
+for s in default cesium-man; do ct --scene "$s" --density 1024 --radius 0.6 "$@"; done
 source scripts/bench-set-scenes.sh
 for m in "${metre_models[@]}"; do
-  "$ct" --gltf "$shared/$m" --density 1024 --radius 0.6 "$@"
+  ct --gltf "$shared/$m" --density 1024 --radius 0.6 "$@"
 done
-"$ct" --scene hall --density 256 --radius 0.6 "$@"
-"$ct" --gltf "$shared/FlightHelmet/FlightHelmet.gltf" --density 65536 --radius 0.05 "$@"
-"$ct" --gltf "$shared/Fox/Fox.glb" --density 0.2 --radius 15 "$@"
-"$ct" --gltf "$shared/CornellBox/CornellBox.glb" --density 0.04 --radius 60 "$@"
-"$ct" --gltf "$shared/ToyCar/ToyCar.gltf" --density 4000000 --radius 0.005 "$@"
-"$ct" --gltf "$shared/MetalRoughSpheresNoTextures/MetalRoughSpheresNoTextures.gltf" --density 400000000 --radius 0.0005 "$@"
+ct --scene hall --density 256 --radius 0.6 "$@"
+ct --gltf "$shared/FlightHelmet/FlightHelmet.gltf" --density 65536 --radius 0.05 "$@"
+ct --gltf "$shared/Fox/Fox.glb" --density 0.2 --radius 15 "$@"
+ct --gltf "$shared/CornellBox/CornellBox.glb" --density 0.04 --radius 60 "$@"
+ct --gltf "$shared/ToyCar/ToyCar.gltf" --density 4000000 --radius 0.005 "$@"
+ct --gltf "$shared/MetalRoughSpheresNoTextures/MetalRoughSpheresNoTextures.gltf" --density 400000000 --radius 0.0005 "$@"

@@ -278,3 +278,53 @@ proptest::proptest! {
         }
     }
 }
+
+proptest::proptest! {
+    /// The same with cells twice the radius wide (the server's layout),
+    /// overflow chains, and the grid far from the origin: still eq. 2-4 as
+    /// written, bit for bit.
+    #[test]
+    fn cells_two_radii_wide_far_from_the_origin_bit_for_bit(
+        seed in 0u64..1_000_000,
+        radius in 0.03f32..0.2,
+        offset in proptest::sample::select(vec![0.0f32, 37.5, 1000.0, -65536.0, 3.0e5]),
+        probes in proptest::collection::vec((-1.2f32..1.2, -1.2f32..1.2, -1.2f32..1.2, 0usize..6), 1..40),
+    ) {
+        let shift = Vec3::new(offset, -0.5 * offset, 0.25 * offset);
+        let def = InstanceDef {
+            origin: small_def().origin + shift,
+            cell_size: Vec3::splat(2.0 * radius),
+            dims: UVec3::new(
+                (2.0 / (2.0 * radius)) as u32 + 1,
+                (1.0 / (2.0 * radius)) as u32 + 1,
+                (2.0 / (2.0 * radius)) as u32 + 1,
+            ),
+            table_log2: 8,
+            cell_pool: 1024,
+            overflow: true,
+            radius,
+            ..small_def()
+        };
+        let mut t = GridTable::new(1, def, 400).unwrap();
+        let mut s = seed;
+        let mut next = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 40) as f32) / (1u64 << 24) as f32
+        };
+        for id in 0..300 {
+            let p = Vec3::new(next() * 2.0 - 1.0, next() * 0.3 - 0.15 + 0.5, next() * 2.0 - 1.0);
+            let n = Vec3::new(next() - 0.5, 1.0, next() - 0.5);
+            t.set_point(id, p + shift, n, next()).unwrap();
+        }
+        let d = mirror_of(&mut t);
+        let inst = d.mirror().instance(1).unwrap();
+        let normals = [Vec3::Y, -Vec3::Y, Vec3::X, Vec3::new(0.3, 0.9, 0.1).normalize(), Vec3::Z, Vec3::ZERO];
+        for (x, y, z, k) in probes {
+            let (x, n) = (Vec3::new(x, y * 0.2 + 0.5, z) + shift, normals[k]);
+            proptest::prop_assert_eq!(
+                reconstruct_ao(inst, x, n).to_bits(),
+                two_passes(inst, x, n).to_bits()
+            );
+        }
+    }
+}

@@ -106,8 +106,16 @@ impl InstanceMirror {
     /// overflow chain while the one before it is full (spec/wire-format.md
     /// 7.4). `key` must be a cell's own key (eq. 1).
     pub fn chain(&self, key: u32) -> impl Iterator<Item = u32> + '_ {
+        let head = self.find_in(key, self.def.bucket_of_link(key, 0));
+        head.into_iter()
+            .flat_map(move |head| self.chain_from(key, head))
+    }
+
+    /// [`chain`](Self::chain) from its first pool cell `head`, found
+    /// already (by [`find_cell`](Self::find_cell) on `key`).
+    pub fn chain_from(&self, key: u32, head: u32) -> impl Iterator<Item = u32> + '_ {
         let links = self.def.max_links();
-        let mut next = self.find_in(key, self.def.bucket_of_link(key, 0));
+        let mut next = Some(head);
         let mut link = 0u8;
         std::iter::from_fn(move || {
             let cell = next.take()?;
