@@ -58,7 +58,8 @@ pub mod wire;
 pub use client::decoder::Decoder;
 pub use client::gpu_record::{GPU_RECORD_WORDS, gpu_instance_record};
 pub use client::hidden::{
-    HiddenMemo, NO_SURFACE, SeenSurfaces, SeenSurfacesError, reconstruct_ao_seen,
+    HiddenMemo, LEAN_MAX, LEAN_MIN, NO_SURFACE, SeenSurfaces, SeenSurfacesError,
+    reconstruct_ao_seen,
 };
 pub use client::mirror::{Change, Changes, Event, InstanceMirror, Mirror, Transform};
 pub use client::reconstruct::{

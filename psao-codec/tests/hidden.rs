@@ -423,3 +423,66 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn a_point_within_its_quantization_of_a_leaning_surface_counts_as_behind_it() {
+    // With cells of 0.25 and r = 0.2: e = |cell_size| / 64 = 0.00677 and
+    // r / 100 = 0.002. A point less than e - r / 100 in front of a surface
+    // that leans over it may truly lie behind it by more than r / 100, and
+    // is hidden; one farther in front is not. A surface parallel or
+    // perpendicular to the point within the normal's quantization
+    // (LEAN_MIN, LEAN_MAX) hides it only when it is behind by r / 100.
+    let case = floor_with_two_points();
+    let m = case.decoder.mirror().instance(1).unwrap();
+    let def = m.def();
+    let (e, h) = (def.cell_size.length() / 64.0, def.radius / 100.0);
+    assert!(e > h, "{e} {h}");
+    let mut dark = None;
+    for_each_candidate(m, X, |p, _, ao| {
+        if ao == case.dark {
+            dark = Some(p);
+        }
+    });
+    let dark = dark.expect("the dark point is a candidate at X");
+    let plain = reconstruct_ao(m, X, Vec3::Y);
+    // Every pixel sees a surface of normal `normal` through the point `d`
+    // behind the decoded dark point (the point `d` in front of it); X
+    // stays in front of it.
+    let seen_through = |normal: Vec3, d: f32| {
+        let s = every_pixel_sees(dark - d * normal, normal, 2);
+        ao_seen(m, X, &s, top_view())
+    };
+    let (_, leaning) = plate();
+    assert!(leaning.dot(Vec3::Y) > LEAN_MIN && leaning.dot(Vec3::Y) < LEAN_MAX);
+    let near = seen_through(leaning, 0.5 * (e - h));
+    assert!(
+        (near - case.open).abs() < 1e-6,
+        "{} in front of a leaning surface, within e - r / 100 = {}, is hidden: {near}",
+        0.5 * (e - h),
+        e - h
+    );
+    let far = seen_through(leaning, 1.5 * (e - h));
+    assert_eq!(
+        far.to_bits(),
+        plain.to_bits(),
+        "{} in front, past e - r / 100 = {}, is not: {far} against {plain}",
+        1.5 * (e - h),
+        e - h
+    );
+    let upright = Vec3::new(1.0, 0.1, 0.0).normalize();
+    assert!(upright.dot(Vec3::Y) > 0.0 && upright.dot(Vec3::Y) <= LEAN_MIN);
+    for normal in [Vec3::Y, upright] {
+        let got = seen_through(normal, 0.5 * (e - h));
+        assert_eq!(
+            got.to_bits(),
+            plain.to_bits(),
+            "a surface of normal {normal} does not lean over the point: {got} against {plain}"
+        );
+    }
+    // ...while a point behind such a surface by more than r / 100 is.
+    let behind = seen_through(upright, -2.0 * h);
+    assert!(
+        (behind - case.open).abs() < 1e-6,
+        "a point 2 r / 100 behind a surface of normal {upright} is hidden: {behind}"
+    );
+}

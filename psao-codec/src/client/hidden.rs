@@ -125,10 +125,13 @@ impl<'a> SeenSurfaces<'a> {
     ///   `m` with `n_p . m <= t_n`),
     /// - covers the candidate's side (`n_p . m > 0`),
     /// - has `x` on its front side (`(x - q) . m >= 0`, `q` its position),
-    /// - and has `p` behind it by more than `tol`: `(p - q) . m < -tol`.
+    /// - and has `p` behind it: `(p - q) . m < -tol`, or, for a surface
+    ///   that leans over the candidate (`LEAN_MIN < n_p . m < LEAN_MAX`),
+    ///   `(p - q) . m < slack - tol`: a point that may lie behind it within
+    ///   its quantization counts as behind.
     ///
-    /// `tol` is the spec's `h`; `n_p` is used as given (unit length
-    /// expected). A candidate behind the camera or outside the view
+    /// `tol` is the spec's `r / 100`, `slack` its `e`, both in world units;
+    /// `n_p` is used as given (unit length expected). A candidate behind the camera or outside the view
     /// (`0 <= u < width`, `0 <= v < height`), or whose clip coordinates
     /// are not finite, is never hidden, and a pixel
     /// whose position or normal is not finite hides nothing. This projects
@@ -136,11 +139,22 @@ impl<'a> SeenSurfaces<'a> {
     /// projects local points with the product of the view's matrix and the
     /// instance's transform, whose rounding may differ for a candidate on
     /// the edge between two pixels.
-    pub fn hides(&self, p: Vec3, n_p: Vec3, x: Vec3, own: u32, t_n: f32, tol: f32) -> bool {
+    #[allow(clippy::too_many_arguments)]
+    pub fn hides(
+        &self,
+        p: Vec3,
+        n_p: Vec3,
+        x: Vec3,
+        own: u32,
+        t_n: f32,
+        tol: f32,
+        slack: f32,
+    ) -> bool {
         self.around(self.to_clip * p.extend(1.0))
             .is_some_and(|quad| {
-                quad.into_iter()
-                    .any(|k| self.pixel_may_hide(k, p, n_p, own, t_n, tol) && self.faces(k, x))
+                quad.into_iter().any(|k| {
+                    self.pixel_may_hide(k, p, n_p, own, t_n, tol, slack) && self.faces(k, x)
+                })
             })
     }
 
@@ -171,7 +185,17 @@ impl<'a> SeenSurfaces<'a> {
     /// The conditions of [`hides`](Self::hides) on the surface seen at
     /// pixel `k` that do not depend on the pixel being shaded.
     #[inline]
-    fn pixel_may_hide(&self, k: usize, p: Vec3, n_p: Vec3, own: u32, t_n: f32, tol: f32) -> bool {
+    #[allow(clippy::too_many_arguments)]
+    fn pixel_may_hide(
+        &self,
+        k: usize,
+        p: Vec3,
+        n_p: Vec3,
+        own: u32,
+        t_n: f32,
+        tol: f32,
+        slack: f32,
+    ) -> bool {
         let seen = self.instance[k];
         if seen == NO_SURFACE {
             return false;
@@ -188,7 +212,18 @@ impl<'a> SeenSurfaces<'a> {
         if seen == own && facing > t_n {
             return false;
         }
-        facing > 0.0 && (p - q).dot(m) < -tol
+        // A surface leaning over the candidate, neither parallel to it nor
+        // perpendicular within the normal's quantization: the candidate
+        // counts as behind when a position within its quantization `e`
+        // is. (A parallel surface may be the one the point lies on, such as
+        // a floor of another instance in the same plane; a perpendicular
+        // one may not cover it at all.)
+        let limit = if facing > LEAN_MIN && facing < LEAN_MAX {
+            slack - tol
+        } else {
+            -tol
+        };
+        facing > 0.0 && (p - q).dot(m) < limit
     }
 
     /// Whether the pixel being shaded, at world `x`, is on the front side
@@ -199,14 +234,25 @@ impl<'a> SeenSurfaces<'a> {
     }
 }
 
+/// The sine of 11.6 degrees, the bound on the angle between a normal and its
+/// decoded normal (spec/wire-format.md 6): a surface whose normal `m` has
+/// `n_p . m` at most this may be perpendicular to the candidate's true
+/// normal.
+pub const LEAN_MIN: f32 = 0.2011;
+/// The cosine of 11.6 degrees: a surface with `n_p . m` at least this may be
+/// parallel to the candidate's true normal.
+pub const LEAN_MAX: f32 = 0.9796;
+
 /// An instance's transforms for the test, in one view: local to world for
-/// positions and for normals, local to clip, and the tolerance.
+/// positions and for normals, local to clip, and the tolerances.
 #[derive(Clone, Copy, Debug)]
 struct SeenFrame {
     to_world: Affine3A,
     normals: Mat3A,
     to_clip: Mat4,
     tol: f32,
+    /// The quantization bound `e` in world units.
+    slack: f32,
 }
 
 impl SeenFrame {
@@ -228,12 +274,16 @@ impl SeenFrame {
             normals: to_world.matrix3.inverse().transpose(),
             to_clip: seen.to_clip * Mat4::from(to_world),
             tol: def.radius / 100.0 * det.abs().cbrt(),
+            // e = |cell_size| / 64, as the weight's `noise` and the GPU
+            // record compute it.
+            slack: def.cell_size.length() / 64.0 * det.abs().cbrt(),
         };
         // A finite but huge transform can overflow the products.
         let finite = to_world.is_finite()
             && frame.normals.is_finite()
             && frame.to_clip.is_finite()
-            && frame.tol.is_finite();
+            && frame.tol.is_finite()
+            && frame.slack.is_finite();
         finite.then_some(frame)
     }
 }
@@ -303,8 +353,9 @@ impl<'a> HiddenMemo<'a> {
 /// so it applies to instances in local space with a transform; for an
 /// instance in bind space (point format 1), or one without a usable
 /// transform, this is [`reconstruct_ao`] ([`HiddenMemo::applies`]). The
-/// tolerance `h` is `r / 100` in local units, scaled to world units by the
-/// cube root of the transform's determinant.
+/// tolerance `r / 100` and the quantization bound `e = |cell_size| / 64`
+/// are scaled from local to world units by the cube root of the
+/// transform's determinant.
 pub fn reconstruct_ao_seen(memo: &HiddenMemo, x: Vec3, n: Vec3, x_world: Vec3) -> f32 {
     let (inst, id, seen) = (memo.inst, memo.id, &memo.seen);
     let Some(frame) = memo.frame else {
@@ -328,7 +379,7 @@ pub fn reconstruct_ao_seen(memo: &HiddenMemo, x: Vec3, n: Vec3, x_world: Vec3) -
         // Which of the four pixels may hide the point, as bits.
         let mut may = 0u8;
         for (bit, &k) in quad.iter().enumerate() {
-            if seen.pixel_may_hide(k, pw, nw, id, t_n, frame.tol) {
+            if seen.pixel_may_hide(k, pw, nw, id, t_n, frame.tol, frame.slack) {
                 may |= 1 << bit;
             }
         }

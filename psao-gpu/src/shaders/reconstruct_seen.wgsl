@@ -24,7 +24,7 @@ struct PsaoView {
 
 // The conditions of 7.3.1 on the surface seen at pixel k that do not
 // depend on the pixel being shaded, and then the one that does.
-fn psao_seen_pixel_hides(k: u32, p: vec3<f32>, n_p: vec3<f32>, x: vec3<f32>, own: u32, t_n: f32, tol: f32) -> bool {
+fn psao_seen_pixel_hides(k: u32, p: vec3<f32>, n_p: vec3<f32>, x: vec3<f32>, own: u32, t_n: f32, tol: vec2<f32>) -> bool {
     if (2u * k + 1u >= arrayLength(&psao_view_surfaces)) {
         return false;
     }
@@ -44,12 +44,18 @@ fn psao_seen_pixel_hides(k: u32, p: vec3<f32>, n_p: vec3<f32>, x: vec3<f32>, own
     if (seen == own && facing > t_n) {
         return false;
     }
-    return facing > 0.0 && dot(p - q, m) < -tol && dot(x - q, m) >= 0.0;
+    // A surface leaning over the candidate (neither parallel nor
+    // perpendicular to it within the normal's quantization, 11.6 degrees:
+    // psao-codec's LEAN_MIN and LEAN_MAX) hides it when a position within
+    // its quantization e (tol.y) is behind by r / 100 (tol.x).
+    let lean = facing > 0.2011 && facing < 0.9796;
+    let limit = select(-tol.x, tol.y - tol.x, lean);
+    return facing > 0.0 && dot(p - q, m) < limit && dot(x - q, m) >= 0.0;
 }
 
 // Whether the candidate at world p with world normal n_p, weighed for the
 // pixel at world x on instance `own`, is hidden (7.3.1).
-fn psao_seen_hidden(p: vec3<f32>, n_p: vec3<f32>, x: vec3<f32>, own: u32, t_n: f32, tol: f32) -> bool {
+fn psao_seen_hidden(p: vec3<f32>, n_p: vec3<f32>, x: vec3<f32>, own: u32, t_n: f32, tol: vec2<f32>) -> bool {
     let w = psao_view.size.x;
     let h = psao_view.size.y;
     if (w == 0u || h == 0u) {
@@ -76,12 +82,13 @@ fn psao_seen_hidden(p: vec3<f32>, n_p: vec3<f32>, x: vec3<f32>, own: u32, t_n: f
 }
 
 // An instance's transforms for the test: local to world (M_3 and t), and
-// for normals M_3^-T, with the tolerance h in w of `tol`.
+// for normals M_3^-T, with the tolerances of spec/wire-format.md 7.3.1 in
+// world units in `tol`: x r / 100, y the quantization bound e.
 struct PsaoSeenFrame {
     m: mat3x3<f32>,
     t: vec3<f32>,
     normals: mat3x3<f32>,
-    tol: f32,
+    tol: vec2<f32>,
     own: u32,
 }
 
@@ -178,8 +185,8 @@ fn psao_ao_seen(instance: u32, position: vec3<f32>, normal: vec3<f32>, world_pos
     let m = mat3x3<f32>(inst.normal_x.xyz, inst.normal_y.xyz, inst.normal_z.xyz);
     let normals = transpose(mat3x3<f32>(inst.to_local_x.xyz, inst.to_local_y.xyz, inst.to_local_z.xyz));
     let det = determinant(m);
-    let f = PsaoSeenFrame(m, -(m * inst.to_local_t.xyz), normals, inst.origin.w / 100.0 * pow(abs(det), 1.0 / 3.0), instance);
-    if (!psao_finite3(f.t) || !(abs(det) > 1.17549435e-38) || !psao_finite3(vec3<f32>(det, f.tol, 0.0))) {
+    let f = PsaoSeenFrame(m, -(m * inst.to_local_t.xyz), normals, vec2<f32>(inst.origin.w / 100.0, inst.cell_size.w) * pow(abs(det), 1.0 / 3.0), instance);
+    if (!psao_finite3(f.t) || !(abs(det) > 1.17549435e-38) || !psao_finite3(vec3<f32>(det, f.tol))) {
         return psao_ao(instance, position, normal);
     }
     if (!psao_finite3(position) || !psao_finite3(normal)) {
