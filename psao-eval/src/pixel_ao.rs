@@ -7,7 +7,6 @@
 //! not).
 
 use glam::Vec3;
-use std::collections::HashMap;
 
 use psao_codec::{
     HiddenMemo, InstanceMirror, LocalFrame, Mirror, SeenSurfaces, reconstruct_ao,
@@ -109,12 +108,12 @@ pub fn psao_image_seen(
         }
         last = id;
     }
-    let memos: HashMap<u32, HiddenMemo> = ids
+    let memos: Vec<(u32, HiddenMemo)> = ids
         .into_iter()
         .filter_map(|id| Some((id, HiddenMemo::new(mirror.instance(id)?, id, &seen))))
         .filter(|(_, memo)| memo.applies())
         .collect();
-    client_image(mirror, g, Some(&memos))
+    client_image(mirror, g, Some(&memos[..]))
 }
 
 /// [`psao_image`], with the test of [`psao_image_seen`] for the instances
@@ -122,7 +121,7 @@ pub fn psao_image_seen(
 fn client_image(
     mirror: &Mirror,
     g: &GBuffer,
-    memos: Option<&HashMap<u32, HiddenMemo>>,
+    memos: Option<&[(u32, HiddenMemo)]>,
 ) -> Result<ClientImage, SceneError> {
     let w = g.width as usize;
     let rows: Vec<(Vec<f32>, usize)> = (0..g.height as usize)
@@ -130,6 +129,9 @@ fn client_image(
         .map(|py| {
             let mut unknown = 0;
             let mut space = PixelSpace::new(mirror);
+            // The last instance's memo, as `space` keeps its frame: runs
+            // of pixels share an instance.
+            let mut last: Option<(u32, Option<&HiddenMemo>)> = None;
             let row = (py * w..py * w + w)
                 .map(|k| {
                     let id = g.instance[k];
@@ -138,7 +140,7 @@ fn client_image(
                     }
                     let local = space.local(g, k);
                     match local {
-                        Some((inst, (x, n))) => match memos.and_then(|m| m.get(&id)) {
+                        Some((inst, (x, n))) => match memo_of(memos, &mut last, id) {
                             Some(memo) => reconstruct_ao_seen(memo, x, n, g.position[k]),
                             None => reconstruct_ao(inst, x, n),
                         },
@@ -159,6 +161,23 @@ fn client_image(
         image.unknown += unknown;
     }
     Ok(image)
+}
+
+/// The memo `memos` holds for instance `id`, through `last` (the last id
+/// asked and its answer).
+fn memo_of<'a, 'm>(
+    memos: Option<&'a [(u32, HiddenMemo<'m>)]>,
+    last: &mut Option<(u32, Option<&'a HiddenMemo<'m>>)>,
+    id: u32,
+) -> Option<&'a HiddenMemo<'m>> {
+    if let Some((last_id, memo)) = *last
+        && last_id == id
+    {
+        return memo;
+    }
+    let memo = memos?.iter().find(|(i, _)| *i == id).map(|(_, m)| m);
+    *last = Some((id, memo));
+    memo
 }
 
 /// Pixel `k`'s instance in the mirror and its surface point in that
