@@ -3,19 +3,35 @@
 # (scripts/bench-set.sh's groups, each at its densest N and its radius),
 # with psao-eval's client_time example: many images per scene, medians.
 # Usage: scripts/client-time-set.sh [extra client_time options...]
-# With CLIENT_TIME="BIN_A BIN_B ..." (client_time binaries, say built at
-# two commits), each scene is run by each binary in turn, one after the
-# other, instead of by this checkout's build.
+# With CLIENT_TIME="BIN_A BIN_B ..." (paths of client_time binaries, say
+# each commit's target/release/examples/client_time copied out, relative to
+# where the script is run or absolute), each scene is run by each binary in
+# turn, the order reversed from one scene to the next, instead of by this
+# checkout's build.
 set -euo pipefail
+bins=()
+if [ -n "${CLIENT_TIME:-}" ]; then
+  read -r -a given <<< "$CLIENT_TIME"
+  for b in "${given[@]}"; do
+    [ -x "$b" ] || { echo "CLIENT_TIME: $b is not an executable file" >&2; exit 2; }
+    bins+=("$(realpath "$b")")
+  done
+fi
 cd "$(dirname "$0")/.."
 shared=../shared/scenes
-if [ -z "${CLIENT_TIME:-}" ]; then
+if [ "${#bins[@]}" -eq 0 ]; then
   cargo build --release -p psao-eval --example client_time
-  CLIENT_TIME=target/release/examples/client_time
+  bins=(target/release/examples/client_time)
 fi
-read -r -a bins <<< "$CLIENT_TIME"
+turn=0
 ct() {
-  for b in "${bins[@]}"; do
+  local order=("${bins[@]}")
+  if [ $((turn % 2)) -eq 1 ]; then
+    order=()
+    for ((i = ${#bins[@]} - 1; i >= 0; i--)); do order+=("${bins[$i]}"); done
+  fi
+  turn=$((turn + 1))
+  for b in "${order[@]}"; do
     if [ "${#bins[@]}" -gt 1 ]; then echo -n "$b: "; fi
     "$b" "$@"
   done

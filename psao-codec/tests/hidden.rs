@@ -454,21 +454,39 @@ fn a_point_within_its_quantization_of_a_leaning_surface_counts_as_behind_it() {
     };
     let (_, leaning) = plate();
     assert!(leaning.dot(Vec3::Y) > LEAN_MIN && leaning.dot(Vec3::Y) < LEAN_MAX);
-    let near = seen_through(leaning, 0.5 * (e - h));
+    // Just inside and just outside e - r / 100 (a quarter of r / 100 off):
+    // the r / 100 term counts as well as e.
+    let near = seen_through(leaning, e - h - h / 4.0);
     assert!(
         (near - case.open).abs() < 1e-6,
         "{} in front of a leaning surface, within e - r / 100 = {}, is hidden: {near}",
-        0.5 * (e - h),
+        e - h - h / 4.0,
         e - h
     );
-    let far = seen_through(leaning, 1.5 * (e - h));
+    let far = seen_through(leaning, e - h + h / 4.0);
     assert_eq!(
         far.to_bits(),
         plain.to_bits(),
         "{} in front, past e - r / 100 = {}, is not: {far} against {plain}",
-        1.5 * (e - h),
+        e - h + h / 4.0,
         e - h
     );
+    // The band's edges: a surface at n_p . m = c, just inside and just
+    // outside each bound, the point within e - r / 100 in front of it.
+    let at = |c: f32| Vec3::new((1.0 - c * c).sqrt(), c, 0.0);
+    for (c, leans) in [
+        (LEAN_MIN - 0.01, false),
+        (LEAN_MIN + 0.01, true),
+        (LEAN_MAX - 0.005, true),
+        (LEAN_MAX + 0.005, false),
+    ] {
+        let got = seen_through(at(c), 0.5 * (e - h));
+        let want = if leans { case.open } else { plain };
+        assert!(
+            (got - want).abs() < 1e-6,
+            "n_p . m = {c}: {got}, want {want} (leaning: {leans})"
+        );
+    }
     let upright = Vec3::new(1.0, 0.1, 0.0).normalize();
     assert!(upright.dot(Vec3::Y) > 0.0 && upright.dot(Vec3::Y) <= LEAN_MIN);
     for normal in [Vec3::Y, upright] {

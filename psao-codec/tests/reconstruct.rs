@@ -226,6 +226,46 @@ fn weight_as_written(p: Vec3, n_p: Vec3, x: Vec3, n_x: Vec3, w: &WeightParams) -
     a
 }
 
+/// The candidates at `x` in the order of the reconstruction before its
+/// lookups were split into phases (c9f68ab): cells `dz`, then `dy`, then
+/// `dx` (fastest), each cell's chain from its key, each pool cell's
+/// points in slot order; as bits.
+fn candidates_in_the_first_order(inst: &InstanceMirror, x: Vec3) -> Vec<[u32; 7]> {
+    let d = inst.def();
+    let base = base_cell(inst, x);
+    let mut out = Vec::new();
+    for dz in 0..2 {
+        for dy in 0..2 {
+            for dx in 0..2 {
+                let c = base + glam::IVec3::new(dx, dy, dz);
+                if c.cmplt(glam::IVec3::ZERO).any() || c.cmpge(d.dims.as_ivec3()).any() {
+                    continue;
+                }
+                let c = c.as_uvec3();
+                let min = d.cell_min(c);
+                for cell in inst.chain(d.key(c)) {
+                    for w in inst.cell_points(cell) {
+                        let p = min + w.frac() * d.cell_size;
+                        out.push(bits(p, w.normal(), w.ao()));
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+fn bits(p: Vec3, n: Vec3, ao: f32) -> [u32; 7] {
+    [p.x, p.y, p.z, n.x, n.y, n.z, ao].map(f32::to_bits)
+}
+
+/// [`for_each_candidate`]'s candidates, as bits.
+fn candidates(inst: &InstanceMirror, x: Vec3) -> Vec<[u32; 7]> {
+    let mut out = Vec::new();
+    for_each_candidate(inst, x, |p, n, ao| out.push(bits(p, n, ao)));
+    out
+}
+
 /// Eq. 4 as the spec words it (7.3): the weighted mean at r over the 2x2x2
 /// cells, and when no point has weight, the same cells again at 2r.
 fn two_passes(inst: &InstanceMirror, x: Vec3, n: Vec3) -> f32 {
@@ -271,6 +311,7 @@ proptest::proptest! {
         let normals = [Vec3::Y, -Vec3::Y, Vec3::X, Vec3::new(0.3, 0.9, 0.1).normalize(), Vec3::Z, Vec3::ZERO];
         for (x, y, z, k) in probes {
             let (x, n) = (Vec3::new(x, y * 0.2, z), normals[k]);
+            proptest::prop_assert_eq!(candidates(inst, x), candidates_in_the_first_order(inst, x));
             proptest::prop_assert_eq!(
                 reconstruct_ao(inst, x, n).to_bits(),
                 two_passes(inst, x, n).to_bits()
@@ -321,6 +362,7 @@ proptest::proptest! {
         let normals = [Vec3::Y, -Vec3::Y, Vec3::X, Vec3::new(0.3, 0.9, 0.1).normalize(), Vec3::Z, Vec3::ZERO];
         for (x, y, z, k) in probes {
             let (x, n) = (Vec3::new(x, y * 0.2 + 0.5, z) + shift, normals[k]);
+            proptest::prop_assert_eq!(candidates(inst, x), candidates_in_the_first_order(inst, x));
             proptest::prop_assert_eq!(
                 reconstruct_ao(inst, x, n).to_bits(),
                 two_passes(inst, x, n).to_bits()

@@ -411,3 +411,15 @@ fn hidden_test_on_the_gpu_is_the_cpus(ctx: &GpuContext, t: glam::Affine3A, min_c
     assert!(pass.run_seen(ctx, &gm, &g, nan, 96, 64).is_err());
     assert!(RECONSTRUCT_SEEN_WGSL.contains("fn psao_ao_seen("));
 }
+
+/// The shader's band of surfaces that lean over a candidate (7.3.1) is
+/// psao-codec's, literal for literal (no GPU needed).
+#[test]
+fn the_seen_shaders_lean_band_is_the_cpus() {
+    let band = format!(
+        "facing > {:?} && facing < {:?}",
+        psao_codec::LEAN_MIN,
+        psao_codec::LEAN_MAX
+    );
+    assert!(RECONSTRUCT_SEEN_WGSL.contains(&band), "{band}");
+}

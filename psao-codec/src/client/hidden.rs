@@ -130,8 +130,8 @@ impl<'a> SeenSurfaces<'a> {
     ///   `(p - q) . m < slack - tol`: a point that may lie behind it within
     ///   its quantization counts as behind.
     ///
-    /// `tol` is the spec's `r / 100`, `slack` its `e`, both in world units;
-    /// `n_p` is used as given (unit length expected). A candidate behind the camera or outside the view
+    /// `tol` is the spec's `h` and `slack` its `g` (`r / 100` and `e` in
+    /// world units); `n_p` is used as given (unit length expected). A candidate behind the camera or outside the view
     /// (`0 <= u < width`, `0 <= v < height`), or whose clip coordinates
     /// are not finite, is never hidden, and a pixel
     /// whose position or normal is not finite hides nothing. This projects
@@ -234,14 +234,15 @@ impl<'a> SeenSurfaces<'a> {
     }
 }
 
-/// The sine of 11.6 degrees, the bound on the angle between a normal and its
-/// decoded normal (spec/wire-format.md 6): a surface whose normal `m` has
-/// `n_p . m` at most this may be perpendicular to the candidate's true
-/// normal.
+/// The sine of 11.6 degrees (0.20108) rounded up, 11.6 degrees being the
+/// bound on the angle between a normal and its decoded normal
+/// (spec/wire-format.md 6): a surface whose normal `m` has `n_p . m` at
+/// most this may be perpendicular to the candidate's true normal. The
+/// literal, as an `f32`, is the rule (7.3.1).
 pub const LEAN_MIN: f32 = 0.2011;
-/// The cosine of 11.6 degrees: a surface with `n_p . m` at least this may be
-/// parallel to the candidate's true normal.
-pub const LEAN_MAX: f32 = 0.9796;
+/// The cosine of 11.6 degrees (0.97958) rounded down: a surface with
+/// `n_p . m` at least this may be parallel to the candidate's true normal.
+pub const LEAN_MAX: f32 = 0.9795;
 
 /// An instance's transforms for the test, in one view: local to world for
 /// positions and for normals, local to clip, and the tolerances.

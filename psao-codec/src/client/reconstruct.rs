@@ -172,7 +172,7 @@ fn for_each_indexed_candidate(
     for (i, head) in heads.iter_mut().enumerate() {
         let c = cell(i);
         if inside(c) {
-            *head = inst.find_cell(d.key(c.as_uvec3()));
+            *head = inst.chain_head(d.key(c.as_uvec3()));
         }
     }
     // An empty cell is skipped.

@@ -48,7 +48,7 @@ fn psao_seen_pixel_hides(k: u32, p: vec3<f32>, n_p: vec3<f32>, x: vec3<f32>, own
     // perpendicular to it within the normal's quantization, 11.6 degrees:
     // psao-codec's LEAN_MIN and LEAN_MAX) hides it when a position within
     // its quantization e (tol.y) is behind by r / 100 (tol.x).
-    let lean = facing > 0.2011 && facing < 0.9796;
+    let lean = facing > 0.2011 && facing < 0.9795;
     let limit = select(-tol.x, tol.y - tol.x, lean);
     return facing > 0.0 && dot(p - q, m) < limit && dot(x - q, m) >= 0.0;
 }

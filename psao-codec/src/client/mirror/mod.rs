@@ -106,13 +106,21 @@ impl InstanceMirror {
     /// overflow chain while the one before it is full (spec/wire-format.md
     /// 7.4). `key` must be a cell's own key (eq. 1).
     pub fn chain(&self, key: u32) -> impl Iterator<Item = u32> + '_ {
-        let head = self.find_in(key, self.def.bucket_of_link(key, 0));
-        head.into_iter()
+        self.chain_head(key)
+            .into_iter()
             .flat_map(move |head| self.chain_from(key, head))
     }
 
+    /// The first pool cell of grid cell `key`'s chain (the cell the key
+    /// names), or `None`. `key` must be a cell's own key (eq. 1): unlike
+    /// [`find_cell`](Self::find_cell), this does not work out which link a
+    /// key names (two divisions).
+    pub fn chain_head(&self, key: u32) -> Option<u32> {
+        self.find_in(key, self.def.bucket_of_link(key, 0))
+    }
+
     /// [`chain`](Self::chain) from its first pool cell `head`, found
-    /// already (by [`find_cell`](Self::find_cell) on `key`).
+    /// already (by [`chain_head`](Self::chain_head) on `key`).
     pub fn chain_from(&self, key: u32, head: u32) -> impl Iterator<Item = u32> + '_ {
         let links = self.def.max_links();
         let mut next = Some(head);
