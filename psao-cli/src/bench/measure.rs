@@ -171,8 +171,8 @@ pub struct Settings {
     pub skip_open: bool,
     /// The PSAO client also leaves out candidate points its view shows
     /// hidden behind another surface that faces the pixel
-    /// (spec/wire-format.md 7.3.1, [`psao_eval::psao_image_seen`]), or
-    /// (false, the default) weighs every candidate by eq. 2-3 alone.
+    /// (spec/wire-format.md 7.3.1, [`psao_eval::psao_image_seen`]; true,
+    /// the default), or weighs every candidate by eq. 2-3 alone.
     pub hidden_test: bool,
     /// Which measured frames are saved as images.
     pub image_frames: ImageFrames,
@@ -281,7 +281,7 @@ impl Settings {
             early: false,
             ray_reuse: true,
             skip_open: true,
-            hidden_test: false,
+            hidden_test: true,
             image_frames: ImageFrames::List(vec![0]),
         }
     }

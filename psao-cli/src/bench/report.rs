@@ -127,9 +127,9 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
             ),
         },
         if s.hidden_test {
-            "the client leaves out points its view shows hidden behind a surface facing the pixel: --hidden-test"
+            "the client leaves out points its view shows hidden behind a surface facing the pixel (spec/wire-format.md 7.3.1)"
         } else {
-            "the client weighs every point by eq. 2-3 (spec/wire-format.md 7.3)"
+            "the client weighs every point by eq. 2-3 (spec/wire-format.md 7.3): --no-hidden-test"
         },
         std::thread::available_parallelism().map_or(1, |n| n.get()),
         super::measure::TIMED_RUNS
