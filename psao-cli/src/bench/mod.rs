@@ -178,7 +178,7 @@ pub struct BenchArgs {
     /// (spec/wire-format.md 7.3, the paper's reconstruction), instead of
     /// also leaving out the points its view shows hidden behind another
     /// surface that faces the pixel (7.3.1, the default since 2026-12-06:
-    /// more accurate where thin parts stand on surfaces, at 1.07-1.45x the
+    /// more accurate where thin parts stand on surfaces, at 1.06-1.50x the
     /// client time of eq. 2-4 in BENCHMARKS.md's runs, issue 15).
     #[arg(long, conflicts_with = "hidden_test")]
     no_hidden_test: bool,
