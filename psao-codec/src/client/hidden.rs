@@ -131,7 +131,8 @@ impl<'a> SeenSurfaces<'a> {
     ///   its quantization counts as behind.
     ///
     /// `tol` is the spec's `h` and `slack` its `g` (`r / 100` and `e` in
-    /// world units); `n_p` is used as given (unit length expected). A candidate behind the camera or outside the view
+    /// world units); `n_p` is used as given (unit length expected). A
+    /// candidate behind the camera or outside the view
     /// (`0 <= u < width`, `0 <= v < height`), or whose clip coordinates
     /// are not finite, is never hidden, and a pixel
     /// whose position or normal is not finite hides nothing. This projects
