@@ -35,100 +35,132 @@ const WORKGROUP: u32 = 64;
 /// The reconstruction compute pass.
 #[derive(Debug)]
 pub struct GpuReconstruct {
-    pipeline: wgpu::ComputePipeline,
-    mirror_layout: wgpu::BindGroupLayout,
-    pass_layout: wgpu::BindGroupLayout,
-    /// The pass with the hidden-candidate test ([`Self::run_seen`]).
-    seen: SeenPass,
+    /// The pass of [`RECONSTRUCT_WGSL`]: group 0 the mirror, group 1 the
+    /// G-buffer and the output.
+    plain: Pass,
+    /// The pass with the hidden-candidate test ([`Self::run_seen`],
+    /// [`RECONSTRUCT_SEEN_WGSL`]): group 0 the mirror and the view, group 1
+    /// the pixels' lookup attributes and the output.
+    seen: Pass,
 }
 
-/// The compute pass of [`RECONSTRUCT_SEEN_WGSL`]: group 0 is the mirror
-/// and the view, group 1 the pixels' lookup attributes and the output.
+/// One reconstruction compute pass: its pipeline and its two groups'
+/// layouts.
 #[derive(Debug)]
-struct SeenPass {
+struct Pass {
+    label: &'static str,
     pipeline: wgpu::ComputePipeline,
     mirror_layout: wgpu::BindGroupLayout,
     pass_layout: wgpu::BindGroupLayout,
+}
+
+impl Pass {
+    /// Compiles `source` with group 0 of `mirror` entries and group 1 of
+    /// `pass` entries.
+    fn new(
+        ctx: &GpuContext,
+        label: &'static str,
+        source: &str,
+        mirror: &[wgpu::BindGroupLayoutEntry],
+        pass: &[wgpu::BindGroupLayoutEntry],
+    ) -> Pass {
+        let layout = |entries| {
+            ctx.device
+                .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                    label: Some(label),
+                    entries,
+                })
+        };
+        let (mirror_layout, pass_layout) = (layout(mirror), layout(pass));
+        let pipeline = ctx.compute_pipeline(label, source, &[&mirror_layout, &pass_layout]);
+        Pass {
+            label,
+            pipeline,
+            mirror_layout,
+            pass_layout,
+        }
+    }
+
+    /// The pass over a `grid` of workgroups, recorded and finished: group
+    /// 0 bound to `mirror`, group 1 to `buffers` at bindings 0, 1, ...
+    fn record(
+        &self,
+        ctx: &GpuContext,
+        mirror: &[wgpu::BindGroupEntry<'_>],
+        buffers: &[&wgpu::Buffer],
+        grid: (u32, u32),
+    ) -> wgpu::CommandBuffer {
+        let mirror_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(self.label),
+            layout: &self.mirror_layout,
+            entries: mirror,
+        });
+        let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
+            .iter()
+            .enumerate()
+            .map(|(k, b)| wgpu::BindGroupEntry {
+                binding: k as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        let pass_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(self.label),
+            layout: &self.pass_layout,
+            entries: &entries,
+        });
+        let mut enc = ctx.encoder(self.label);
+        GpuContext::record_pass(
+            &mut enc,
+            self.label,
+            &self.pipeline,
+            &[&mirror_group, &pass_group],
+            grid,
+        );
+        enc.finish()
+    }
 }
 
 impl GpuReconstruct {
     /// Compiles the pass.
     pub fn new(ctx: &GpuContext) -> Result<GpuReconstruct, GpuError> {
         ctx.checked("reconstruction shader compilation", || {
-            let source = format!(
-                "{RECONSTRUCT_WGSL}\n{}",
-                include_str!("../shaders/reconstruct_pass.wgsl")
+            let mirror = [
+                storage_layout(0, true),
+                storage_layout(1, true),
+                storage_layout(2, true),
+                storage_layout(3, true),
+            ];
+            let plain = Pass::new(
+                ctx,
+                "psao-gpu reconstruct",
+                &format!(
+                    "{RECONSTRUCT_WGSL}\n{}",
+                    include_str!("../shaders/reconstruct_pass.wgsl")
+                ),
+                &mirror,
+                &[
+                    storage_layout(0, true),
+                    storage_layout(1, true),
+                    storage_layout(2, true),
+                    storage_layout(3, false),
+                    uniform_layout(4),
+                ],
             );
-            let mirror_layout =
-                ctx.device
-                    .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                        label: Some("psao-gpu mirror"),
-                        entries: &[
-                            storage_layout(0, true),
-                            storage_layout(1, true),
-                            storage_layout(2, true),
-                            storage_layout(3, true),
-                        ],
-                    });
-            let pass_layout =
-                ctx.device
-                    .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                        label: Some("psao-gpu reconstruct pass"),
-                        entries: &[
-                            storage_layout(0, true),
-                            storage_layout(1, true),
-                            storage_layout(2, true),
-                            storage_layout(3, false),
-                            uniform_layout(4),
-                        ],
-                    });
-            let pipeline = ctx.compute_pipeline(
-                "psao-gpu reconstruct.wgsl",
-                &source,
-                &[&mirror_layout, &pass_layout],
+            let seen = Pass::new(
+                ctx,
+                "psao-gpu reconstruct with the hidden test",
+                &format!(
+                    "{RECONSTRUCT_WGSL}\n{RECONSTRUCT_SEEN_WGSL}\n{}",
+                    include_str!("../shaders/reconstruct_seen_pass.wgsl")
+                ),
+                &[&mirror[..], &[uniform_layout(4), storage_layout(5, true)]].concat(),
+                &[
+                    storage_layout(0, true),
+                    storage_layout(1, false),
+                    uniform_layout(2),
+                ],
             );
-            let seen_source = format!(
-                "{RECONSTRUCT_WGSL}\n{RECONSTRUCT_SEEN_WGSL}\n{}",
-                include_str!("../shaders/reconstruct_seen_pass.wgsl")
-            );
-            let seen_mirror_layout =
-                ctx.device
-                    .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                        label: Some("psao-gpu mirror and view"),
-                        entries: &[
-                            storage_layout(0, true),
-                            storage_layout(1, true),
-                            storage_layout(2, true),
-                            storage_layout(3, true),
-                            uniform_layout(4),
-                            storage_layout(5, true),
-                        ],
-                    });
-            let seen_pass_layout =
-                ctx.device
-                    .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                        label: Some("psao-gpu reconstruct pass with the hidden test"),
-                        entries: &[
-                            storage_layout(0, true),
-                            storage_layout(1, false),
-                            uniform_layout(2),
-                        ],
-                    });
-            let seen_pipeline = ctx.compute_pipeline(
-                "psao-gpu reconstruct_seen.wgsl",
-                &seen_source,
-                &[&seen_mirror_layout, &seen_pass_layout],
-            );
-            GpuReconstruct {
-                pipeline,
-                mirror_layout,
-                pass_layout,
-                seen: SeenPass {
-                    pipeline: seen_pipeline,
-                    mirror_layout: seen_mirror_layout,
-                    pass_layout: seen_pass_layout,
-                },
-            }
+            GpuReconstruct { plain, seen }
         })
     }
 
@@ -217,33 +249,10 @@ impl GpuReconstruct {
                 binding: 5,
                 resource: sb.as_entire_binding(),
             });
-            let mirror_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("psao-gpu mirror and view"),
-                layout: &self.seen.mirror_layout,
-                entries: &mirror_entries,
-            });
-            let entries: Vec<wgpu::BindGroupEntry<'_>> = [&lb, &out, &ub]
-                .into_iter()
-                .enumerate()
-                .map(|(k, b)| wgpu::BindGroupEntry {
-                    binding: k as u32,
-                    resource: b.as_entire_binding(),
-                })
-                .collect();
-            let pass_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("psao-gpu reconstruct pass with the hidden test"),
-                layout: &self.seen.pass_layout,
-                entries: &entries,
-            });
-            let mut enc = ctx.encoder("psao-gpu reconstruct with the hidden test");
-            GpuContext::record_pass(
-                &mut enc,
-                "psao-gpu reconstruct with the hidden test",
-                &self.seen.pipeline,
-                &[&mirror_group, &pass_group],
-                grid,
-            );
-            (enc.finish(), out)
+            let commands = self
+                .seen
+                .record(ctx, &mirror_entries, &[&lb, &out, &ub], grid);
+            (commands, out)
         })?;
         ctx.timed_passes(commands, &out, n, start).map(|r| r.0)
     }
@@ -298,33 +307,13 @@ impl GpuReconstruct {
             let ib = ctx.buffer_with("psao-gpu gbuffer instance", bytemuck::cast_slice(&ids), s);
             let ub = ctx.uniform("psao-gpu pass size", &size);
             let out = ctx.storage_out("psao-gpu ao image", n as u64 * 4);
-            let mirror_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("psao-gpu mirror"),
-                layout: &self.mirror_layout,
-                entries: &mirror.bind_entries(),
-            });
-            let entries: Vec<wgpu::BindGroupEntry<'_>> = [&pb, &nb, &ib, &out, &ub]
-                .into_iter()
-                .enumerate()
-                .map(|(k, b)| wgpu::BindGroupEntry {
-                    binding: k as u32,
-                    resource: b.as_entire_binding(),
-                })
-                .collect();
-            let pass_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("psao-gpu reconstruct pass"),
-                layout: &self.pass_layout,
-                entries: &entries,
-            });
-            let mut enc = ctx.encoder("psao-gpu reconstruct");
-            GpuContext::record_pass(
-                &mut enc,
-                "psao-gpu reconstruct",
-                &self.pipeline,
-                &[&mirror_group, &pass_group],
+            let commands = self.plain.record(
+                ctx,
+                &mirror.bind_entries(),
+                &[&pb, &nb, &ib, &out, &ub],
                 grid,
             );
-            (enc.finish(), out)
+            (commands, out)
         })?;
         ctx.timed_passes(commands, &out, n, start)
     }
