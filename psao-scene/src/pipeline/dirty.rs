@@ -434,6 +434,7 @@ impl Pipeline {
             let held = s.table.sent(p, pos, nrm);
             if held.word.is_allocated() && held.word.fields().ao.abs_diff(q) >= steps {
                 s.table.set_point(p, pos, nrm, dequantize_ao(q))?;
+                s.buried.note_set(p);
                 out.touched[i] = true;
                 out.updated += 1;
             }
@@ -758,6 +759,7 @@ impl Pipeline {
             let (positions, normals) = s.stored();
             let (p, n) = (positions[k as usize], normals[k as usize]);
             s.table.set_point(k, p, n, value)?;
+            s.buried.note_set(k);
         }
         Ok(())
     }
