@@ -3,14 +3,16 @@
 # embedded scenes and on every model in ../shared/scenes, grouped by the
 # scale their units need (the AO radius and densities are per run).
 # SWEEP=1 runs each group at five densities, doubling up to its densest,
-# instead of two (scripts/bench-set-sweep.sh).
-# Usage: [SWEEP=1] scripts/bench-set.sh [OUT] [extra psao bench options...]
+# instead of two (scripts/bench-set-sweep.sh); DENSEST=1 at its densest
+# alone (as for the ray budget's table: `--ray-budget auto`).
+# Usage: [SWEEP=1 | DENSEST=1] scripts/bench-set.sh [OUT] [extra psao bench options...]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-bench-set-out}
 shift || true
 shared=../shared/scenes
 sweep=${SWEEP:-0}
+densest=${DENSEST:-0}
 cargo build --release -p psao-cli --bin psao
 psao=target/release/psao
 common=(--frames 4 --width 320 --height 180 --reference-rays 128 --point-rays 32 --rates 60 --image-frames 0)
@@ -19,6 +21,7 @@ run() {
   local group=$1 two=$2 five=$3; shift 3
   local densities=$two
   [ "$sweep" = 1 ] && densities=$five
+  [ "$densest" = 1 ] && densities=${two##*,}
   echo "== $group" >&2
   "$psao" bench "${common[@]}" --out "$out/$group" --densities "$densities" "$@"
 }
