@@ -184,6 +184,13 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
     t
 }
 
+/// How many dB `to` lies above `from`: 0 where they are equal, both
+/// infinite included (two exact images, as on AnimatedTriangle), where
+/// the plain difference is NaN.
+fn db_gain(to: f64, from: f64) -> f64 {
+    if to == from { 0.0 } else { to - from }
+}
+
 /// Plain statements about one scene's rows.
 pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
     let mut out = Vec::new();
@@ -355,7 +362,7 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
                 if bs <= 1000.0 / rate as f64 { "keeps the rate" } else { "slower than the rate" },
                 b.psnr,
                 p.psnr,
-                b.psnr - p.psnr,
+                db_gain(b.psnr, p.psnr),
                 b.mbit_s.unwrap_or(0.0),
                 p.mbit_s.unwrap_or(0.0),
                 b.worst_wait.unwrap_or(0)
@@ -392,4 +399,17 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
         ));
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::db_gain;
+
+    #[test]
+    fn a_psnr_change_between_two_exact_images_is_none() {
+        assert_eq!(db_gain(f64::INFINITY, f64::INFINITY), 0.0);
+        assert_eq!(db_gain(45.5, 46.0), -0.5);
+        assert_eq!(db_gain(f64::INFINITY, 40.0), f64::INFINITY);
+        assert_eq!(db_gain(40.0, f64::INFINITY), f64::NEG_INFINITY);
+    }
 }
