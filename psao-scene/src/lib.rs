@@ -101,7 +101,7 @@ pub use precision::{
 };
 pub use random::{hash, uniform};
 pub use scenes::default_scene::{MOVING_BOX, TRELLIS, WALKER, cesium_man_scene, default_scene};
-pub use scenes::hall::{HallParams, hall, hall_scene};
+pub use scenes::hall::{HallParams, hall, hall_scene, hall_table};
 pub use scenes::stage::{
     AZIMUTHS, FLOOR_MARGIN_EXTENTS, INTERIOR_SHARE, ORBIT_SECONDS, PROBE_RAYS, SWING, Setting,
     front_share, setting, stage,

@@ -535,13 +535,7 @@ mod tests {
             Mesh::quad(Vec3::new(-3.0, 0.0, -3.0), Vec3::Z * 6.0, Vec3::X * 6.0).subdivided(2),
             Affine3A::IDENTITY,
         );
-        let mut table = Mesh::cuboid(Vec3::new(-0.8, 0.72, -0.45), Vec3::new(0.8, 0.76, 0.45));
-        let leg = Mesh::cuboid(Vec3::new(-0.6, 0.0, -0.3), Vec3::new(0.6, 0.72, 0.3));
-        let base = table.positions.len() as u32;
-        table.positions.extend(leg.positions);
-        table.normals.extend(leg.normals);
-        table.indices.extend(leg.indices.iter().map(|i| base + i));
-        s.add(table, Affine3A::IDENTITY);
+        s.add(crate::hall_table(), Affine3A::IDENTITY);
         let slider = s.add(
             Mesh::cuboid(Vec3::new(-0.15, 0.0, -0.15), Vec3::new(0.15, 0.3, 0.15)),
             Affine3A::IDENTITY,

@@ -98,13 +98,7 @@ pub fn hall(params: HallParams) -> Scene {
         }
     }
     // Tables: three rows of seven, one shared mesh (a top on a block).
-    let mut table = Mesh::cuboid(Vec3::new(-0.8, 0.72, -0.45), Vec3::new(0.8, 0.76, 0.45));
-    let leg = Mesh::cuboid(Vec3::new(-0.6, 0.0, -0.3), Vec3::new(0.6, 0.72, 0.3));
-    let base = table.positions.len() as u32;
-    table.positions.extend(leg.positions);
-    table.normals.extend(leg.normals);
-    table.indices.extend(leg.indices.iter().map(|i| base + i));
-    let first = s.add(table, Affine3A::from_translation(table_at(0, 0)));
+    let first = s.add(hall_table(), Affine3A::from_translation(table_at(0, 0)));
     let table_mesh = s.instances[first].mesh;
     for row in 0..3 {
         for k in 0..7 {
@@ -256,4 +250,18 @@ fn camera_path() -> CameraPath {
         ],
         fov_y: 60f32.to_radians(),
     }
+}
+
+/// The hall's table, standing on y = 0 around the origin: a 4 cm top
+/// (1.6 m by 0.9 m, its top at y = 0.76) on a block whose top face
+/// (y = 0.72) lies hidden just under the top's, inside it: the case
+/// buried points are for.
+pub fn hall_table() -> Mesh {
+    let mut table = Mesh::cuboid(Vec3::new(-0.8, 0.72, -0.45), Vec3::new(0.8, 0.76, 0.45));
+    let leg = Mesh::cuboid(Vec3::new(-0.6, 0.0, -0.3), Vec3::new(0.6, 0.72, 0.3));
+    let base = table.positions.len() as u32;
+    table.positions.extend(leg.positions);
+    table.normals.extend(leg.normals);
+    table.indices.extend(leg.indices.iter().map(|i| base + i));
+    table
 }
