@@ -232,7 +232,7 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
     });
     let sao = r.rows.iter().find(|row| row.method == Method::Sao);
     if let (Some(p), Some(q)) = (psao, sao) {
-        let margin = p.psnr - q.psnr;
+        let margin = db_gain(p.psnr, q.psnr);
         out.push(format!(
             "PSAO-{focus} @{rate} Hz against SAO: {:+.2} dB PSNR ({:.2} against {:.2} dB), SSIM {:.4} against {:.4}; target +{TARGET_DB_OVER_SAO} dB: **{}**. Client time {:.2} against {:.2} ms ({:.2}x).",
             margin,
@@ -265,7 +265,7 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
                 k.method.label(),
                 k.client_ms,
                 k.client_ms / p.client_ms.max(1e-9),
-                (p.psnr - k.psnr).abs(),
+                db_gain(p.psnr, k.psnr).abs(),
                 p.psnr,
                 k.psnr
             ));

@@ -100,11 +100,14 @@ impl Buried {
         self.ids.binary_search(&k).is_ok()
     }
 
-    /// Notes that the word clients hold for point `k` (a donor, or any
-    /// other point) was set: the next fill looks at the buried points it
-    /// gives to.
+    /// Notes that the word clients hold for point `k` was set: if it is a
+    /// donor, the next fill looks at the buried points it gives to.
     pub(super) fn note_set(&mut self, k: u32) {
         if self.ids.is_empty() {
+            return;
+        }
+        let at = self.by_donor.partition_point(|&(d, _)| d < k);
+        if self.by_donor.get(at).is_none_or(|&(d, _)| d != k) {
             return;
         }
         if let Refill::Some { changed, .. } = &mut self.refill {
@@ -369,7 +372,12 @@ impl Pipeline {
     /// else when past the thresholds). Returns how many were set. Without
     /// `force` only the buried points whose donors' words were set since
     /// the last fill ([`Buried::note_set`]), and those still without a
-    /// slot, are recomputed: the others would get what they hold.
+    /// slot, are recomputed: the others would get the value they got last
+    /// time, which they hold. (With thresholds under which setting a
+    /// point to what it holds counts as a change, as a negative
+    /// `position_quanta`, a fill of every buried point would set those
+    /// again, to the same words: the frames are the same, and `updated`
+    /// counts fewer.)
     pub(super) fn fill_buried(&mut self, touched: &[bool], force: bool) -> Result<u64, SceneError> {
         let th = self.config.thresholds;
         let mut set = 0u64;
@@ -616,6 +624,59 @@ mod tests {
             // did): the check above had something to see.
             let moved = held(&p).iter().zip(&before).filter(|(a, b)| a != b).count();
             assert!(moved > 0, "{budget:?}: no buried point's word changed");
+        }
+    }
+
+    #[test]
+    fn refilling_where_donors_changed_sends_what_refilling_every_buried_point_sends() {
+        // Against a fill of every buried point each step (the refill set
+        // to all before each step), the same frames, updates and drops:
+        // also where cells are too small for every point (no overflow,
+        // two a cell), so that buried points without a slot retry.
+        let cases = [
+            (false, RayBudget::Rays(3_000)),
+            (true, RayBudget::Unlimited),
+            (true, RayBudget::Rays(3_000)),
+        ];
+        for (k, (crowded, budget)) in cases.into_iter().enumerate() {
+            let mut c = PipelineConfig::with_density_and_rays(256.0, 16);
+            c.budget = budget;
+            if crowded {
+                c.layout.overflow = false;
+                c.layout.cell_capacity = 2;
+            }
+            let mut some = Pipeline::new(scene(), c.clone()).unwrap();
+            let mut all = Pipeline::new(scene(), c).unwrap();
+            // Points without a slot now, and drop events so far.
+            let dropped = |p: &Pipeline| -> (u64, u64) {
+                p.instances.iter().fold((0, 0), |(n, e), s| {
+                    let t = s.table.stats();
+                    let events = t.cell_overflow + t.bucket_overflow + t.out_of_grid;
+                    (n + u64::from(t.dropped), e + events)
+                })
+            };
+            let mut refilled = 0;
+            for step in 0..30 {
+                for s in &mut all.instances {
+                    s.buried.refill = Refill::All;
+                }
+                let (a, ra) = some.step(0.05).unwrap();
+                let (b, rb) = all.step(0.05).unwrap();
+                let bytes = |f: Option<psao_codec::EncodedFrame>| f.map(|f| f.bytes.to_vec());
+                assert_eq!(bytes(a), bytes(b), "case {k}, step {step}: frames");
+                assert_eq!(ra.updated, rb.updated, "case {k}, step {step}: updated");
+                assert_eq!(
+                    dropped(&some),
+                    dropped(&all),
+                    "case {k}, step {step}: drops"
+                );
+                refilled += rb.updated;
+            }
+            assert!(refilled > 0, "case {k}: nothing was set");
+            if crowded {
+                // The crowded layouts leave points without a slot.
+                assert!(dropped(&some).0 > 0, "case {k}: no point was dropped");
+            }
         }
     }
 }

@@ -254,8 +254,8 @@ fn camera_path() -> CameraPath {
 
 /// The hall's table, standing on y = 0 around the origin: a 4 cm top
 /// (1.6 m by 0.9 m, its top at y = 0.76) on a block whose top face
-/// (y = 0.72) lies hidden just under the top's, inside it: the case
-/// buried points are for.
+/// (y = 0.72) lies on the top's underside, hidden: the case buried
+/// points are for.
 pub fn hall_table() -> Mesh {
     let mut table = Mesh::cuboid(Vec3::new(-0.8, 0.72, -0.45), Vec3::new(0.8, 0.76, 0.45));
     let leg = Mesh::cuboid(Vec3::new(-0.6, 0.0, -0.3), Vec3::new(0.6, 0.72, 0.3));
