@@ -2,12 +2,16 @@
 //! reach of motion without testing each ([`PointBlocks`]).
 
 use glam::{Affine3A, Vec3};
+use rayon::prelude::*;
 
 use crate::model::mesh::transformed_bounds;
 use crate::morton::morton_order;
 
 /// Points per block.
 const BLOCK: usize = 64;
+
+/// Fewest blocks [`PointBlocks::within`] tests in parallel.
+const PARALLEL_BLOCKS: usize = 256;
 
 /// A rigid instance's points in blocks of [`BLOCK`] along a Morton curve,
 /// each with its local bounds: a step tests a block's box against what
@@ -66,18 +70,34 @@ impl PointBlocks {
         transform: &Affine3A,
         swept: &[(Vec3, Vec3)],
     ) -> Vec<u32> {
-        let mut out = Vec::new();
-        for (chunk, &b) in self.order.chunks(BLOCK).zip(&self.boxes) {
+        // One block's points inside the boxes (none where its box meets
+        // none of them).
+        let block = |(chunk, &b): (&[u32], &(Vec3, Vec3))| -> Vec<u32> {
             let world = transformed_bounds(transform, b);
             if !swept.iter().any(|&s| overlaps(s, world)) {
-                continue;
+                return Vec::new();
             }
-            out.extend(
-                chunk.iter().copied().filter(|&k| {
-                    inside_any(transform.transform_point3(positions[k as usize]), swept)
-                }),
-            );
-        }
+            chunk
+                .iter()
+                .copied()
+                .filter(|&k| inside_any(transform.transform_point3(positions[k as usize]), swept))
+                .collect()
+        };
+        // Many blocks are tested in parallel (a floor under many moving
+        // parts); the points are the same either way, sorted.
+        let mut out: Vec<u32> = if self.boxes.len() >= PARALLEL_BLOCKS {
+            self.order
+                .par_chunks(BLOCK)
+                .zip(self.boxes.par_iter())
+                .flat_map_iter(block)
+                .collect()
+        } else {
+            self.order
+                .chunks(BLOCK)
+                .zip(&self.boxes)
+                .flat_map(block)
+                .collect()
+        };
         out.sort_unstable();
         out
     }
@@ -94,30 +114,33 @@ mod tests {
 
     #[test]
     fn blocks_choose_the_points_each_test_would() {
-        let positions: Vec<Vec3> = (0..1000)
-            .map(|k| {
-                let u = |s| crate::random::uniform(s, k, 0) * 10.0;
-                Vec3::new(u(1), u(2) * 0.1, u(3))
-            })
-            .collect();
-        let blocks = PointBlocks::new(&positions);
-        assert!(blocks.covers(1000));
-        let t =
-            Affine3A::from_rotation_y(0.3) * Affine3A::from_translation(Vec3::new(1.0, 0.0, -2.0));
-        let swept = [
-            (Vec3::new(2.0, -1.0, 1.0), Vec3::new(4.0, 1.0, 3.0)),
-            (Vec3::new(-5.0, -1.0, -5.0), Vec3::new(-4.0, 1.0, -4.5)),
-        ];
-        let each: Vec<u32> = (0..1000u32)
-            .filter(|&k| {
-                let p = t.transform_point3(positions[k as usize]);
-                swept
-                    .iter()
-                    .any(|b| p.cmpge(b.0).all() && p.cmple(b.1).all())
-            })
-            .collect();
-        assert!(!each.is_empty());
-        assert_eq!(blocks.within(&positions, &t, &swept), each);
-        assert!(blocks.within(&positions, &t, &[]).is_empty());
+        // Few blocks (tested in turn) and many (in parallel).
+        for n in [1_000u32, (PARALLEL_BLOCKS * BLOCK) as u32 + 777] {
+            let positions: Vec<Vec3> = (0..n)
+                .map(|k| {
+                    let u = |s| crate::random::uniform(s, k, 0) * 10.0;
+                    Vec3::new(u(1), u(2) * 0.1, u(3))
+                })
+                .collect();
+            let blocks = PointBlocks::new(&positions);
+            assert!(blocks.covers(n as usize));
+            let t = Affine3A::from_rotation_y(0.3)
+                * Affine3A::from_translation(Vec3::new(1.0, 0.0, -2.0));
+            let swept = [
+                (Vec3::new(2.0, -1.0, 1.0), Vec3::new(4.0, 1.0, 3.0)),
+                (Vec3::new(-5.0, -1.0, -5.0), Vec3::new(-4.0, 1.0, -4.5)),
+            ];
+            let each: Vec<u32> = (0..n)
+                .filter(|&k| {
+                    let p = t.transform_point3(positions[k as usize]);
+                    swept
+                        .iter()
+                        .any(|b| p.cmpge(b.0).all() && p.cmple(b.1).all())
+                })
+                .collect();
+            assert!(!each.is_empty());
+            assert_eq!(blocks.within(&positions, &t, &swept), each, "{n} points");
+            assert!(blocks.within(&positions, &t, &[]).is_empty());
+        }
     }
 }
