@@ -134,22 +134,24 @@ impl Buried {
             Refill::All => None,
             Refill::Some {
                 mut changed,
-                mut unplaced,
+                unplaced,
             } => {
                 changed.sort_unstable();
                 changed.dedup();
+                // Those without a slot, and those a changed donor gives to.
+                let mut which = unplaced;
                 for d in changed {
                     let from = self.by_donor.partition_point(|&(x, _)| x < d);
-                    unplaced.extend(
+                    which.extend(
                         self.by_donor[from..]
                             .iter()
                             .take_while(|&&(x, _)| x == d)
                             .map(|&(_, b)| b),
                     );
                 }
-                unplaced.sort_unstable();
-                unplaced.dedup();
-                Some(unplaced)
+                which.sort_unstable();
+                which.dedup();
+                Some(which)
             }
         }
     }
