@@ -317,6 +317,14 @@ fn main() {
         ms(sum.t_trace),
         ms(sum.t_encode)
     );
+    let ph = sum.trace_phases;
+    println!(
+        "  trace ms/frame     {:.3} plan, {:.3} choose, {:.3} cast, {:.3} apply + fill",
+        ms(ph.plan),
+        ms(ph.choose),
+        ms(ph.cast),
+        ms(ph.apply)
+    );
     println!(
         "  client mirror      equal to the server's tables; frames digest {:016x}",
         frames_hash.finish()

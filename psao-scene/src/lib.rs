@@ -89,7 +89,7 @@ pub use pipeline::config::{
     DEFAULT_MAX_POINTS, EarlyDecisions, PipelineConfig, RayBudget, ViewerCull, Views,
 };
 pub use pipeline::early::EarlyAudit;
-pub use pipeline::report::FrameReport;
+pub use pipeline::report::{FrameReport, TracePhases};
 pub use pipeline::{Pipeline, SetupProgress, SetupStage};
 pub use points::generate::{
     Anchor, MAX_SPAWNED_POINTS, MIN_SPAWNED, PointSet, TILE_POINTS, eliminate, generate_points,

@@ -4,6 +4,8 @@
 //! where motion has passed, clients hold what a full trace gives, to the
 //! quantization; a lead poses the scene ahead of the clock.
 
+use std::time::Duration;
+
 use glam::{Affine3A, Vec3};
 use psao_codec::PointWord;
 use psao_codec::wire::point::quantize_ao;
@@ -523,6 +525,33 @@ fn an_automatic_budget_is_measured_and_reported() {
         assert!(r.oldest_wait <= r.wait_bound, "{r:?}");
         assert!((least..=limit).contains(&r.wait_bound), "{r:?}");
     }
+}
+
+#[test]
+fn the_trace_phases_are_reported_and_lie_within_the_trace() {
+    let c = PipelineConfig {
+        budget: RayBudget::Rays(20_000),
+        ..config(Estimator::ClosestHit)
+    };
+    let mut p = Pipeline::new(default_scene(), c).unwrap();
+    let mut traced = 0;
+    for _ in 0..6 {
+        let (_, r) = p.step(1.0 / 60.0).unwrap();
+        let ph = r.trace_phases;
+        // Each part is timed inside the trace phase, one after the other.
+        assert!(
+            ph.plan + ph.choose + ph.cast + ph.apply <= r.t_trace,
+            "{r:?}"
+        );
+        if r.traced > 0 {
+            traced += 1;
+            assert!(
+                ph.plan > Duration::ZERO && ph.cast > Duration::ZERO,
+                "{r:?}"
+            );
+        }
+    }
+    assert!(traced > 0, "the box and the walker move: points are traced");
 }
 
 /// The box slides across the floor and comes to rest; one step later,

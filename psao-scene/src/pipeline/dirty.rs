@@ -15,6 +15,7 @@ use super::early::{Kept, trace_early};
 use super::plan::{Learnt, Plan};
 use super::ray_cache::key;
 use super::reach::MotionBoxes;
+use super::report::TracePhases;
 use crate::error::SceneError;
 use crate::model::pose::normal_matrix;
 use crate::morton::morton_order;
@@ -56,6 +57,9 @@ pub(super) struct StepTrace {
     /// Time the trace phase took after the budget was set, less the
     /// casting: choosing the points, and after casting.
     pub outside_cast: Duration,
+    /// The trace phase's parts: planning, choosing, casting, and what
+    /// follows (see [`TracePhases`]).
+    pub phases: TracePhases,
     /// Per instance, whether the step held it whole (a rigid mover whose
     /// points wait together, its transform held back with them: see
     /// [`PipelineConfig::movers_whole`](super::config::PipelineConfig::movers_whole)).
@@ -219,6 +223,12 @@ impl Pipeline {
         };
         let (traced, rays_cast) = (sub.ids.len() as u64, result.rays);
         let t_after = std::time::Instant::now();
+        let mut phases = TracePhases {
+            plan: budgeted.duration_since(started),
+            choose: casting.duration_since(budgeted),
+            cast: t_after.duration_since(casting),
+            apply: Duration::ZERO,
+        };
         if rays_cast >= 1024 {
             // The cost of a ray, for an automatic budget: a running mean
             // over the casting alone (planning is paid for apart).
@@ -241,6 +251,7 @@ impl Pipeline {
         } else {
             0
         };
+        phases.apply = t_after.elapsed();
         Ok(StepTrace {
             traced,
             rays: rays_cast,
@@ -253,7 +264,8 @@ impl Pipeline {
             overdue,
             early: self.last_early.len() as u64,
             open,
-            outside_cast: casting.duration_since(budgeted) + t_after.elapsed(),
+            outside_cast: phases.choose + phases.apply,
+            phases,
             held,
         })
     }

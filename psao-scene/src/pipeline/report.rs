@@ -78,6 +78,38 @@ pub struct FrameReport {
     pub t_trace: Duration,
     /// Time to update tables and encode.
     pub t_encode: Duration,
+    /// The parts of `t_trace`, where the step traced or had points
+    /// waiting (zero otherwise).
+    pub trace_phases: TracePhases,
+}
+
+/// How long the parts of a step's trace phase took
+/// ([`FrameReport::t_trace`] holds
+/// them all, and the few microseconds between them).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TracePhases {
+    /// Gathering the points to trace (with those waiting) and planning
+    /// which of their rays motion reached, up to the budget's setting.
+    pub plan: Duration,
+    /// Choosing the points the budget takes, the waiting list and the
+    /// batch of the chosen points with what clients hold.
+    pub choose: Duration,
+    /// Casting the chosen points' rays and comparing their AO with what
+    /// clients hold.
+    pub cast: Duration,
+    /// Setting the points past the thresholds, settling, and the buried
+    /// points' fill.
+    pub apply: Duration,
+}
+
+impl TracePhases {
+    /// Adds `other`'s times to these.
+    pub fn accumulate(&mut self, other: &TracePhases) {
+        self.plan += other.plan;
+        self.choose += other.choose;
+        self.cast += other.cast;
+        self.apply += other.apply;
+    }
 }
 
 impl FrameReport {
@@ -112,6 +144,7 @@ impl FrameReport {
         self.t_bvh += other.t_bvh;
         self.t_trace += other.t_trace;
         self.t_encode += other.t_encode;
+        self.trace_phases.accumulate(&other.trace_phases);
     }
 
     /// Server time of the frame, all stages.

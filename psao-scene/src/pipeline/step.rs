@@ -140,6 +140,7 @@ impl Pipeline {
             report.early = done.early;
             report.open = done.open;
             outside_cast = done.outside_cast;
+            report.trace_phases = done.phases;
             held = done.held;
         } else if !self.last_traced.is_empty() {
             // Nothing to trace: the points the last step traced settle.
