@@ -16,6 +16,8 @@
 //!   80% of the frame period affords): points past it wait, at most
 //!   `--max-wait` frames (8); `--movers-every-step` traces a moving
 //!   instance's own points every frame whatever the budget;
+//!   `--plan-late` plans points that wait long once, when the budget
+//!   takes them (`PipelineConfig::plan_late`);
 //! - `--early`: early decisions (a moving instance's point stops casting
 //!   rays once its AO is known to stay within the send threshold);
 //!   `--early-z Z` sets their confidence (3 standard errors) and
@@ -92,6 +94,7 @@ fn main() {
         cull: flag("--cull").then(ViewerCull::default),
         ray_reuse: !flag("--no-ray-reuse"),
         skip_open: !flag("--no-skip-open"),
+        plan_late: flag("--plan-late"),
         budget: match arg("--ray-budget", String::new()).as_str() {
             "" => RayBudget::Unlimited,
             "auto" => RayBudget::Auto { share: 0.8 },

@@ -366,6 +366,58 @@ fn demand_beyond_the_budget(limit: u32) -> (usize, u32) {
     (over, highest)
 }
 
+/// The turning cross ([`turning_cross`]) turned 135 degrees (where it
+/// rests, nothing is as it was) under a budget far below demand, the
+/// bound on waiting free to rise past `max_wait` (so points that wait long
+/// are planned late: once, when the budget takes them, against the boxes
+/// of every step they waited), then at rest until nothing waits, settling
+/// on: the largest difference between what clients hold of the floor and
+/// the block and a full trace of the scene now, and the highest bound.
+fn held_error_after_demand_beyond_the_budget() -> (f32, u32) {
+    let c = PipelineConfig {
+        budget: RayBudget::Rays(64),
+        max_wait: 2,
+        max_wait_limit: 40,
+        settle_steps: 1,
+        plan_late: true,
+        ..config(Estimator::ClosestHit)
+    };
+    let ao = c.ao;
+    let mut p = Pipeline::new(turning_cross(), c).unwrap();
+    let mut highest = 0;
+    for _ in 0..45 {
+        highest = highest.max(p.step(1.0 / 30.0).unwrap().1.wait_bound);
+    }
+    let mut rest = 0;
+    loop {
+        // Steps of no time: the cross stays where it is.
+        let (_, r) = p.step(0.0).unwrap();
+        rest += 1;
+        if r.waiting == 0 && r.traced == 0 {
+            break;
+        }
+        assert!(
+            rest < 5000,
+            "points still wait 5000 steps after the cross rests"
+        );
+    }
+    let floor = p.current_points(0).unwrap().0.len() as u32;
+    let error = worst_held_error(&mut p, 0, 0, &ao).max(worst_held_error(&mut p, 1, floor, &ao));
+    (error, highest)
+}
+
+#[test]
+fn points_planned_late_trace_every_ray_motion_reached_while_they_waited() {
+    let (error, highest) = held_error_after_demand_beyond_the_budget();
+    assert!(
+        highest > 2,
+        "the bound never rose: no point was planned late"
+    );
+    // A ray reached while a point waited and not traced again would leave
+    // its old score in the point's AO.
+    assert!(error <= 0.51 / 255.0, "held AO off by {}", error * 255.0);
+}
+
 #[test]
 fn under_demand_beyond_the_budget_the_bound_on_waiting_rises_and_steps_keep_the_budget() {
     // A fixed bound: points that reach it are traced past the budget.

@@ -155,6 +155,9 @@ pub struct Settings {
     /// held back while they wait
     /// ([`PipelineConfig::movers_whole`](psao_scene::PipelineConfig::movers_whole)).
     pub movers_whole: bool,
+    /// Under the budget, points that wait long are planned late
+    /// ([`PipelineConfig::plan_late`](psao_scene::PipelineConfig::plan_late)).
+    pub plan_late: bool,
     /// PSAO servers make early decisions
     /// ([`PipelineConfig::early`](psao_scene::PipelineConfig::early), the
     /// defaults).
@@ -278,6 +281,7 @@ impl Settings {
             max_wait_limit: PipelineConfig::default().max_wait_limit,
             movers_every_step: false,
             movers_whole: false,
+            plan_late: false,
             early: false,
             ray_reuse: true,
             skip_open: true,
@@ -770,6 +774,7 @@ fn measure_psao(
         config.max_wait_limit = s.max_wait_limit.max(s.max_wait);
         config.movers_every_step = s.movers_every_step;
         config.movers_whole = s.movers_whole;
+        config.plan_late = s.plan_late;
     }
     config.early = s.early.then(psao_scene::EarlyDecisions::default);
     config.fill_buried = s.fill_buried;

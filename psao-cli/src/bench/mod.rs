@@ -195,6 +195,13 @@ pub struct BenchArgs {
     /// its transform held back with its points while they wait.
     #[arg(long)]
     movers_whole: bool,
+    /// Under --ray-budget, once demand has raised the bound on waiting,
+    /// plan a static point that waited a few ticks once, when the budget
+    /// takes it, against what moved in every tick it waited, instead of
+    /// tracing it in full (fewer rays a point; slower ticks where very
+    /// many points wait)
+    #[arg(long)]
+    plan_late: bool,
     /// Every PSAO server makes early decisions: a moving instance's point
     /// stops casting rays once its AO is known, to 3 standard errors, to
     /// stay within the send threshold of what clients hold.
@@ -246,6 +253,7 @@ impl BenchArgs {
         settings.hidden_test = !self.no_hidden_test;
         settings.movers_every_step = self.movers_every_frame;
         settings.movers_whole = self.movers_whole;
+        settings.plan_late = self.plan_late;
         settings.early = self.early_decisions;
         settings
     }

@@ -40,7 +40,13 @@
 //! longer wait longer, instead of the step running past its period.
 //! While the bound is above `max_wait`, a point that waited
 //! [`REPLAN_WAITS`] steps is no longer planned ray by ray each step: it is
-//! traced in full when its turn comes.
+//! planned *late*, once, when the budget takes it, against the boxes of
+//! what moved in every step since it was last planned (boxes that meet
+//! merged into one, so a ray more may be cast, never one less). Until
+//! then it costs the rays known stale; where the rays it then needs no
+//! longer fit the budget, it waits on (unless overdue). (Before
+//! 2026-12-06 such a point forgot its kept scores and was traced in full:
+//! 32 rays where a few were reached.)
 //!
 //! A point costs the rays it traces. On the CPU backend with ray reuse
 //! that is only the rays motion reached (the others' scores are kept),
@@ -269,20 +275,27 @@ pub fn next_bound(
 }
 
 /// Steps a point with kept ray scores may wait and still be planned ray
-/// by ray while demand has raised the bound on waiting: past them it is
-/// traced in full when its turn comes. Planning tests each of its rays
-/// against the boxes of what moved, every step it waits; with many points
-/// waiting that costs more than the rays it saves.
+/// by ray each step while demand has raised the bound on waiting: past
+/// them it is planned late (see the module). Planning tests each of its
+/// rays against the boxes of what moved, every step it waits; with many
+/// points waiting that costs more than the rays it saves.
 pub const REPLAN_WAITS: u32 = 2;
 
 /// The points waiting for a later step, by (instance, point) key: the
-/// steps each has waited, and whether it needs a full trace (it has no
-/// kept scores; else its reached rays are marked stale in the cache).
+/// steps each has waited, whether it needs a full trace (it has no
+/// kept scores; else its reached rays are marked stale in the cache), and
+/// whether it is planned *late*: not each step it waits, but once, when
+/// the budget takes it, against the boxes of what moved in every step
+/// since it was last planned (see `Pipeline::plan_late`).
 #[derive(Clone, Debug, Default)]
 pub struct Waiting {
     /// Per point: 0 while it does not wait, else the steps it has waited
-    /// times 2, plus 1 when it needs a full trace.
+    /// times 4, plus 2 when it is planned late, plus 1 when it needs a
+    /// full trace.
     state: PointSlots,
+    /// Per point planned late, the step it was last planned in (the
+    /// step's number, wrapping at 2^32).
+    since: PointSlots,
     /// The keys of the points that wait, in no order, and of some that no
     /// longer do or twice (tidied by [`keys`](Self::keys)).
     list: Vec<u64>,
@@ -290,24 +303,59 @@ pub struct Waiting {
     count: usize,
 }
 
+/// A waiting point's state: its flag for a full trace.
+const FULL: u32 = 1;
+/// A waiting point's state: its flag for planning late.
+const LATE: u32 = 2;
+/// A waiting point's state: its age lies above the flags.
+const AGE_SHIFT: u32 = 2;
+
 impl Waiting {
     /// A waiting point's age and whether it needs a full trace.
     pub fn get(&self, key: u64) -> Option<(u32, bool)> {
         let s = self.state.get(key);
-        (s != 0).then_some((s >> 1, s & 1 == 1))
+        (s != 0).then_some((s >> AGE_SHIFT, s & FULL != 0))
+    }
+
+    /// The step a waiting point planned late was last planned in.
+    pub fn late_since(&self, key: u64) -> Option<u32> {
+        (self.state.get(key) & LATE != 0).then(|| self.since.get(key))
     }
 
     /// Keeps `key` waiting one step more (`full`: it needs a full trace,
-    /// which stays so once set).
+    /// which stays so once set, and is planned in no other way).
     pub fn wait(&mut self, key: u64, full: bool) {
         let s = self.state.get(key);
         if s == 0 {
             self.list.push(key);
             self.count += 1;
         }
-        let age = ((s >> 1) + 1).min(u32::MAX >> 1);
-        let full = s & 1 == 1 || full;
-        self.state.set(key, (age << 1) | full as u32);
+        let age = ((s >> AGE_SHIFT) + 1).min(u32::MAX >> AGE_SHIFT);
+        let flags = if s & FULL != 0 || full {
+            FULL
+        } else {
+            s & LATE
+        };
+        self.state.set(key, (age << AGE_SHIFT) | flags);
+    }
+
+    /// Notes that waiting `key`, planned late, was planned in `step` (its
+    /// rays reached up to it are to be marked stale).
+    pub fn replanned(&mut self, key: u64, step: u32) {
+        if self.state.get(key) & LATE != 0 {
+            self.since.set(key, step);
+        }
+    }
+
+    /// Plans waiting `key` (with kept scores, its rays reached up to
+    /// `step` marked stale) late from now on; a point planned late
+    /// already keeps the step it was last planned in.
+    pub fn plan_late(&mut self, key: u64, step: u32) {
+        let s = self.state.get(key);
+        if s != 0 && s & (FULL | LATE) == 0 {
+            self.state.set(key, s | LATE);
+            self.since.set(key, step);
+        }
     }
 
     /// Takes `key` off the list (it was traced).
@@ -338,14 +386,14 @@ impl Waiting {
     pub fn oldest(&self) -> u32 {
         self.list
             .iter()
-            .map(|&k| self.state.get(k) >> 1)
+            .map(|&k| self.state.get(k) >> AGE_SHIFT)
             .max()
             .unwrap_or(0)
     }
 
     /// Bytes held (capacity).
     pub fn memory_bytes(&self) -> u64 {
-        self.state.memory_bytes() + self.list.capacity() as u64 * 8
+        self.state.memory_bytes() + self.since.memory_bytes() + self.list.capacity() as u64 * 8
     }
 }
 
@@ -568,5 +616,35 @@ mod tests {
         // Keys of other instances too.
         w.wait(super::super::ray_cache::key(3, 1), true);
         assert_eq!(w.keys(), vec![5, 3 << 32 | 1]);
+    }
+
+    #[test]
+    fn a_point_planned_late_keeps_the_step_it_was_planned_in_until_replanned() {
+        let mut w = Waiting::default();
+        // Only a waiting point with kept scores is planned late.
+        w.plan_late(7, 3);
+        assert_eq!(w.late_since(7), None);
+        w.wait(8, true);
+        w.plan_late(8, 3);
+        assert_eq!(w.late_since(8), None);
+        w.wait(7, false);
+        w.plan_late(7, 3);
+        assert_eq!(w.late_since(7), Some(3));
+        // Waiting on, it keeps its step and ages; asked again, the same.
+        w.wait(7, false);
+        w.plan_late(7, 4);
+        assert_eq!((w.late_since(7), w.get(7)), (Some(3), Some((2, false))));
+        // Planned in a later step (put back after the budget took it).
+        w.replanned(7, 5);
+        assert_eq!(w.late_since(7), Some(5));
+        // Needing a full trace ends it; so does leaving the list.
+        w.wait(7, true);
+        assert_eq!((w.late_since(7), w.get(7)), (None, Some((3, true))));
+        w.wait(9, false);
+        w.plan_late(9, 6);
+        w.done(9);
+        w.wait(9, false);
+        assert_eq!((w.late_since(9), w.get(9)), (None, Some((1, false))));
+        assert_eq!(w.oldest(), 3);
     }
 }

@@ -12,6 +12,7 @@ use super::budget::{Candidate, REPLAN_WAITS, RayBudget, due};
 use super::dirty::{Batch, StepMotion};
 use super::plan::Plan;
 use super::ray_cache::key;
+use super::reach::{MotionBoxes, ReachQuery, reached_rays};
 use crate::trace::ao::{AoTracer, PointRays};
 
 /// A step's budget candidates: the planned points that trace and the
@@ -410,12 +411,130 @@ impl Pipeline {
         }
     }
 
+    /// Keeps the boxes of what moved in this step (`motion`) for the
+    /// points planned late, with those of as many steps before as a point
+    /// may wait (the bound's limit and its spread).
+    pub(super) fn remember_motion(&mut self, motion: &StepMotion) {
+        if !self.config.plan_late {
+            return;
+        }
+        let keep = self.config.max_wait_limit.max(self.config.max_wait) as usize + 2;
+        while self.moved.len() >= keep {
+            self.moved.pop_front();
+        }
+        self.moved
+            .push_back((self.frame as u32, motion.boxes.clone()));
+    }
+
+    /// Plans the `chosen` candidates planned late: until now each cost
+    /// the rays known stale; now it also needs every ray of it that what
+    /// moved reached in the steps since it was last planned (tested
+    /// against their boxes, [`MotionBoxes::joined`], with its kept scores:
+    /// what planning each step would have found, and maybe a ray more
+    /// where boxes were merged). A point whose steps are no longer all
+    /// remembered is traced in full. The budget chose it at its earlier
+    /// cost: where the rays the chosen points now need pass `budget`
+    /// (`spent` as chosen), the late points not overdue under `bound` are
+    /// put back to wait, lowest priority first, until they fit (their new
+    /// plan's rays marked stale, as planned in this step).
+    pub(super) fn plan_late(
+        &mut self,
+        batch: &Batch,
+        plans: &mut [Plan],
+        cands: &Candidates,
+        chosen: &mut [bool],
+        (budget, spent, bound): (Option<u64>, u64, u32),
+    ) {
+        let ao = self.config.ao;
+        // (merged index, batch index, the step it was last planned in).
+        let late: Vec<(usize, usize, u32)> = (cands.merged.iter().zip(chosen.iter()))
+            .enumerate()
+            .filter(|&(_, (&(apart, _), &c))| c && !apart)
+            .filter_map(|(m, (&(_, j), _))| {
+                let b = cands.at[j];
+                let (i, k) = batch.owner[b];
+                self.waiting
+                    .late_since(key(i, k))
+                    .map(|since| (m, b, since))
+            })
+            .collect();
+        if late.is_empty() {
+            return;
+        }
+        let now = self.frame as u32;
+        let (cache, moved) = (&self.ray_cache, &self.moved);
+        let planned: Vec<Plan> = late
+            .par_iter()
+            .map(|&(_, b, since)| {
+                let (i, k) = batch.owner[b];
+                let full = Plan::Full { reached: ao.rays };
+                let Some(e) = cache.get(key(i, k)) else {
+                    return full;
+                };
+                // The steps after `since`, up to this one, all remembered.
+                let steps = now.wrapping_sub(since) as usize;
+                let Some(first) = moved.len().checked_sub(steps) else {
+                    return full;
+                };
+                if moved.get(first).map(|m| m.0) != Some(since.wrapping_add(1)) {
+                    return full;
+                }
+                let boxes = MotionBoxes::joined(moved.range(first..).map(|m| &m.1));
+                let Some(r) = PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao)
+                else {
+                    return full;
+                };
+                let reached = reached_rays(
+                    &r,
+                    ao.rays,
+                    &boxes,
+                    ao.estimator,
+                    ao.radius,
+                    ReachQuery {
+                        dirs: Some(&e.rays),
+                        scores: Some(&e.scores),
+                        ..ReachQuery::default()
+                    },
+                );
+                let mut need = reached.clone();
+                need.union(&e.stale);
+                Plan::Rays { need, reached }
+            })
+            .collect();
+        let mut total = spent;
+        let mut back = Vec::new();
+        for (&(m, b, _), p) in late.iter().zip(planned) {
+            total = total - u64::from(cands.all[m].cost) + u64::from(p.cost(ao.rays));
+            if !cands.all[m].overdue(bound) {
+                back.push(m);
+            }
+            plans[b] = p;
+        }
+        if let Some(budget) = budget.filter(|&b| total > b) {
+            // Lowest priority first (ties: the later in merged order).
+            back.sort_by(|&x, &y| {
+                let (px, py) = (cands.all[x].priority(), cands.all[y].priority());
+                px.total_cmp(&py).then(y.cmp(&x))
+            });
+            for m in back {
+                if total <= budget {
+                    break;
+                }
+                chosen[m] = false;
+                let b = cands.at[cands.merged[m].1];
+                total -= u64::from(plans[b].cost(ao.rays));
+                let (i, k) = batch.owner[b];
+                self.waiting.replanned(key(i, k), now);
+            }
+        }
+    }
+
     /// Records the budget's choice (`chosen`, per candidate of `cands` in
     /// merged order): a chosen point leaves the waiting list, one not chosen
-    /// waits (planned again next step, or traced in full when its turn
-    /// comes once demand has raised the bound past `max_wait` and it has
-    /// waited [`REPLAN_WAITS`] steps). Returns the chosen planned points
-    /// (indices into `batch`) and the chosen points apart (keys).
+    /// waits (planned again next step, or planned late, [`Self::plan_late`],
+    /// once demand has raised the bound past `max_wait` and it has waited
+    /// [`REPLAN_WAITS`] steps). Returns the chosen planned points (indices
+    /// into `batch`) and the chosen points apart (keys).
     pub(super) fn record_choices(
         &mut self,
         batch: &Batch,
@@ -457,9 +576,13 @@ impl Pipeline {
             let waited = self.waiting.get(key).map_or(0, |w| w.0);
             let replan = bound <= self.config.max_wait || waited < REPLAN_WAITS;
             match &plans[b] {
-                Plan::Rays { reached, .. } if replan => {
+                Plan::Rays { reached, .. } if replan || self.config.plan_late => {
                     self.ray_cache.mark_stale(key, reached);
                     self.waiting.wait(key, false);
+                    if !replan {
+                        // Its rays reached up to this step are stale.
+                        self.waiting.plan_late(key, self.frame as u32);
+                    }
                 }
                 _ => {
                     self.ray_cache.forget(key);

@@ -196,6 +196,19 @@ pub struct PipelineConfig {
     /// spec/session.md section 6). Ignored with
     /// [`movers_every_step`](Self::movers_every_step).
     pub movers_whole: bool,
+    /// Under a budget, once demand has raised the bound on waiting, a
+    /// static point that has waited a few steps is planned *late* (true)
+    /// instead of forgetting its kept scores and waiting for a full trace
+    /// (false, the default): once, when the budget takes it, against the
+    /// boxes of what moved in every step it waited (see the module docs
+    /// of the budget). It then casts the rays motion reached, not all of
+    /// them, so the same budget goes round more points: 0.4-1.1 dB less
+    /// lost on the default scene at fixed budgets of 16,000-32,000 rays
+    /// (BENCHMARKS.md). But such points stay in every step's batch while
+    /// they wait, and where tens of thousands wait (CesiumMilkTruck) the
+    /// step took longer than its period under the automatic budget: off
+    /// by default until they are kept apart.
+    pub plan_late: bool,
     /// Early decisions (`Some`): a moving or deforming instance's point
     /// casts its rays in a spread order over the scores its last trace
     /// kept and stops once its AO is known, to the stated confidence, to
@@ -277,6 +290,7 @@ impl Default for PipelineConfig {
             max_wait_limit: 60,
             movers_every_step: false,
             movers_whole: false,
+            plan_late: false,
             early: None,
             lead: 0.0,
             settle_steps: 0,

@@ -153,6 +153,7 @@ impl Pipeline {
     ) -> Result<StepTrace, SceneError> {
         // The budget pays for what follows, the waiting list included.
         let started = std::time::Instant::now();
+        self.remember_motion(motion);
         let mut lists = self.traced_only(which).unwrap_or_else(|| which.to_vec());
         let rays = self.config.ao.rays;
         let (apart, mut touched) = self.split_waiting(&mut lists, motion);
@@ -177,7 +178,14 @@ impl Pipeline {
                 None => {}
             }
         }
-        let (chosen, _) = select(&cands.all, budget, bound);
+        let (mut chosen, spent) = select(&cands.all, budget, bound);
+        self.plan_late(
+            &batch,
+            &mut plans,
+            &cands,
+            &mut chosen,
+            (budget, spent, bound),
+        );
         if let Some(t) = tracer {
             self.known_open(t, &batch, &mut plans, &cands, &chosen);
         }

@@ -268,6 +268,11 @@ pub struct Pipeline {
     ray_cache: ray_cache::RayCache,
     /// Points the ray budget put off to a later step.
     waiting: budget::Waiting,
+    /// The boxes of what moved in each of the last steps that traced or
+    /// had points waiting, with the step's number (wrapping at 2^32),
+    /// oldest first: what the points planned late were reached by
+    /// ([`Self::plan_late`]).
+    moved: std::collections::VecDeque<(u32, reach::MotionBoxes)>,
     /// Moving points' ray scores from their last trace (early decisions).
     kept_scores: early::KeptScores,
     /// The order early decisions cast a point's rays in.
@@ -643,6 +648,7 @@ impl Pipeline {
             views: Views::CameraPath,
             ray_cache,
             waiting: budget::Waiting::default(),
+            moved: std::collections::VecDeque::new(),
             kept_scores: early::KeptScores::new(config_rays, config_cache_bytes),
             ray_order: early::ray_order(config_rays),
             last_early: Vec::new(),
@@ -821,6 +827,8 @@ impl Pipeline {
             + self.envelope_masks.capacity() as u64
                 * std::mem::size_of::<plan::EnvelopeRays>() as u64
             + self.envelope_masks.iter().map(|m| m.heap_bytes()).sum::<u64>()
+            // The boxes of the last steps, for the points planned late.
+            + self.moved.iter().map(|m| m.1.heap_bytes() + 32).sum::<u64>()
     }
 
     /// Static points whose ray scores are kept for partial re-traces

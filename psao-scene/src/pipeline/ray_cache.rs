@@ -8,7 +8,9 @@
 //! move), only after they were first traced near motion, and only up to a
 //! byte cap; a point without scores is traced in full. A point that must
 //! wait (the ray budget) keeps its scores and remembers which rays motion
-//! reached meanwhile (`stale`); a point put aside by culling loses them.
+//! reached meanwhile (`stale`; a point planned late, up to the step it was
+//! last planned in, the rest found when the budget takes it); a point put
+//! aside by culling loses them.
 
 use super::reach::RayMask;
 use super::slots::PointSlots;
@@ -20,7 +22,8 @@ pub struct Entry {
     /// Each ray's score as last traced (or, for the rays in `stale`, as
     /// traced before motion reached them).
     pub scores: Box<[f32]>,
-    /// Rays motion reached since they were traced.
+    /// Rays motion reached since they were traced (for a point planned
+    /// late, up to the step it was last planned in).
     pub stale: RayMask,
     /// Each ray's unit direction and length (`w`), as
     /// [`PointRays::ray`](crate::trace::ao::PointRays::ray) gives them: a

@@ -149,6 +149,34 @@ impl MotionBoxes {
         self.boxes.is_empty()
     }
 
+    /// Bytes its boxes take on the heap.
+    pub fn heap_bytes(&self) -> u64 {
+        (self.boxes.capacity() * std::mem::size_of::<(Vec3A, Vec3A)>()) as u64
+    }
+
+    /// Boxes that hold every box of `sets` (each padded as it was): a box
+    /// that meets one already taken is merged with it, into the box that
+    /// holds both. A ray that reaches a box of some set reaches one of
+    /// these; one of these may reach a little more (where a part turned,
+    /// the corners between its boxes), never less. A part that moves a
+    /// little each step leaves one box over its path.
+    pub fn joined<'a>(sets: impl IntoIterator<Item = &'a MotionBoxes>) -> MotionBoxes {
+        let mut boxes: Vec<(Vec3A, Vec3A)> = Vec::new();
+        for &(lo, hi) in sets.into_iter().flat_map(|m| m.boxes.iter()) {
+            match boxes
+                .iter_mut()
+                .find(|(l, h)| lo.cmple(*h).all() && l.cmple(hi).all())
+            {
+                Some((l, h)) => {
+                    *l = l.min(lo);
+                    *h = h.max(hi);
+                }
+                None => boxes.push((lo, hi)),
+            }
+        }
+        MotionBoxes { boxes }
+    }
+
     /// The boxes a point's hemisphere of rays can enter, as it sees
     /// them: those within `len` of its rays' origin with a corner on the
     /// side its normal faces, each with the cone of directions that can
@@ -518,6 +546,63 @@ mod tests {
             (centre - half, centre + half)
         });
         (rays, count, MotionBoxes::new(boxes, 0.0), estimator)
+    }
+
+    #[test]
+    fn joined_boxes_are_reached_by_every_ray_that_reaches_a_box_of_a_set() {
+        // A box sliding step by step (overlapping boxes) and other sets
+        // drawn at random: every ray that enters a box of some set enters
+        // a joined box, drawn rays and rays through box corners alike.
+        let (mut merged, mut tested) = (0, 0);
+        for case in 0..2000 {
+            let (rays, count, first, _) = drawn_case(case);
+            let r = |j: u32| crate::random::uniform(11, case, j);
+            let step = Vec3A::new(r(0), r(1), r(2)) * 0.1 - 0.05;
+            let sets: Vec<MotionBoxes> = (0..1 + case % 5)
+                .map(|s| {
+                    let (_, _, drawn, _) = drawn_case(case + 7919 * s);
+                    let slid = first
+                        .boxes
+                        .iter()
+                        .map(|&(lo, hi)| (lo + step * s as f32, hi + step * s as f32));
+                    let boxes = slid.chain(drawn.boxes.iter().copied().take(s as usize % 2));
+                    MotionBoxes {
+                        boxes: boxes.collect(),
+                    }
+                })
+                .collect();
+            let joined = MotionBoxes::joined(&sets);
+            let all = sets.iter().map(|m| m.boxes.len()).sum::<usize>();
+            assert!(joined.boxes.len() <= all, "case {case}");
+            merged += usize::from(joined.boxes.len() < all);
+            let origin = rays.origin();
+            let corners = sets
+                .iter()
+                .flat_map(|m| m.boxes.iter())
+                .flat_map(|&(lo, hi)| {
+                    [lo, hi, (lo + hi) * 0.5].map(|c| {
+                        let d = c - origin;
+                        (d.normalize_or_zero(), d.length() * 1.01)
+                    })
+                });
+            let drawn = (0..count).map(|k| rays.ray(k));
+            for (dir, len) in drawn.chain(corners) {
+                if dir == Vec3A::ZERO {
+                    continue;
+                }
+                if sets.iter().any(|m| m.entry(origin, dir, len).is_some()) {
+                    tested += 1;
+                    assert!(
+                        joined.entry(origin, dir, len).is_some(),
+                        "case {case}: a ray enters a box of a set, no joined box"
+                    );
+                }
+            }
+        }
+        assert!(
+            merged > 500 && tested > 5000,
+            "{merged} cases merged, {tested} rays"
+        );
     }
 
     #[test]
