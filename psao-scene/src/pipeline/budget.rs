@@ -39,14 +39,15 @@
 //! up to [`PipelineConfig::max_wait_limit`]): points that must wait
 //! longer wait longer, instead of the step running past its period.
 //! While the bound is above `max_wait`, a point that waited
-//! [`REPLAN_WAITS`] steps is no longer planned ray by ray each step: it is
-//! planned *late*, once, when the budget takes it, against the boxes of
-//! what moved in every step since it was last planned (boxes that meet
-//! merged into one, so a ray more may be cast, never one less). Until
-//! then it costs the rays known stale; where the rays it then needs no
-//! longer fit the budget, it waits on (unless overdue). (Before
-//! 2026-12-06 such a point forgot its kept scores and was traced in full:
-//! 32 rays where a few were reached.)
+//! [`REPLAN_WAITS`] steps is no longer planned ray by ray each step: it
+//! forgets its kept scores and is traced in full when its turn comes (32
+//! rays where a few may have been reached). With
+//! [`PipelineConfig::plan_late`] it is planned *late* instead: once, when
+//! the budget takes it, against the boxes of what moved in every step
+//! since it was last planned (boxes that meet merged into one, so a ray
+//! more may be cast, never one less). Until then it costs the rays known
+//! stale; where the rays it then needs no longer fit the budget, it waits
+//! on (unless overdue).
 //!
 //! A point costs the rays it traces. On the CPU backend with ray reuse
 //! that is only the rays motion reached (the others' scores are kept),
@@ -65,6 +66,7 @@
 //! [`PipelineConfig::max_wait_limit`]: super::config::PipelineConfig::max_wait_limit
 //! [`PipelineConfig::movers_every_step`]: super::config::PipelineConfig::movers_every_step
 //! [`PipelineConfig::skip_open`]: super::config::PipelineConfig::skip_open
+//! [`PipelineConfig::plan_late`]: super::config::PipelineConfig::plan_late
 
 use super::slots::PointSlots;
 
@@ -276,9 +278,10 @@ pub fn next_bound(
 
 /// Steps a point with kept ray scores may wait and still be planned ray
 /// by ray each step while demand has raised the bound on waiting: past
-/// them it is planned late (see the module). Planning tests each of its
-/// rays against the boxes of what moved, every step it waits; with many
-/// points waiting that costs more than the rays it saves.
+/// them it is traced in full when its turn comes, or planned late (see
+/// the module). Planning tests each of its rays against the boxes of what
+/// moved, every step it waits; with many points waiting that costs more
+/// than the rays it saves.
 pub const REPLAN_WAITS: u32 = 2;
 
 /// The points waiting for a later step, by (instance, point) key: the

@@ -531,10 +531,13 @@ impl Pipeline {
 
     /// Records the budget's choice (`chosen`, per candidate of `cands` in
     /// merged order): a chosen point leaves the waiting list, one not chosen
-    /// waits (planned again next step, or planned late, [`Self::plan_late`],
-    /// once demand has raised the bound past `max_wait` and it has waited
-    /// [`REPLAN_WAITS`] steps). Returns the chosen planned points (indices
-    /// into `batch`) and the chosen points apart (keys).
+    /// waits (planned again next step, or, once demand has raised the
+    /// bound past `max_wait` and it has waited [`REPLAN_WAITS`] steps,
+    /// traced in full when its turn comes, or planned late,
+    /// [`Self::plan_late`], with
+    /// [`PipelineConfig::plan_late`](super::config::PipelineConfig::plan_late)).
+    /// Returns the chosen planned points (indices into `batch`) and the
+    /// chosen points apart (keys).
     pub(super) fn record_choices(
         &mut self,
         batch: &Batch,
