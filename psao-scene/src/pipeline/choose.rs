@@ -445,6 +445,9 @@ impl Pipeline {
         chosen: &mut [bool],
         (budget, spent, bound): (Option<u64>, u64, u32),
     ) {
+        if !self.config.plan_late {
+            return;
+        }
         let ao = self.config.ao;
         // (merged index, batch index, the step it was last planned in).
         let late: Vec<(usize, usize, u32)> = (cands.merged.iter().zip(chosen.iter()))
