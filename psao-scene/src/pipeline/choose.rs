@@ -465,7 +465,23 @@ impl Pipeline {
             return;
         }
         let now = self.frame as u32;
-        let (cache, moved) = (&self.ray_cache, &self.moved);
+        // The boxes of the steps after each `since`, up to this one, once
+        // for all the points planned in that step (`None`: not all of
+        // those steps are remembered).
+        let mut sinces: Vec<u32> = late.iter().map(|l| l.2).collect();
+        sinces.sort_unstable();
+        sinces.dedup();
+        let moved = &self.moved;
+        let boxes: Vec<Option<MotionBoxes>> = sinces
+            .iter()
+            .map(|&since| {
+                let steps = now.wrapping_sub(since) as usize;
+                let first = moved.len().checked_sub(steps)?;
+                (moved.get(first).map(|m| m.0) == Some(since.wrapping_add(1)))
+                    .then(|| MotionBoxes::joined(moved.range(first..).map(|m| &m.1)))
+            })
+            .collect();
+        let cache = &self.ray_cache;
         let planned: Vec<Plan> = late
             .par_iter()
             .map(|&(_, b, since)| {
@@ -474,15 +490,10 @@ impl Pipeline {
                 let Some(e) = cache.get(key(i, k)) else {
                     return full;
                 };
-                // The steps after `since`, up to this one, all remembered.
-                let steps = now.wrapping_sub(since) as usize;
-                let Some(first) = moved.len().checked_sub(steps) else {
+                let Some(Some(boxes)) = sinces.binary_search(&since).ok().map(|at| &boxes[at])
+                else {
                     return full;
                 };
-                if moved.get(first).map(|m| m.0) != Some(since.wrapping_add(1)) {
-                    return full;
-                }
-                let boxes = MotionBoxes::joined(moved.range(first..).map(|m| &m.1));
                 let Some(r) = PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao)
                 else {
                     return full;
@@ -490,7 +501,7 @@ impl Pipeline {
                 let reached = reached_rays(
                     &r,
                     ao.rays,
-                    &boxes,
+                    boxes,
                     ao.estimator,
                     ao.radius,
                     ReachQuery {

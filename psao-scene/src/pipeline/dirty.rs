@@ -54,9 +54,6 @@ pub(super) struct StepTrace {
     pub early: u64,
     /// Points known open without a ray ([`Plan::Open`]).
     pub open: u64,
-    /// Time the trace phase took after the budget was set, less the
-    /// casting: choosing the points, and after casting.
-    pub outside_cast: Duration,
     /// The trace phase's parts: planning, choosing, casting, and what
     /// follows (see [`TracePhases`]).
     pub phases: TracePhases,
@@ -272,7 +269,6 @@ impl Pipeline {
             overdue,
             early: self.last_early.len() as u64,
             open,
-            outside_cast: phases.choose + phases.apply,
             phases,
             held,
         })

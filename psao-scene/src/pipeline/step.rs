@@ -97,7 +97,6 @@ impl Pipeline {
         let tracer = self.update_bvhs(&motion, anything);
         report.t_bvh = t2.elapsed();
         let t3 = Instant::now();
-        let mut outside_cast = std::time::Duration::ZERO;
         // Rigid movers held whole this step (their transform held back).
         let mut held = Vec::new();
         // The envelope of what moves: points whose rays miss it need no
@@ -139,7 +138,6 @@ impl Pipeline {
             report.settled = done.settled;
             report.early = done.early;
             report.open = done.open;
-            outside_cast = done.outside_cast;
             report.trace_phases = done.phases;
             held = done.held;
         } else if !self.last_traced.is_empty() {
@@ -173,7 +171,8 @@ impl Pipeline {
         report.t_encode = t4.elapsed();
         // What a step takes besides casting once its budget is set, for
         // an automatic budget.
-        let tail = (outside_cast + report.t_encode).as_secs_f64();
+        let ph = report.trace_phases;
+        let tail = (ph.choose + ph.apply + report.t_encode).as_secs_f64();
         self.tail_s = 0.7 * self.tail_s + 0.3 * tail;
         Ok((frame, report))
     }
