@@ -46,8 +46,9 @@
 //! the budget takes it, against the boxes of what moved in every step
 //! since it was last planned (boxes that meet merged into one, so a ray
 //! more may be cast, never one less). Until then it costs the rays known
-//! stale; where the rays it then needs no longer fit the budget, it waits
-//! on (unless overdue).
+//! stale, and while its instance rests it is kept out of each step's
+//! planning, as a point waiting for a full trace is; where the rays it
+//! then needs no longer fit the budget, it waits on (unless overdue).
 //!
 //! A point costs the rays it traces. On the CPU backend with ray reuse
 //! that is only the rays motion reached (the others' scores are kept),

@@ -37,6 +37,26 @@ pub(super) struct Candidates {
     pub unreached: u64,
 }
 
+/// The waiting points of a step kept apart from planning (see
+/// [`Pipeline::split_waiting`]), ascending by key.
+#[derive(Default)]
+pub(super) struct Apart {
+    /// Their keys.
+    pub keys: Vec<u64>,
+    /// Per point, `None` when it needs a full trace; for one planned
+    /// late, the rays of it known stale (what it costs until it is
+    /// planned).
+    pub late: Vec<Option<u32>>,
+}
+
+impl Apart {
+    /// What point `j` costs the budget of a point's `rays` until it is
+    /// planned, and counts as reached.
+    pub fn cost(&self, j: usize, rays: u32) -> u32 {
+        self.late.get(j).copied().flatten().unwrap_or(rays)
+    }
+}
+
 impl Pipeline {
     /// Of the `chosen` candidates, those traced in full whose last AO was
     /// open (their last trace's, or what clients held when it stopped
@@ -88,35 +108,51 @@ impl Pipeline {
     }
 
     /// Adds the waiting points to the step's `lists` (ascending, each
-    /// once), except those that need a full trace, of instances that did
-    /// not move and with no kept scores: their plan is known (every ray,
-    /// all reached), so they are not planned again but returned apart
-    /// (ascending keys). With many points waiting, that is most of them.
-    /// Also returns which instances have points to trace or waiting.
+    /// once), except those whose plan is known without planning them, of
+    /// instances that did not move: those that need a full trace and have
+    /// no kept scores (every ray, all reached), and those planned late
+    /// (the rays known stale, until the budget takes them and
+    /// [`plan_late`](Self::plan_late) plans them). They are returned
+    /// apart. With many points waiting, that is most of them. Also
+    /// returns which instances have points to trace or waiting.
     pub(super) fn split_waiting(
         &mut self,
         lists: &mut [Vec<u32>],
         motion: &StepMotion,
-    ) -> (Vec<u64>, Vec<bool>) {
+    ) -> (Apart, Vec<bool>) {
         let cache = self.config.ray_reuse && self.config.skip && self.backend.is_none();
-        let is_apart = |this: &Self, key: u64| {
-            this.waiting.get(key).is_some_and(|w| w.1)
-                && !motion
-                    .changed
-                    .get((key >> 32) as usize)
-                    .copied()
-                    .unwrap_or(true)
-                && !(cache && this.ray_cache.get(key).is_some())
+        // `None`: planned with the others; else `Some(None)` for a full
+        // trace, `Some(Some(n))` for a point planned late, `n` rays stale.
+        let apart_as = |this: &Self, key: u64| -> Option<Option<u32>> {
+            let (_, full) = this.waiting.get(key)?;
+            let moved = motion
+                .changed
+                .get((key >> 32) as usize)
+                .copied()
+                .unwrap_or(true);
+            if moved {
+                return None;
+            }
+            let entry = if cache { this.ray_cache.get(key) } else { None };
+            match entry {
+                None => full.then_some(None),
+                // As `plan` plans it: a point that stopped early last
+                // step is traced in full.
+                Some(e) => (this.waiting.late_since(key).is_some()
+                    && this.early_rested.binary_search(&key).is_err())
+                .then(|| Some(e.stale.count())),
+            }
         };
-        let mut apart = Vec::new();
+        let mut apart = Apart::default();
         let mut touched: Vec<bool> = lists.iter().map(|w| !w.is_empty()).collect();
         for k in self.waiting.keys() {
             let (i, p) = ((k >> 32) as usize, k as u32);
             if let Some(t) = touched.get_mut(i) {
                 *t = true;
             }
-            if is_apart(self, k) {
-                apart.push(k);
+            if let Some(late) = apart_as(self, k) {
+                apart.keys.push(k);
+                apart.late.push(late);
             } else if let Some(l) = lists.get_mut(i) {
                 l.push(p);
             }
@@ -125,7 +161,7 @@ impl Pipeline {
             // Two ascending runs: the stable sort merges them.
             l.sort();
             l.dedup();
-            l.retain(|&p| !is_apart(self, key(i, p)));
+            l.retain(|&p| apart_as(self, key(i, p)).is_none());
         }
         (apart, touched)
     }
@@ -157,13 +193,14 @@ impl Pipeline {
 
     /// The budget's candidates of a step: the points of `batch` their
     /// `plans` trace, each costing the rays it casts, and the waiting
-    /// points `apart` (a full trace each), merged in (instance, point)
-    /// order so that `select` breaks ties by position.
+    /// points `apart` (a full trace each, or the rays known stale of one
+    /// planned late), merged in (instance, point) order so that `select`
+    /// breaks ties by position.
     pub(super) fn candidates(
         &self,
         batch: &Batch,
         plans: &[Plan],
-        apart: &[u64],
+        apart: &Apart,
         motion: &StepMotion,
         bound: u32,
         budget: Option<u64>,
@@ -218,15 +255,17 @@ impl Pipeline {
             waited_really.push(!every_step && whole[i] != Some(true));
             cands.push(self.candidate(key(i, k), cost, reached, age, bound));
         }
-        // The waiting points apart: a full trace each.
-        let apart_cands: Vec<Candidate> = apart
-            .iter()
-            .map(|&k| {
+        // The waiting points apart: a full trace each, or the rays known
+        // stale of one planned late (all counted as reached).
+        let apart_cands: Vec<Candidate> = (apart.keys.iter().enumerate())
+            .map(|(j, &k)| {
                 let whole = whole.get((k >> 32) as usize).copied().flatten();
-                let (age, cost) = self.age_and_cost(k, false, whole, rays, bound);
-                self.candidate(k, cost, rays, age, bound)
+                let reached = apart.cost(j, rays);
+                let (age, cost) = self.age_and_cost(k, false, whole, reached, bound);
+                self.candidate(k, cost, reached, age, bound)
             })
             .collect();
+        let apart = &apart.keys;
         // Both in (instance, point) order, merged so (`select` breaks ties
         // by position): (apart, index) of each.
         let mut merged = Vec::with_capacity(at.len() + apart.len());
@@ -296,7 +335,7 @@ impl Pipeline {
         &self,
         batch: &Batch,
         plans: &[Plan],
-        apart: &[u64],
+        apart: &Apart,
         motion: &StepMotion,
         bound: u32,
         budget: Option<u64>,
@@ -318,10 +357,10 @@ impl Pipeline {
             cost[i] += u64::from(plan.cost(rays));
             due_now[i] |= !matches!(plan, Plan::Skip) && overdue(key(i, p));
         }
-        for &k in apart {
+        for (j, &k) in apart.keys.iter().enumerate() {
             let i = (k >> 32) as usize;
             if let Some(c) = cost.get_mut(i) {
-                *c += u64::from(rays);
+                *c += u64::from(apart.cost(j, rays));
                 due_now[i] |= overdue(k);
             }
         }
@@ -367,15 +406,15 @@ impl Pipeline {
 
     /// The batch of the chosen points, planned (`take`, indices into
     /// `batch`) and apart (`take_apart`, keys), in (instance, point) order,
-    /// with each one's plan (`full` for those apart); what clients hold is
-    /// not looked up yet.
+    /// with each one's plan (for those apart, the one `late` gives, by
+    /// ascending key, else `full`); what clients hold is not looked up
+    /// yet.
     pub(super) fn chosen_batch<'p>(
         &self,
-        batch: &Batch,
-        plans: &'p [Plan],
+        (batch, plans): (&Batch, &'p [Plan]),
         take: &[usize],
         take_apart: &[u64],
-        full: &'p Plan,
+        (late, full): (&'p [(u64, Plan)], &'p Plan),
     ) -> (Batch, Vec<&'p Plan>) {
         if take_apart.is_empty() {
             let sub_plans: Vec<&Plan> = take.iter().map(|&b| &plans[b]).collect();
@@ -404,7 +443,9 @@ impl Pipeline {
                         next.next();
                         &plans[b]
                     }
-                    _ => full,
+                    _ => late
+                        .binary_search_by_key(&key(o.0, o.1), |l| l.0)
+                        .map_or(full, |at| &late[at].1),
                 })
                 .collect();
             (sub, sub_plans)
@@ -426,8 +467,9 @@ impl Pipeline {
             .push_back((self.frame as u32, motion.boxes.clone()));
     }
 
-    /// Plans the `chosen` candidates planned late: until now each cost
-    /// the rays known stale; now it also needs every ray of it that what
+    /// Plans the `chosen` candidates planned late, among the planned
+    /// points of `batch` and the points `apart`: until now each cost the
+    /// rays known stale; now it also needs every ray of it that what
     /// moved reached in the steps since it was last planned (tested
     /// against their boxes, [`MotionBoxes::joined`], with its kept scores:
     /// what planning each step would have found, and maybe a ray more
@@ -436,34 +478,59 @@ impl Pipeline {
     /// cost: where the rays the chosen points now need pass `budget`
     /// (`spent` as chosen), the late points not overdue under `bound` are
     /// put back to wait, lowest priority first, until they fit (their new
-    /// plan's rays marked stale, as planned in this step).
+    /// plan's rays marked stale, as planned in this step). Sets the plans
+    /// of those of `batch`, and returns those of the chosen points apart
+    /// (ascending keys).
     pub(super) fn plan_late(
         &mut self,
-        batch: &Batch,
-        plans: &mut [Plan],
+        (batch, plans, apart): (&Batch, &mut [Plan], &Apart),
         cands: &Candidates,
         chosen: &mut [bool],
         (budget, spent, bound): (Option<u64>, u64, u32),
-    ) {
+    ) -> Vec<(u64, Plan)> {
         if !self.config.plan_late {
-            return;
+            return Vec::new();
         }
         let ao = self.config.ao;
-        // (merged index, batch index, the step it was last planned in).
-        let late: Vec<(usize, usize, u32)> = (cands.merged.iter().zip(chosen.iter()))
+        // (merged index, key, the step it was last planned in, its batch
+        // index where it was planned with the others), in merged order.
+        let late: Vec<(usize, u64, u32, Option<usize>)> = (cands.merged.iter().zip(chosen.iter()))
             .enumerate()
-            .filter(|&(_, (&(apart, _), &c))| c && !apart)
-            .filter_map(|(m, (&(_, j), _))| {
-                let b = cands.at[j];
-                let (i, k) = batch.owner[b];
-                self.waiting
-                    .late_since(key(i, k))
-                    .map(|since| (m, b, since))
+            .filter(|&(_, (_, &c))| c)
+            .filter_map(|(m, (&(is_apart, j), _))| {
+                let (k, b) = if is_apart {
+                    apart.late.get(j).copied().flatten()?;
+                    (apart.keys[j], None)
+                } else {
+                    let b = cands.at[j];
+                    let (i, p) = batch.owner[b];
+                    (key(i, p), Some(b))
+                };
+                self.waiting.late_since(k).map(|since| (m, k, since, b))
             })
             .collect();
         if late.is_empty() {
-            return;
+            return Vec::new();
         }
+        // Where the points apart lie: their batch, in the same order.
+        let mut lists = vec![Vec::new(); self.instances.len()];
+        for &(_, k, _, _) in late.iter().filter(|l| l.3.is_none()) {
+            if let Some(l) = lists.get_mut((k >> 32) as usize) {
+                l.push(k as u32);
+            }
+        }
+        let lying = self.batch_unheld(&lists);
+        let mut next = 0;
+        let at: Vec<(&Batch, usize)> = late
+            .iter()
+            .map(|l| match l.3 {
+                Some(b) => (batch, b),
+                None => {
+                    next += 1;
+                    (&lying, next - 1)
+                }
+            })
+            .collect();
         let now = self.frame as u32;
         // The boxes of the steps after each `since`, up to this one, once
         // for all the points planned in that step (`None`: not all of
@@ -482,19 +549,17 @@ impl Pipeline {
             })
             .collect();
         let cache = &self.ray_cache;
-        let planned: Vec<Plan> = late
-            .par_iter()
-            .map(|&(_, b, since)| {
-                let (i, k) = batch.owner[b];
+        let planned: Vec<Plan> = (late.par_iter().zip(&at))
+            .map(|(&(_, k, since, _), &(lies, b))| {
                 let full = Plan::Full { reached: ao.rays };
-                let Some(e) = cache.get(key(i, k)) else {
+                let Some(e) = cache.get(k) else {
                     return full;
                 };
                 let Some(Some(boxes)) = sinces.binary_search(&since).ok().map(|at| &boxes[at])
                 else {
                     return full;
                 };
-                let Some(r) = PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao)
+                let Some(r) = PointRays::new(lies.ids[b], lies.points[b], lies.normals[b], &ao)
                 else {
                     return full;
                 };
@@ -517,12 +582,17 @@ impl Pipeline {
             .collect();
         let mut total = spent;
         let mut back = Vec::new();
-        for (&(m, b, _), p) in late.iter().zip(planned) {
+        // The plans of the late points apart, by merged index.
+        let mut apart_plans = Vec::new();
+        for (&(m, _, _, b), p) in late.iter().zip(planned) {
             total = total - u64::from(cands.all[m].cost) + u64::from(p.cost(ao.rays));
             if !cands.all[m].overdue(bound) {
                 back.push(m);
             }
-            plans[b] = p;
+            match b {
+                Some(b) => plans[b] = p,
+                None => apart_plans.push((m, p)),
+            }
         }
         if let Some(budget) = budget.filter(|&b| total > b) {
             // Lowest priority first (ties: the later in merged order).
@@ -535,12 +605,39 @@ impl Pipeline {
                     break;
                 }
                 chosen[m] = false;
-                let b = cands.at[cands.merged[m].1];
-                total -= u64::from(plans[b].cost(ao.rays));
-                let (i, k) = batch.owner[b];
-                self.waiting.replanned(key(i, k), now);
+                let (is_apart, j) = cands.merged[m];
+                let k = if is_apart {
+                    apart.keys[j]
+                } else {
+                    let (i, p) = batch.owner[cands.at[j]];
+                    key(i, p)
+                };
+                let plan = if is_apart {
+                    apart_plans
+                        .binary_search_by_key(&m, |a| a.0)
+                        .ok()
+                        .map(|at| &apart_plans[at].1)
+                } else {
+                    Some(&plans[cands.at[j]])
+                };
+                total -= u64::from(plan.map_or(0, |p| p.cost(ao.rays)));
+                self.waiting.replanned(k, now);
+                // (`record_choices` marks those of `batch`.)
+                match (is_apart, plan) {
+                    (true, Some(Plan::Rays { reached, .. })) => {
+                        self.ray_cache.mark_stale(k, reached);
+                    }
+                    // Its scores no longer do: it waits for a full trace.
+                    (true, _) => self.ray_cache.forget(k),
+                    (false, _) => {}
+                }
             }
         }
+        apart_plans
+            .into_iter()
+            .filter(|&(m, _)| chosen[m])
+            .map(|(m, p)| (apart.keys[cands.merged[m].1], p))
+            .collect()
     }
 
     /// Records the budget's choice (`chosen`, per candidate of `cands` in
@@ -556,13 +653,14 @@ impl Pipeline {
         &mut self,
         batch: &Batch,
         plans: &[Plan],
-        apart: &[u64],
+        apart: &Apart,
         cands: &Candidates,
         chosen: &[bool],
         bound: u32,
     ) -> (Vec<usize>, Vec<u64>) {
         let (at, merged) = (&cands.at, &cands.merged);
-        let (mut chosen_at, mut chosen_apart) = (vec![false; at.len()], vec![false; apart.len()]);
+        let (mut chosen_at, mut chosen_apart) =
+            (vec![false; at.len()], vec![false; apart.keys.len()]);
         for (&(a, j), &go) in merged.iter().zip(chosen) {
             if a {
                 chosen_apart[j] = go;
@@ -572,12 +670,14 @@ impl Pipeline {
         }
         let mut take = Vec::new();
         let mut take_apart = Vec::new();
-        for (&k, &go) in apart.iter().zip(&chosen_apart) {
+        for ((&k, late), &go) in apart.keys.iter().zip(&apart.late).zip(&chosen_apart) {
             if go {
                 self.waiting.done(k);
                 take_apart.push(k);
             } else {
-                self.waiting.wait(k, true);
+                // One planned late waits so while its scores are kept.
+                let full = late.is_none() || self.ray_cache.get(k).is_none();
+                self.waiting.wait(k, full);
             }
         }
         for (&b, &go) in at.iter().zip(&chosen_at) {

@@ -176,9 +176,8 @@ impl Pipeline {
             }
         }
         let (mut chosen, spent) = select(&cands.all, budget, bound);
-        self.plan_late(
-            &batch,
-            &mut plans,
+        let late = self.plan_late(
+            (&batch, &mut plans, &apart),
             &cands,
             &mut chosen,
             (budget, spent, bound),
@@ -206,7 +205,8 @@ impl Pipeline {
         }
         // The chosen points, planned and apart, in (instance, point) order.
         let full = Plan::Full { reached: rays };
-        let (mut sub, sub_plans) = self.chosen_batch(&batch, &plans, &take, &take_apart, &full);
+        let (mut sub, sub_plans) =
+            self.chosen_batch((&batch, &plans), &take, &take_apart, (&late, &full));
         self.look_up_held(&mut sub);
         let casting = std::time::Instant::now();
         let th = self.config.thresholds;
