@@ -194,42 +194,61 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, bound: u32) -> (Vec<bool
             .then(y.age.cmp(&x.age))
             .then(a.cmp(&b))
     };
-    // In that order, each that fits what is left. A point costs a ray or
-    // more, so no more than `left` of them fit: only that many are sorted
-    // first, then of the others only those that still fit after them
-    // (what is left only shrinks), in the same order. The choice is the
-    // one a sort of all of them gives, whatever the costs (a test checks
-    // it).
+    // In that order, each that fits what is left. Sorting them all would
+    // cost more than the rest of the choice where tens of thousands wait
+    // and a few hundred fit. So, a round at a time, only the first of
+    // them in that order are taken out (`select_nth`) and sorted, each
+    // taken if it fits: twice as many as fit at their mean cost (four
+    // times in the next round, and so on), and never more than `left`
+    // (past the points of no rays, each costs a ray or more). Of the
+    // others only those that still fit (what is left only shrinks) go on
+    // to the next round. The choice is the one a sort of all of them
+    // gives, whatever the costs (a test checks it).
     if spent > budget {
         // Nothing else fits, not even a point of no rays.
         return (chosen, spent);
     }
     let mut left = budget - spent;
-    let head = rest.len().min(usize::try_from(left).unwrap_or(usize::MAX));
-    if head < rest.len() {
-        rest.select_nth_unstable_by(head, order);
-    }
-    let (first, others) = rest.split_at_mut(head);
-    first.sort_unstable_by(order);
-    let mut take = |i: usize, left: &mut u64| {
-        let cost = cands[i].cost as u64;
-        if cost <= *left {
-            chosen[i] = true;
-            *left -= cost;
-            spent += cost;
-        }
-    };
-    for &i in first.iter() {
-        take(i, &mut left);
-    }
-    let mut others: Vec<usize> = others
-        .iter()
-        .copied()
-        .filter(|&i| cands[i].cost as u64 <= left)
+    // A point of no rays fits whatever is left (no plan gives one, but
+    // the choice does not depend on it).
+    let mut pool: Vec<usize> = rest
+        .into_iter()
+        .filter(|&i| {
+            chosen[i] |= cands[i].cost == 0;
+            !chosen[i]
+        })
         .collect();
-    others.sort_unstable_by(order);
-    for i in others {
-        take(i, &mut left);
+    // How many times as many as fit at the mean cost a round sorts:
+    // doubled each round, so that skewed costs take few rounds.
+    let mut times = 2usize;
+    while !pool.is_empty() {
+        let cost: u64 = pool.iter().map(|&i| cands[i].cost as u64).sum();
+        let mean = (cost / pool.len() as u64).max(1);
+        let fit = usize::try_from(left).unwrap_or(usize::MAX);
+        let head = pool
+            .len()
+            .min(fit)
+            .min(usize::try_from(left / mean).map_or(usize::MAX, |n| n.saturating_mul(times)))
+            .max(1);
+        times = times.saturating_mul(2);
+        if head < pool.len() {
+            pool.select_nth_unstable_by(head, order);
+        }
+        let (first, others) = pool.split_at_mut(head);
+        first.sort_unstable_by(order);
+        for &i in first.iter() {
+            let cost = cands[i].cost as u64;
+            if cost <= left {
+                chosen[i] = true;
+                left -= cost;
+                spent += cost;
+            }
+        }
+        pool = others
+            .iter()
+            .copied()
+            .filter(|&i| cands[i].cost as u64 <= left)
+            .collect();
     }
     (chosen, spent)
 }
@@ -534,11 +553,21 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             (seed >> 33) % m
         };
-        for round in 0..300 {
-            let n = next(200) as usize;
+        for round in 0..600 {
+            // Some rounds as where tens of thousands wait: many cheap
+            // points (late ones cost their few stale rays) and a few full
+            // traces, far more than fit, which takes the choice several
+            // rounds of sorting.
+            let many = round % 2 == 1;
+            let n = if many { next(5000) } else { next(200) } as usize;
             let cands: Vec<Candidate> = (0..n)
                 .map(|_| {
-                    let cost = next(40) as u32; // 0 too, which no plan gives
+                    // 0 too, which no plan gives.
+                    let cost = match (many, next(8)) {
+                        (true, 0) => 32,
+                        (true, _) => next(4) as u32,
+                        (false, _) => next(40) as u32,
+                    };
                     let urgency = next(5) as f32 / 2.0;
                     u(cost, next(9) as f32 / 8.0, next(12) as u32, urgency)
                 })

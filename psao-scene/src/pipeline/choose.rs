@@ -7,12 +7,13 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::Pipeline;
-use super::budget::{Candidate, REPLAN_WAITS, RayBudget, due};
-use super::dirty::{Batch, StepMotion};
+use super::budget::{Candidate, REPLAN_WAITS, RayBudget, Waiting, due};
+use super::config::PipelineConfig;
+use super::dirty::{Batch, PAR_MIN, StepMotion};
 use super::plan::Plan;
 use super::ray_cache::key;
 use super::reach::{MotionBoxes, ReachQuery, reached_rays};
+use super::{InstanceState, Pipeline};
 use crate::trace::ao::{AoTracer, PointRays};
 
 /// A step's budget candidates: the planned points that trace and the
@@ -54,6 +55,89 @@ impl Apart {
     /// planned, and counts as reached.
     pub fn cost(&self, j: usize, rays: u32) -> u32 {
         self.late.get(j).copied().flatten().unwrap_or(rays)
+    }
+}
+
+/// What ranking a candidate reads of the pipeline: borrowed apart from
+/// it, so that threads can share it (a pipeline's backend need not be
+/// `Sync`).
+struct Ranking<'a> {
+    /// The instances (their trends and heat).
+    instances: &'a [InstanceState],
+    /// The waiting points.
+    waiting: &'a Waiting,
+    /// The pipeline's configuration.
+    config: &'a PipelineConfig,
+    /// The step's number (wrapping).
+    frame: u32,
+}
+
+impl Ranking<'_> {
+    /// The age and cost a candidate, point `key` costing `cost` rays,
+    /// enters the budget with: a mover's point traced every step it moves
+    /// (`every_step`), or one of a part traced whole this step (`whole`
+    /// `Some(true)`), as one that waited its longest, the `bound`; one of
+    /// a part held whole (`Some(false)`) as one that fits no budget and is
+    /// not due (a held point's cost fits no budget below `u32::MAX` rays;
+    /// a part that cost as much would fit such a budget whole); any other
+    /// as it waited.
+    fn age_and_cost(
+        &self,
+        key: u64,
+        every_step: bool,
+        whole: Option<bool>,
+        cost: u32,
+        bound: u32,
+    ) -> (u32, u32) {
+        match (every_step, whole) {
+            (true, _) | (false, Some(true)) => (bound, cost),
+            (false, Some(false)) => (0, u32::MAX),
+            (false, None) => (self.waiting.get(key).map_or(0, |w| w.0), cost),
+        }
+    }
+
+    /// Point `key`'s candidate: it costs `cost` rays, motion reached
+    /// `reached` of its rays, it has waited `age` steps, under `bound`.
+    fn candidate(&self, key: u64, cost: u32, reached: u32, age: u32, bound: u32) -> Candidate {
+        let rays = self.config.ao.rays.max(1);
+        Candidate {
+            cost,
+            reached: reached as f32 / rays as f32,
+            age,
+            due: due(key, bound),
+            urgency: self.urgency((key >> 32) as usize, key as u32, age, reached >= rays),
+        }
+    }
+
+    /// A point's urgency for the budget (`Candidate::urgency`, from its
+    /// `Trend`) once it has waited `age` steps; 0 without a budget (no
+    /// trends kept). A point traced in full (`full`: its share reached is
+    /// 1 whatever motion does, so reach tells nothing of it) of a rigid
+    /// instance that can move is at least as urgent as the fastest pace
+    /// near it (its `Heat` cell's, see `trend`) makes it.
+    fn urgency(&self, i: usize, k: u32, age: u32, full: bool) -> f32 {
+        let Some(s) = self.instances.get(i) else {
+            return 0.0;
+        };
+        let threshold = self.config.thresholds.ao_steps.max(1) as f32;
+        let own = s
+            .trend
+            .get(k as usize)
+            .map_or(0.0, |t| t.urgency(age, self.config.thresholds.ao_steps));
+        // Not a deforming instance's points: its pose changes them all
+        // at once, so a neighbour's pace says nothing of a front sweeping
+        // over it, and its points' own paces say how fast they move. Not
+        // a static instance's: reach knows what motion does to its rays.
+        // (BENCHMARKS.md, the ray budget's eighth part, measures both.)
+        if !(full && s.keeps_heat()) {
+            return own;
+        }
+        let near = s
+            .points
+            .positions
+            .get(k as usize)
+            .map_or(0.0, |&p| s.heat.pace(p, self.frame));
+        own.max(near * (age as f32 + 1.0) / threshold)
     }
 }
 
@@ -120,11 +204,13 @@ impl Pipeline {
         lists: &mut [Vec<u32>],
         motion: &StepMotion,
     ) -> (Apart, Vec<bool>) {
+        let keys = self.waiting.keys();
         let cache = self.config.ray_reuse && self.config.skip && self.backend.is_none();
+        let (waiting, ray_cache, rested) = (&self.waiting, &self.ray_cache, &self.early_rested);
         // `None`: planned with the others; else `Some(None)` for a full
         // trace, `Some(Some(n))` for a point planned late, `n` rays stale.
-        let apart_as = |this: &Self, key: u64| -> Option<Option<u32>> {
-            let (_, full) = this.waiting.get(key)?;
+        let apart_as = |key: u64| -> Option<Option<u32>> {
+            let (_, full) = waiting.get(key)?;
             let moved = motion
                 .changed
                 .get((key >> 32) as usize)
@@ -133,24 +219,30 @@ impl Pipeline {
             if moved {
                 return None;
             }
-            let entry = if cache { this.ray_cache.get(key) } else { None };
+            let entry = if cache { ray_cache.get(key) } else { None };
             match entry {
                 None => full.then_some(None),
                 // As `plan` plans it: a point that stopped early last
                 // step is traced in full.
-                Some(e) => (this.waiting.late_since(key).is_some()
-                    && this.early_rested.binary_search(&key).is_err())
+                Some(e) => (waiting.late_since(key).is_some()
+                    && rested.binary_search(&key).is_err())
                 .then(|| Some(e.stale.count())),
             }
         };
+        // Tens of thousands may wait: looked at in parallel.
+        let how: Vec<Option<Option<u32>>> = keys
+            .par_iter()
+            .with_min_len(PAR_MIN)
+            .map(|&k| apart_as(k))
+            .collect();
         let mut apart = Apart::default();
         let mut touched: Vec<bool> = lists.iter().map(|w| !w.is_empty()).collect();
-        for k in self.waiting.keys() {
+        for (&k, how) in keys.iter().zip(how) {
             let (i, p) = ((k >> 32) as usize, k as u32);
             if let Some(t) = touched.get_mut(i) {
                 *t = true;
             }
-            if let Some(late) = apart_as(self, k) {
+            if let Some(late) = how {
                 apart.keys.push(k);
                 apart.late.push(late);
             } else if let Some(l) = lists.get_mut(i) {
@@ -161,7 +253,18 @@ impl Pipeline {
             // Two ascending runs: the stable sort merges them.
             l.sort();
             l.dedup();
-            l.retain(|&p| apart_as(self, key(i, p)).is_none());
+            // Less the points motion reached that wait apart (this
+            // instance's run of the ascending keys), in one walk.
+            let i = i as u64;
+            let from = apart.keys.partition_point(|&k| k >> 32 < i);
+            let to = from + apart.keys[from..].partition_point(|&k| k >> 32 == i);
+            let mut mine = apart.keys[from..to].iter().map(|&k| k as u32).peekable();
+            if mine.peek().is_some() {
+                l.retain(|&p| {
+                    while mine.next_if(|&q| q < p).is_some() {}
+                    mine.peek() != Some(&p)
+                });
+            }
         }
         (apart, touched)
     }
@@ -207,6 +310,12 @@ impl Pipeline {
     ) -> Candidates {
         let rays = self.config.ao.rays;
         let whole = self.whole_movers(batch, plans, apart, motion, bound, budget);
+        let rank = Ranking {
+            instances: &self.instances,
+            waiting: &self.waiting,
+            config: &self.config,
+            frame: self.frame as u32,
+        };
         // A moving point that may stop early costs what such points cast
         // on average.
         let (moving_cost, max_stops) = match self.early_decisions() {
@@ -251,18 +360,19 @@ impl Pipeline {
             // A mover's own point traced every step it moves, if so
             // configured (see `age_and_cost`); it has not really waited.
             let every_step = self.config.movers_every_step && motion.changed[i];
-            let (age, cost) = self.age_and_cost(key(i, k), every_step, whole[i], cost, bound);
+            let (age, cost) = rank.age_and_cost(key(i, k), every_step, whole[i], cost, bound);
             waited_really.push(!every_step && whole[i] != Some(true));
-            cands.push(self.candidate(key(i, k), cost, reached, age, bound));
+            cands.push(rank.candidate(key(i, k), cost, reached, age, bound));
         }
         // The waiting points apart: a full trace each, or the rays known
         // stale of one planned late (all counted as reached).
-        let apart_cands: Vec<Candidate> = (apart.keys.iter().enumerate())
+        let apart_cands: Vec<Candidate> = (apart.keys.par_iter().enumerate())
+            .with_min_len(PAR_MIN)
             .map(|(j, &k)| {
                 let whole = whole.get((k >> 32) as usize).copied().flatten();
                 let reached = apart.cost(j, rays);
-                let (age, cost) = self.age_and_cost(k, false, whole, reached, bound);
-                self.candidate(k, cost, reached, age, bound)
+                let (age, cost) = rank.age_and_cost(k, false, whole, reached, bound);
+                rank.candidate(k, cost, reached, age, bound)
             })
             .collect();
         let apart = &apart.keys;
@@ -295,29 +405,6 @@ impl Pipeline {
             all,
             whole,
             unreached,
-        }
-    }
-
-    /// The age and cost a candidate, point `key` costing `cost` rays,
-    /// enters the budget with: a mover's point traced every step it moves
-    /// (`every_step`), or one of a part traced whole this step (`whole`
-    /// `Some(true)`), as one that waited its longest, the `bound`; one of
-    /// a part held whole (`Some(false)`) as one that fits no budget and is
-    /// not due (a held point's cost fits no budget below `u32::MAX` rays;
-    /// a part that cost as much would fit such a budget whole); any other
-    /// as it waited.
-    fn age_and_cost(
-        &self,
-        key: u64,
-        every_step: bool,
-        whole: Option<bool>,
-        cost: u32,
-        bound: u32,
-    ) -> (u32, u32) {
-        match (every_step, whole) {
-            (true, _) | (false, Some(true)) => (bound, cost),
-            (false, Some(false)) => (0, u32::MAX),
-            (false, None) => (self.waiting.get(key).map_or(0, |w| w.0), cost),
         }
     }
 
@@ -389,19 +476,6 @@ impl Pipeline {
                 })
             })
             .collect()
-    }
-
-    /// Point `key`'s candidate: it costs `cost` rays, motion reached
-    /// `reached` of its rays, it has waited `age` steps, under `bound`.
-    fn candidate(&self, key: u64, cost: u32, reached: u32, age: u32, bound: u32) -> Candidate {
-        let rays = self.config.ao.rays.max(1);
-        Candidate {
-            cost,
-            reached: reached as f32 / rays as f32,
-            age,
-            due: due(key, bound),
-            urgency: self.urgency((key >> 32) as usize, key as u32, age, reached >= rays),
-        }
     }
 
     /// The batch of the chosen points, planned (`take`, indices into

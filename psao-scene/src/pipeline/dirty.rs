@@ -22,6 +22,10 @@ use crate::morton::morton_order;
 use crate::trace::ao::{AoResult, AoTracer, ChangedPoints, PointRays, ao_of_scores};
 use psao_codec::wire::point::{dequantize_ao, quantize_ao};
 
+/// The fewest points a parallel pass over a step's points hands a thread
+/// (below that, handing work out costs more than it saves).
+pub(super) const PAR_MIN: usize = 1024;
+
 /// What a step's motion means for tracing ([`Pipeline::trace_step`]).
 pub(super) struct StepMotion {
     /// Where what moved was, before and after the step.
@@ -325,37 +329,6 @@ impl Pipeline {
         Ok((out, settled))
     }
 
-    /// A point's urgency for the budget (`Candidate::urgency`, from its
-    /// `Trend`) once it has waited `age` steps; 0 without a budget (no
-    /// trends kept). A point traced in full (`full`: its share reached is
-    /// 1 whatever motion does, so reach tells nothing of it) of a rigid
-    /// instance that can move is at least as urgent as the fastest pace
-    /// near it (its `Heat` cell's, see `trend`) makes it.
-    pub(super) fn urgency(&self, i: usize, k: u32, age: u32, full: bool) -> f32 {
-        let Some(s) = self.instances.get(i) else {
-            return 0.0;
-        };
-        let threshold = self.config.thresholds.ao_steps.max(1) as f32;
-        let own = s
-            .trend
-            .get(k as usize)
-            .map_or(0.0, |t| t.urgency(age, self.config.thresholds.ao_steps));
-        // Not a deforming instance's points: its pose changes them all
-        // at once, so a neighbour's pace says nothing of a front sweeping
-        // over it, and its points' own paces say how fast they move. Not
-        // a static instance's: reach knows what motion does to its rays.
-        // (BENCHMARKS.md, the ray budget's eighth part, measures both.)
-        if !(full && s.keeps_heat()) {
-            return own;
-        }
-        let near = s
-            .points
-            .positions
-            .get(k as usize)
-            .map_or(0.0, |&p| s.heat.pace(p, self.frame as u32));
-        own.max(near * (age as f32 + 1.0) / threshold)
-    }
-
     /// Notes the `Trend` of each point of `batch` (kept under a budget
     /// only) from the AO `values` traced, `changed` (indices into
     /// `batch`) those that went out. A point that stopped early (its value is what
@@ -657,6 +630,7 @@ impl Pipeline {
         let (mut ids, mut pts, mut nrm) = (Vec::new(), Vec::new(), Vec::new());
         // (instance, point) of each traced point.
         let mut owner = Vec::new();
+        let (mut moved_p, mut moved_n) = (Vec::new(), Vec::new());
         let mut base = 0u32;
         for (i, (s, list)) in self.instances.iter().zip(which).enumerate() {
             if list.is_empty() {
@@ -666,13 +640,22 @@ impl Pipeline {
             let nm = normal_matrix(&s.transform);
             // Traced where the points are now.
             let (positions, normals) = s.now();
-            for &k in list {
-                let (p, n) = (positions[k as usize], normals[k as usize]);
-                ids.push(base + k);
-                pts.push(s.transform.transform_point3(p));
-                nrm.push((nm * n).normalize_or_zero());
-                owner.push((i, k));
-            }
+            ids.extend(list.iter().map(|&k| base + k));
+            owner.extend(list.iter().map(|&k| (i, k)));
+            // With many points waiting, gathering them is a good part of
+            // the step: in parallel, in order.
+            list.par_iter()
+                .with_min_len(PAR_MIN)
+                .map(|&k| {
+                    let (p, n) = (positions[k as usize], normals[k as usize]);
+                    (
+                        s.transform.transform_point3(p),
+                        (nm * n).normalize_or_zero(),
+                    )
+                })
+                .unzip_into_vecs(&mut moved_p, &mut moved_n);
+            pts.append(&mut moved_p);
+            nrm.append(&mut moved_n);
             base += s.points.len() as u32;
         }
         Batch {
@@ -695,11 +678,13 @@ impl Pipeline {
             cell_base.push(next);
             next = next.saturating_add(s.table.def().cell_pool);
         }
+        let instances = &self.instances;
         batch.sent = batch
             .owner
-            .iter()
+            .par_iter()
+            .with_min_len(PAR_MIN)
             .map(|&(i, k)| {
-                let s = &self.instances[i];
+                let s = &instances[i];
                 let (stored_p, stored_n) = s.stored();
                 let (p, n) = (stored_p[k as usize], stored_n[k as usize]);
                 let mut held = s.table.sent(k, p, n);
