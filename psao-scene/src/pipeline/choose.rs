@@ -325,44 +325,58 @@ impl Pipeline {
             ),
             None => (rays, 0),
         };
-        let (mut at, mut cands) = (Vec::new(), Vec::new());
-        // Per candidate, whether it really waited (a mover's point traced
-        // every step counts as overdue without having waited).
-        let mut waited_really = Vec::new();
+        let (instances, kept) = (&self.instances, &self.kept_scores);
+        let every_step_movers = self.config.movers_every_step;
+        // Each planned point's candidate, and whether it really waited (a
+        // mover's point traced every step counts as overdue without
+        // having waited); `None` where motion reached no ray. In
+        // parallel: tens of thousands may wait.
+        let planned: Vec<Option<(Candidate, bool)>> = (plans.par_iter().enumerate())
+            .with_min_len(PAR_MIN)
+            .map(|(b, plan)| {
+                let reached = match plan {
+                    Plan::Skip => return None,
+                    Plan::Full { reached } => *reached,
+                    // (Found only after choosing: see `known_open`.)
+                    Plan::Open => 0,
+                    Plan::Rays { reached, .. } => reached.count(),
+                };
+                let cost = plan.cost(rays);
+                let (i, k) = batch.owner[b];
+                // A moving point that may stop early costs what such
+                // points cast on average; one that will trace in full
+                // (nothing kept yet, or stopped its most times in a row)
+                // all its rays.
+                let cost = match plan {
+                    Plan::Full { .. }
+                        if instances[i].dynamic
+                            && motion.changed[i]
+                            && kept.may_stop(key(i, k), max_stops) =>
+                    {
+                        moving_cost
+                    }
+                    _ => cost,
+                };
+                // A mover's own point traced every step it moves, if so
+                // configured (see `age_and_cost`); it has not really
+                // waited.
+                let every_step = every_step_movers && motion.changed[i];
+                let (age, cost) = rank.age_and_cost(key(i, k), every_step, whole[i], cost, bound);
+                let really = !every_step && whole[i] != Some(true);
+                Some((rank.candidate(key(i, k), cost, reached, age, bound), really))
+            })
+            .collect();
+        let (mut at, mut cands, mut waited_really) = (Vec::new(), Vec::new(), Vec::new());
         let mut unreached = 0u64;
-        for (b, plan) in plans.iter().enumerate() {
-            let reached = match plan {
-                Plan::Skip => {
-                    unreached += 1;
-                    continue;
+        for (b, p) in planned.into_iter().enumerate() {
+            match p {
+                None => unreached += 1,
+                Some((c, really)) => {
+                    at.push(b);
+                    cands.push(c);
+                    waited_really.push(really);
                 }
-                Plan::Full { reached } => *reached,
-                // (Found only after choosing: see `known_open`.)
-                Plan::Open => 0,
-                Plan::Rays { reached, .. } => reached.count(),
-            };
-            let cost = plan.cost(rays);
-            let (i, k) = batch.owner[b];
-            // A moving point that may stop early costs what such points
-            // cast on average; one that will trace in full (nothing kept
-            // yet, or stopped its most times in a row) all its rays.
-            let cost = match plan {
-                Plan::Full { .. }
-                    if self.instances[i].dynamic
-                        && motion.changed[i]
-                        && self.kept_scores.may_stop(key(i, k), max_stops) =>
-                {
-                    moving_cost
-                }
-                _ => cost,
-            };
-            at.push(b);
-            // A mover's own point traced every step it moves, if so
-            // configured (see `age_and_cost`); it has not really waited.
-            let every_step = self.config.movers_every_step && motion.changed[i];
-            let (age, cost) = rank.age_and_cost(key(i, k), every_step, whole[i], cost, bound);
-            waited_really.push(!every_step && whole[i] != Some(true));
-            cands.push(rank.candidate(key(i, k), cost, reached, age, bound));
+            }
         }
         // The waiting points apart: a full trace each, or the rays known
         // stale of one planned late (all counted as reached).
