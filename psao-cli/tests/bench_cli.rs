@@ -174,6 +174,22 @@ fn a_ray_budget_adds_budgeted_rows_beside_the_others() {
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("{verdict}"));
     assert!(waited <= 5, "{verdict}");
+    // It states the rays each server cast a tick: the budgeted one, far
+    // below its demand, casts fewer.
+    let rays: Vec<f64> = verdict
+        .split(" rays a tick")
+        .next()
+        .and_then(|t| t.rsplit(", ").next())
+        .map(|t| {
+            t.split(" against ")
+                .filter_map(|n| n.parse().ok())
+                .collect()
+        })
+        .unwrap_or_default();
+    assert!(
+        rays.len() == 2 && rays[0] > 0.0 && rays[0] < rays[1],
+        "{verdict}"
+    );
     let _ = std::fs::remove_dir_all(&out);
 }
 

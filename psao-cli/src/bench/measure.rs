@@ -510,6 +510,7 @@ impl Errors {
             extra_ms: None,
             breakdown: self.breakdown(),
             worst_wait: None,
+            rays_per_tick: None,
         }
     }
 }
@@ -807,6 +808,9 @@ fn measure_psao(
     let (mut errors, mut ms, mut unknown) = (Errors::default(), 0.0, 0usize);
     let mut open = psao_eval::OpenReasons::default();
     let mut worst_wait = 0u32;
+    // Rays cast, and the ticks stepped (a step of several ticks counts
+    // as many).
+    let (mut rays, mut stepped) = (0u64, 0u64);
     let mut kept = Vec::new();
     for (k, f) in frames.iter().enumerate() {
         say(&format!("frame {}/{}", k + 1, frames.len()));
@@ -839,6 +843,8 @@ fn measure_psao(
             for step in steps {
                 let (frame, r) = pipeline.step(step as f32)?;
                 worst_wait = worst_wait.max(r.oldest_wait);
+                rays += r.rays;
+                stepped += ((step / period).round() as u64).max(1);
                 if let Some(frame) = frame {
                     client.receive(&frame.bytes).context("frame")?;
                 }
@@ -881,6 +887,8 @@ fn measure_psao(
         let t = Instant::now();
         let (frame, r) = pipeline.step(period as f32)?;
         worst_wait = worst_wait.max(r.oldest_wait);
+        rays += r.rays;
+        stepped += 1;
         server_s += t.elapsed().as_secs_f64();
         if let Some(frame) = frame {
             bytes += frame.bytes.len();
@@ -915,6 +923,7 @@ fn measure_psao(
     );
     row.unknown_px = unknown;
     row.worst_wait = Some(worst_wait);
+    row.rays_per_tick = Some(rays as f64 / stepped.max(1) as f64);
     let total = errors.sse.max(f64::MIN_POSITIVE);
     row.breakdown.open_causes = open
         .causes()

@@ -198,8 +198,8 @@ pub struct BenchArgs {
     /// Under --ray-budget, once demand has raised the bound on waiting,
     /// plan a static point that waited a few ticks once, when the budget
     /// takes it, against what moved in every tick it waited, instead of
-    /// tracing it in full (fewer rays a point; slower ticks where very
-    /// many points wait)
+    /// tracing it in full (fewer rays a point: better at a fixed budget;
+    /// under `auto` no gain is resolved on the default scene)
     #[arg(long)]
     plan_late: bool,
     /// Every PSAO server makes early decisions: a moving instance's point

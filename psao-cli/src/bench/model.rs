@@ -84,6 +84,10 @@ pub struct Row {
     /// PSAO: the longest any point waited for the ray budget, in ticks,
     /// over the measured frames and the server ticks.
     pub worst_wait: Option<u32>,
+    /// PSAO: the rays its server cast a tick, on average over every tick
+    /// it stepped (the frames' path and the server ticks; with a budget
+    /// in the run, every server steps tick by tick).
+    pub rays_per_tick: Option<f64>,
 }
 
 /// Where a method's squared error lies, over all frames.
