@@ -210,12 +210,13 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, bound: u32) -> (Vec<bool
     }
     let mut left = budget - spent;
     // A point of no rays fits whatever is left (no plan gives one, but
-    // the choice does not depend on it).
+    // the choice does not depend on it); one that costs more than is left
+    // never fits (a part held whole costs `u32::MAX`).
     let mut pool: Vec<usize> = rest
         .into_iter()
         .filter(|&i| {
             chosen[i] |= cands[i].cost == 0;
-            !chosen[i]
+            !chosen[i] && cands[i].cost as u64 <= left
         })
         .collect();
     // How many times as many as fit at the mean cost a round sorts:

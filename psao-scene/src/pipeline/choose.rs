@@ -1,7 +1,8 @@
 //! Choosing what a step traces: the waiting points split into those
-//! planned ray by ray and those that need a full trace, the step's ray
-//! budget, the budget's candidates, and the batch of the chosen ones
-//! (`select` in `budget` makes the choice).
+//! planned with the step's others and those kept apart (that need a full
+//! trace, or are planned late), the step's ray budget, the budget's
+//! candidates, the plans of the chosen late points, and the batch of the
+//! chosen ones (`select` in `budget` makes the choice).
 
 use std::time::Instant;
 
@@ -22,8 +23,13 @@ pub(super) struct Candidates {
     /// The batch index of each planned candidate.
     pub at: Vec<usize>,
     /// Per planned candidate, whether it really waited (a mover's point
-    /// traced every step counts as overdue without having waited).
+    /// traced every step, or one of a part traced whole this step,
+    /// counts as overdue without having waited).
     pub waited_really: Vec<bool>,
+    /// The same per point apart (one planned late of a part traced whole
+    /// this step has not really waited, as it would not planned with the
+    /// others).
+    pub apart_really: Vec<bool>,
     /// Each candidate in merged order: (apart, index into `at` or into
     /// the points apart).
     pub merged: Vec<(bool, usize)>,
@@ -196,8 +202,9 @@ impl Pipeline {
     /// instances that did not move: those that need a full trace and have
     /// no kept scores (every ray, all reached), and those planned late
     /// (the rays known stale, until the budget takes them and
-    /// [`plan_late`](Self::plan_late) plans them). They are returned
-    /// apart. With many points waiting, that is most of them. Also
+    /// [`plan_late`](Self::plan_late) plans them), except those that
+    /// stopped early last step (traced in full, as `plan` plans them).
+    /// They are returned apart. With many points waiting, that is most of them. Also
     /// returns which instances have points to trace or waiting.
     pub(super) fn split_waiting(
         &mut self,
@@ -380,15 +387,17 @@ impl Pipeline {
         }
         // The waiting points apart: a full trace each, or the rays known
         // stale of one planned late (all counted as reached).
-        let apart_cands: Vec<Candidate> = (apart.keys.par_iter().enumerate())
-            .with_min_len(PAR_MIN)
-            .map(|(j, &k)| {
-                let whole = whole.get((k >> 32) as usize).copied().flatten();
-                let reached = apart.cost(j, rays);
-                let (age, cost) = rank.age_and_cost(k, false, whole, reached, bound);
-                rank.candidate(k, cost, reached, age, bound)
-            })
-            .collect();
+        let (apart_cands, apart_really): (Vec<Candidate>, Vec<bool>) =
+            (apart.keys.par_iter().enumerate())
+                .with_min_len(PAR_MIN)
+                .map(|(j, &k)| {
+                    let whole = whole.get((k >> 32) as usize).copied().flatten();
+                    let reached = apart.cost(j, rays);
+                    let (age, cost) = rank.age_and_cost(k, false, whole, reached, bound);
+                    let really = apart.late[j].is_none() || whole != Some(true);
+                    (rank.candidate(k, cost, reached, age, bound), really)
+                })
+                .unzip();
         let apart = &apart.keys;
         // Both in (instance, point) order, merged so (`select` breaks ties
         // by position): (apart, index) of each.
@@ -415,6 +424,7 @@ impl Pipeline {
         Candidates {
             at,
             waited_really,
+            apart_really,
             merged,
             all,
             whole,
@@ -555,23 +565,25 @@ impl Pipeline {
             .push_back((self.frame as u32, motion.boxes.clone()));
     }
 
-    /// Plans the `chosen` candidates planned late, among the planned
-    /// points of `batch` and the points `apart`: until now each cost the
-    /// rays known stale; now it also needs every ray of it that what
-    /// moved reached in the steps since it was last planned (tested
-    /// against their boxes, [`MotionBoxes::joined`], with its kept scores:
-    /// what planning each step would have found, and maybe a ray more
-    /// where boxes were merged). A point whose steps are no longer all
-    /// remembered is traced in full. The budget chose it at its earlier
-    /// cost: where the rays the chosen points now need pass `budget`
-    /// (`spent` as chosen), the late points not overdue under `bound` are
-    /// put back to wait, lowest priority first, until they fit (their new
-    /// plan's rays marked stale, as planned in this step). Sets the plans
-    /// of those of `batch`, and returns those of the chosen points apart
-    /// (ascending keys).
+    /// Plans the `chosen` candidates planned late, which wait `apart`
+    /// (one in the step's batch has a reason for the full trace `plan`
+    /// gave it: its instance moved, it stopped early last step, or its
+    /// scores are gone): until now each cost the rays known stale; now it
+    /// also needs every ray of it that what moved reached in the steps
+    /// since it was last planned (tested against their boxes,
+    /// [`MotionBoxes::joined`], with its kept scores: what planning each
+    /// step would have found, and maybe a ray more where boxes were
+    /// merged). A point whose steps are no longer all remembered is
+    /// traced in full. The budget chose it at its earlier cost: where the
+    /// rays the chosen points now need pass `budget` (`spent` as chosen),
+    /// the late points not overdue under `bound` are put back to wait,
+    /// lowest priority first, until they fit: planned in this step, the
+    /// rays of their new plan marked stale (or, where that plan is a full
+    /// trace, their scores forgotten: they then wait for one). Returns the
+    /// plans of the chosen ones (ascending keys).
     pub(super) fn plan_late(
         &mut self,
-        (batch, plans, apart): (&Batch, &mut [Plan], &Apart),
+        apart: &Apart,
         cands: &Candidates,
         chosen: &mut [bool],
         (budget, spent, bound): (Option<u64>, u64, u32),
@@ -580,45 +592,28 @@ impl Pipeline {
             return Vec::new();
         }
         let ao = self.config.ao;
-        // (merged index, key, the step it was last planned in, its batch
-        // index where it was planned with the others), in merged order.
-        let late: Vec<(usize, u64, u32, Option<usize>)> = (cands.merged.iter().zip(chosen.iter()))
+        // (merged index, key, the step it was last planned in), in merged
+        // order, so ascending keys.
+        let late: Vec<(usize, u64, u32)> = (cands.merged.iter().zip(chosen.iter()))
             .enumerate()
-            .filter(|&(_, (_, &c))| c)
-            .filter_map(|(m, (&(is_apart, j), _))| {
-                let (k, b) = if is_apart {
-                    apart.late.get(j).copied().flatten()?;
-                    (apart.keys[j], None)
-                } else {
-                    let b = cands.at[j];
-                    let (i, p) = batch.owner[b];
-                    (key(i, p), Some(b))
-                };
-                self.waiting.late_since(k).map(|since| (m, k, since, b))
+            .filter(|&(_, (&(is_apart, _), &c))| c && is_apart)
+            .filter_map(|(m, (&(_, j), _))| {
+                apart.late.get(j).copied().flatten()?;
+                let k = apart.keys[j];
+                self.waiting.late_since(k).map(|since| (m, k, since))
             })
             .collect();
         if late.is_empty() {
             return Vec::new();
         }
-        // Where the points apart lie: their batch, in the same order.
+        // Where they lie: their batch, in the same order.
         let mut lists = vec![Vec::new(); self.instances.len()];
-        for &(_, k, _, _) in late.iter().filter(|l| l.3.is_none()) {
+        for &(_, k, _) in &late {
             if let Some(l) = lists.get_mut((k >> 32) as usize) {
                 l.push(k as u32);
             }
         }
         let lying = self.batch_unheld(&lists);
-        let mut next = 0;
-        let at: Vec<(&Batch, usize)> = late
-            .iter()
-            .map(|l| match l.3 {
-                Some(b) => (batch, b),
-                None => {
-                    next += 1;
-                    (&lying, next - 1)
-                }
-            })
-            .collect();
         let now = self.frame as u32;
         // The boxes of the steps after each `since`, up to this one, once
         // for all the points planned in that step (`None`: not all of
@@ -637,19 +632,23 @@ impl Pipeline {
             })
             .collect();
         let cache = &self.ray_cache;
-        let planned: Vec<Plan> = (late.par_iter().zip(&at))
-            .map(|(&(_, k, since, _), &(lies, b))| {
-                let full = Plan::Full { reached: ao.rays };
-                let Some(e) = cache.get(k) else {
-                    return full;
+        let full = Plan::Full { reached: ao.rays };
+        let planned: Vec<Plan> = (late.par_iter().enumerate())
+            .map(|(b, &(_, k, since))| {
+                // (Every point has its place in `lying`, whose instances
+                // are the pipeline's.)
+                let (Some(&(i, p)), Some(e)) = (lying.owner.get(b), cache.get(k)) else {
+                    return full.clone();
                 };
                 let Some(Some(boxes)) = sinces.binary_search(&since).ok().map(|at| &boxes[at])
                 else {
-                    return full;
+                    return full.clone();
                 };
-                let Some(r) = PointRays::new(lies.ids[b], lies.points[b], lies.normals[b], &ao)
+                let Some(r) = (key(i, p) == k)
+                    .then(|| PointRays::new(lying.ids[b], lying.points[b], lying.normals[b], &ao))
+                    .flatten()
                 else {
-                    return full;
+                    return full.clone();
                 };
                 let reached = reached_rays(
                     &r,
@@ -669,62 +668,42 @@ impl Pipeline {
             })
             .collect();
         let mut total = spent;
+        // Those not overdue, which may go back: (merged index, index into
+        // `late`).
         let mut back = Vec::new();
-        // The plans of the late points apart, by merged index.
-        let mut apart_plans = Vec::new();
-        for (&(m, _, _, b), p) in late.iter().zip(planned) {
+        for (n, (&(m, _, _), p)) in late.iter().zip(&planned).enumerate() {
             total = total - u64::from(cands.all[m].cost) + u64::from(p.cost(ao.rays));
             if !cands.all[m].overdue(bound) {
-                back.push(m);
-            }
-            match b {
-                Some(b) => plans[b] = p,
-                None => apart_plans.push((m, p)),
+                back.push((m, n));
             }
         }
         if let Some(budget) = budget.filter(|&b| total > b) {
             // Lowest priority first (ties: the later in merged order).
-            back.sort_by(|&x, &y| {
+            back.sort_by(|&(x, _), &(y, _)| {
                 let (px, py) = (cands.all[x].priority(), cands.all[y].priority());
                 px.total_cmp(&py).then(y.cmp(&x))
             });
-            for m in back {
+            for (m, n) in back {
                 if total <= budget {
                     break;
                 }
                 chosen[m] = false;
-                let (is_apart, j) = cands.merged[m];
-                let k = if is_apart {
-                    apart.keys[j]
-                } else {
-                    let (i, p) = batch.owner[cands.at[j]];
-                    key(i, p)
-                };
-                let plan = if is_apart {
-                    apart_plans
-                        .binary_search_by_key(&m, |a| a.0)
-                        .ok()
-                        .map(|at| &apart_plans[at].1)
-                } else {
-                    Some(&plans[cands.at[j]])
-                };
-                total -= u64::from(plan.map_or(0, |p| p.cost(ao.rays)));
+                let k = late[n].1;
+                total -= u64::from(planned[n].cost(ao.rays));
                 self.waiting.replanned(k, now);
-                // (`record_choices` marks those of `batch`.)
-                match (is_apart, plan) {
-                    (true, Some(Plan::Rays { reached, .. })) => {
+                match &planned[n] {
+                    Plan::Rays { reached, .. } => {
                         self.ray_cache.mark_stale(k, reached);
                     }
-                    // Its scores no longer do: it waits for a full trace.
-                    (true, _) => self.ray_cache.forget(k),
-                    (false, _) => {}
+                    // Its scores no longer do: it waits for a full trace
+                    // (`record_choices` sees them gone).
+                    _ => self.ray_cache.forget(k),
                 }
             }
         }
-        apart_plans
-            .into_iter()
-            .filter(|&(m, _)| chosen[m])
-            .map(|(m, p)| (apart.keys[cands.merged[m].1], p))
+        (late.iter().zip(planned))
+            .filter(|&(&(m, _, _), _)| chosen[m])
+            .map(|(&(_, k, _), p)| (k, p))
             .collect()
     }
 

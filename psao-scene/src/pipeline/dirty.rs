@@ -180,12 +180,7 @@ impl Pipeline {
             }
         }
         let (mut chosen, spent) = select(&cands.all, budget, bound);
-        let late = self.plan_late(
-            (&batch, &mut plans, &apart),
-            &cands,
-            &mut chosen,
-            (budget, spent, bound),
-        );
+        let late = self.plan_late(&apart, &cands, &mut chosen, (budget, spent, bound));
         if let Some(t) = tracer {
             self.known_open(t, &batch, &mut plans, &cands, &chosen);
         }
@@ -197,7 +192,11 @@ impl Pipeline {
             .zip(&cands.all)
             .filter(|(_, c)| budget.is_some() && c.overdue(bound))
             .fold((0u64, 0u64), |(n, r), (&(a, j), c)| {
-                let really = a || cands.waited_really[j];
+                let really = if a {
+                    cands.apart_really[j]
+                } else {
+                    cands.waited_really[j]
+                };
                 (n + 1, r + if really { c.cost as u64 } else { 0 })
             });
         let (take, take_apart) =

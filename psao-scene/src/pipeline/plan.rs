@@ -111,18 +111,8 @@ impl Pipeline {
                     // Waiting for a full trace: nothing to test.
                     return full;
                 }
-                if let Some(e) = entry.filter(|_| waiting_list.late_since(key).is_some()) {
-                    // Planned late (`plan_late`): for now it costs the rays
-                    // known stale, and counts them as reached.
-                    let need = e.stale.clone();
-                    return (
-                        Plan::Rays {
-                            reached: need.clone(),
-                            need,
-                        },
-                        Learnt::Nothing,
-                    );
-                }
+                // (A point planned late, with its scores, of an instance
+                // that did not move, waits apart: `split_waiting`.)
                 let state = envelope_rays.get(key);
                 let stored = state.checked_sub(2).and_then(|n| masks.get(n as usize));
                 // A mask that left out rays by their kept hits holds while
