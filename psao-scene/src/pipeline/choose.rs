@@ -26,9 +26,9 @@ pub(super) struct Candidates {
     /// traced every step, or one of a part traced whole this step,
     /// counts as overdue without having waited).
     pub waited_really: Vec<bool>,
-    /// The same per point apart (one planned late of a part traced whole
-    /// this step has not really waited, as it would not planned with the
-    /// others).
+    /// The same per point apart: one planned late, of a part traced whole
+    /// this step, has not really waited (as it would not have, planned
+    /// with the others).
     pub apart_really: Vec<bool>,
     /// Each candidate in merged order: (apart, index into `at` or into
     /// the points apart).
@@ -204,8 +204,9 @@ impl Pipeline {
     /// (the rays known stale, until the budget takes them and
     /// [`plan_late`](Self::plan_late) plans them), except those that
     /// stopped early last step (traced in full, as `plan` plans them).
-    /// They are returned apart. With many points waiting, that is most of them. Also
-    /// returns which instances have points to trace or waiting.
+    /// They are returned apart. With many points waiting, that is most
+    /// of them. Also returns which instances have points to trace or
+    /// waiting.
     pub(super) fn split_waiting(
         &mut self,
         lists: &mut [Vec<u32>],
