@@ -190,6 +190,18 @@ fn a_ray_budget_adds_budgeted_rows_beside_the_others() {
         rays.len() == 2 && rays[0] > 0.0 && rays[0] < rays[1],
         "{verdict}"
     );
+    // And how many of the ticks it timed ran past the period (at most
+    // all of them; the window is a second at 60 Hz), and the longest.
+    let ticks: Vec<f64> = verdict
+        .split(" ticks over the period (longest ")
+        .next()
+        .and_then(|t| t.rsplit("; ").next())
+        .map(|t| t.split(" of ").filter_map(|n| n.parse().ok()).collect())
+        .unwrap_or_default();
+    assert!(
+        ticks.len() == 2 && ticks[0] <= ticks[1] && ticks[1] == 60.0,
+        "{verdict}"
+    );
     let _ = std::fs::remove_dir_all(&out);
 }
 

@@ -511,6 +511,7 @@ impl Errors {
             breakdown: self.breakdown(),
             worst_wait: None,
             rays_per_tick: None,
+            ticks_over: None,
         }
     }
 }
@@ -883,13 +884,18 @@ fn measure_psao(
     say("server ticks");
     let ticks = ((s.window as f64 * rate as f64).round() as u32).max(1);
     let (mut bytes, mut server_s, mut decode_s) = (0usize, 0.0f64, 0.0f64);
+    // Ticks longer than the period, and the longest (seconds).
+    let (mut over, mut longest) = (0u32, 0.0f64);
     for _ in 0..ticks {
         let t = Instant::now();
         let (frame, r) = pipeline.step(period as f32)?;
         worst_wait = worst_wait.max(r.oldest_wait);
         rays += r.rays;
         stepped += 1;
-        server_s += t.elapsed().as_secs_f64();
+        let took = t.elapsed().as_secs_f64();
+        server_s += took;
+        over += u32::from(took > period);
+        longest = longest.max(took);
         if let Some(frame) = frame {
             bytes += frame.bytes.len();
             let t = Instant::now();
@@ -924,6 +930,7 @@ fn measure_psao(
     row.unknown_px = unknown;
     row.worst_wait = Some(worst_wait);
     row.rays_per_tick = Some(rays as f64 / stepped.max(1) as f64);
+    row.ticks_over = Some((over, ticks, longest * 1e3));
     let total = errors.sse.max(f64::MIN_POSITIVE);
     row.breakdown.open_causes = open
         .causes()

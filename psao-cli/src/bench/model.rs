@@ -88,6 +88,10 @@ pub struct Row {
     /// it stepped (the frames' path and the server ticks; with a budget
     /// in the run, every server steps tick by tick).
     pub rays_per_tick: Option<f64>,
+    /// PSAO: of the server ticks timed (`server_ms`), how many took
+    /// longer than the period, how many were timed, and the longest in
+    /// milliseconds.
+    pub ticks_over: Option<(u32, u32, f64)>,
 }
 
 /// Where a method's squared error lies, over all frames.

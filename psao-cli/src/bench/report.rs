@@ -356,7 +356,7 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
         if let (Some(p), Some(bs), Some(ps)) = (plain, b.server_ms, plain.and_then(|p| p.server_ms))
         {
             out.push(format!(
-                "{}: server {bs:.1} against {ps:.1} ms per tick ({:.2}x; {}), {:.2} against {:.2} dB PSNR ({:+.2} dB), {:.3} against {:.3} Mbit/s, {:.0} against {:.0} rays a tick ({:.2}x); no point waited more than {} ticks.",
+                "{}: server {bs:.1} against {ps:.1} ms per tick ({:.2}x; {}), {:.2} against {:.2} dB PSNR ({:+.2} dB), {:.3} against {:.3} Mbit/s, {:.0} against {:.0} rays a tick ({:.2}x); {} of {} ticks over the period (longest {:.1} ms); no point waited more than {} ticks.",
                 b.method.label(),
                 bs / ps,
                 if bs <= 1000.0 / rate as f64 { "keeps the rate" } else { "slower than the rate" },
@@ -368,6 +368,9 @@ pub fn verdicts(s: &Settings, r: &SceneResult) -> Vec<String> {
                 b.rays_per_tick.unwrap_or(0.0),
                 p.rays_per_tick.unwrap_or(0.0),
                 b.rays_per_tick.unwrap_or(0.0) / p.rays_per_tick.unwrap_or(0.0).max(1.0),
+                b.ticks_over.map_or(0, |t| t.0),
+                b.ticks_over.map_or(0, |t| t.1),
+                b.ticks_over.map_or(0.0, |t| t.2),
                 b.worst_wait.unwrap_or(0)
             ));
         }
