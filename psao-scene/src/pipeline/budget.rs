@@ -235,7 +235,7 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, bound: u32) -> (Vec<bool
         if head < pool.len() {
             pool.select_nth_unstable_by(head, order);
         }
-        let (first, others) = pool.split_at_mut(head);
+        let first = &mut pool[..head];
         first.sort_unstable_by(order);
         for &i in first.iter() {
             let cost = cands[i].cost as u64;
@@ -245,11 +245,9 @@ pub fn select(cands: &[Candidate], budget: Option<u64>, bound: u32) -> (Vec<bool
                 spent += cost;
             }
         }
-        pool = others
-            .iter()
-            .copied()
-            .filter(|&i| cands[i].cost as u64 <= left)
-            .collect();
+        // The others that still fit, in place (no list a round).
+        pool.drain(..head);
+        pool.retain(|&i| cands[i].cost as u64 <= left);
     }
     (chosen, spent)
 }
