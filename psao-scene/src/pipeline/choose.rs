@@ -1,8 +1,8 @@
-//! Choosing what a step traces: the waiting points split into those
-//! planned with the step's others and those kept apart (that need a full
-//! trace, or are planned late), the step's ray budget, the budget's
-//! candidates, the plans of the chosen late points, and the batch of the
-//! chosen ones (`select` in `budget` makes the choice).
+//! Choosing what a step traces: the step's points split into those
+//! planned and those kept apart (a moving instance's, and waiting ones
+//! that need a full trace or are planned late), the step's ray budget,
+//! the budget's candidates, the plans of the chosen late points, and the
+//! batch of the chosen ones (`select` in `budget` makes the choice).
 
 use std::time::Instant;
 
@@ -44,23 +44,39 @@ pub(super) struct Candidates {
     pub unreached: u64,
 }
 
-/// The waiting points of a step kept apart from planning (see
+/// Why a point of a step is kept apart from planning (its plan is known
+/// without planning it; see [`Pipeline::split_waiting`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) enum ApartAs {
+    /// A waiting point of an instance that did not move, with no kept
+    /// scores: a full trace.
+    Full,
+    /// A waiting point of an instance that did not move, planned late:
+    /// the rays of it known stale (what it costs until it is planned).
+    Late(u32),
+    /// A point of an instance that moved this step (waiting, or reached
+    /// now): a full trace, as `plan` plans every such point.
+    Moving,
+}
+
+/// The points of a step kept apart from planning (see
 /// [`Pipeline::split_waiting`]), ascending by key.
 #[derive(Default)]
 pub(super) struct Apart {
     /// Their keys.
     pub keys: Vec<u64>,
-    /// Per point, `None` when it needs a full trace; for one planned
-    /// late, the rays of it known stale (what it costs until it is
-    /// planned).
-    pub late: Vec<Option<u32>>,
+    /// Per point, why it is apart.
+    pub how: Vec<ApartAs>,
 }
 
 impl Apart {
     /// What point `j` costs the budget of a point's `rays` until it is
-    /// planned, and counts as reached.
+    /// planned, and counts as reached (before early decisions).
     pub fn cost(&self, j: usize, rays: u32) -> u32 {
-        self.late.get(j).copied().flatten().unwrap_or(rays)
+        match self.how.get(j) {
+            Some(&ApartAs::Late(n)) => n,
+            _ => rays,
+        }
     }
 }
 
@@ -148,11 +164,13 @@ impl Ranking<'_> {
 }
 
 impl Pipeline {
-    /// Of the `chosen` candidates, those traced in full whose last AO was
+    /// Of the `chosen` points (the chosen batch, planned and apart, with
+    /// their `plans`), those traced in full whose last AO was
     /// open (their last trace's, or what clients held when it stopped
     /// early) and whose rays can hit nothing
     /// ([`PointRays::surely_open`] against `tracer`, this step's scene):
-    /// planned again as [`Plan::Open`], traced without casting a ray.
+    /// planned again as `open` ([`Plan::Open`]), traced without casting a
+    /// ray.
     /// Found after choosing, so that the test, a good part of a trace, is
     /// spent on points traced only, and only where the last trace came
     /// out open: a point that was shaded seldom has nothing within reach.
@@ -164,81 +182,84 @@ impl Pipeline {
     ///
     /// [`PipelineConfig::skip`]: super::config::PipelineConfig::skip
     /// [`PipelineConfig::skip_open`]: super::config::PipelineConfig::skip_open
-    pub(super) fn known_open(
+    pub(super) fn known_open<'p>(
         &self,
         tracer: &AoTracer,
-        batch: &Batch,
-        plans: &mut [Plan],
-        cands: &Candidates,
-        chosen: &[bool],
+        chosen: &Batch,
+        plans: &mut [&'p Plan],
+        open: &'p Plan,
     ) {
         if !(self.config.skip && self.config.skip_open) {
             return;
         }
         let ao = self.config.ao;
-        let todo: Vec<usize> = (cands.merged.iter().zip(chosen))
-            .filter(|&(&(apart, _), &c)| c && !apart)
-            .map(|(&(_, j), _)| cands.at[j])
+        let todo: Vec<usize> = (0..chosen.ids.len())
             .filter(|&b| {
-                let (i, k) = batch.owner[b];
+                let (i, k) = chosen.owner[b];
                 matches!(plans[b], Plan::Full { .. })
                     && self.instances[i].last_ao.get(k as usize) == Some(&u8::MAX)
             })
             .collect();
-        let open: Vec<bool> = todo
+        let found: Vec<bool> = todo
             .par_iter()
             .map(|&b| {
-                PointRays::new(batch.ids[b], batch.points[b], batch.normals[b], &ao)
+                PointRays::new(chosen.ids[b], chosen.points[b], chosen.normals[b], &ao)
                     .is_some_and(|r| r.surely_open(tracer))
             })
             .collect();
-        for (&b, _) in todo.iter().zip(&open).filter(|(_, o)| **o) {
-            plans[b] = Plan::Open;
+        for (&b, _) in todo.iter().zip(&found).filter(|(_, o)| **o) {
+            plans[b] = open;
         }
     }
 
     /// Adds the waiting points to the step's `lists` (ascending, each
-    /// once), except those whose plan is known without planning them, of
-    /// instances that did not move: those that need a full trace and have
-    /// no kept scores (every ray, all reached), and those planned late
-    /// (the rays known stale, until the budget takes them and
-    /// [`plan_late`](Self::plan_late) plans them), except those that
-    /// stopped early last step (traced in full, as `plan` plans them).
-    /// They are returned apart. With many points waiting, that is most
-    /// of them. Also returns which instances have points to trace or
-    /// waiting.
+    /// once), except those whose plan is known without planning them,
+    /// which are returned apart: every point of an instance that moved
+    /// (with ray reuse: `plan` traces each such point in full), waiting
+    /// or reached now; and, of instances that did not move, those that
+    /// need a full trace and have no kept scores (every ray, all
+    /// reached), and those planned late (the rays known stale, until the
+    /// budget takes them and [`plan_late`](Self::plan_late) plans them),
+    /// except those that stopped early last step (traced in full, as
+    /// `plan` plans them). With many points waiting, or a deforming
+    /// instance of many points, that is most of them. Also returns which
+    /// instances have points to trace or waiting.
     pub(super) fn split_waiting(
         &mut self,
         lists: &mut [Vec<u32>],
         motion: &StepMotion,
     ) -> (Apart, Vec<bool>) {
         let keys = self.waiting.keys();
-        let cache = self.config.ray_reuse && self.config.skip && self.backend.is_none();
+        let reuse = self.config.ray_reuse && self.config.skip;
+        let cache = reuse && self.backend.is_none();
         let (waiting, ray_cache, rested) = (&self.waiting, &self.ray_cache, &self.early_rested);
-        // `None`: planned with the others; else `Some(None)` for a full
-        // trace, `Some(Some(n))` for a point planned late, `n` rays stale.
-        let apart_as = |key: u64| -> Option<Option<u32>> {
+        // Whether instance `i` moved this step (`true` for one unknown, so
+        // that it is planned).
+        let moved = |i: usize| motion.changed.get(i).copied().unwrap_or(true);
+        // Whether its points wait apart as movers: known to `plan`.
+        let moving = |i: usize| reuse && motion.changed.get(i).copied().unwrap_or(false);
+        // `None`: planned with the others.
+        let apart_as = |key: u64| -> Option<ApartAs> {
             let (_, full) = waiting.get(key)?;
-            let moved = motion
-                .changed
-                .get((key >> 32) as usize)
-                .copied()
-                .unwrap_or(true);
-            if moved {
+            let i = (key >> 32) as usize;
+            if moving(i) {
+                return Some(ApartAs::Moving);
+            }
+            if moved(i) {
                 return None;
             }
             let entry = if cache { ray_cache.get(key) } else { None };
             match entry {
-                None => full.then_some(None),
+                None => full.then_some(ApartAs::Full),
                 // As `plan` plans it: a point that stopped early last
                 // step is traced in full.
                 Some(e) => (waiting.late_since(key).is_some()
                     && rested.binary_search(&key).is_err())
-                .then(|| Some(e.stale.count())),
+                .then(|| ApartAs::Late(e.stale.count())),
             }
         };
         // Tens of thousands may wait: looked at in parallel.
-        let how: Vec<Option<Option<u32>>> = keys
+        let how: Vec<Option<ApartAs>> = keys
             .par_iter()
             .with_min_len(PAR_MIN)
             .map(|&k| apart_as(k))
@@ -250,12 +271,15 @@ impl Pipeline {
             if let Some(t) = touched.get_mut(i) {
                 *t = true;
             }
-            if let Some(late) = how {
+            if let Some(how) = how {
                 apart.keys.push(k);
-                apart.late.push(late);
+                apart.how.push(how);
             } else if let Some(l) = lists.get_mut(i) {
                 l.push(p);
             }
+        }
+        if (0..lists.len()).any(|i| moving(i) && !lists[i].is_empty()) {
+            apart = with_movers(apart, lists, moving);
         }
         for (i, l) in lists.iter_mut().enumerate() {
             // Two ascending runs: the stable sort merges them.
@@ -386,16 +410,32 @@ impl Pipeline {
                 }
             }
         }
-        // The waiting points apart: a full trace each, or the rays known
-        // stale of one planned late (all counted as reached).
+        // The points apart: a full trace each (a mover's as a planned
+        // one's), or the rays known stale of one planned late (all
+        // counted as reached).
         let (apart_cands, apart_really): (Vec<Candidate>, Vec<bool>) =
             (apart.keys.par_iter().enumerate())
                 .with_min_len(PAR_MIN)
                 .map(|(j, &k)| {
-                    let whole = whole.get((k >> 32) as usize).copied().flatten();
+                    let i = (k >> 32) as usize;
+                    let whole = whole.get(i).copied().flatten();
                     let reached = apart.cost(j, rays);
-                    let (age, cost) = rank.age_and_cost(k, false, whole, reached, bound);
-                    let really = apart.late[j].is_none() || whole != Some(true);
+                    let (cost, every_step, really) = match apart.how[j] {
+                        ApartAs::Moving => {
+                            let cost = if instances.get(i).is_some_and(|s| s.dynamic)
+                                && kept.may_stop(k, max_stops)
+                            {
+                                moving_cost
+                            } else {
+                                reached
+                            };
+                            let every_step = every_step_movers;
+                            (cost, every_step, !every_step && whole != Some(true))
+                        }
+                        ApartAs::Full => (reached, false, true),
+                        ApartAs::Late(_) => (reached, false, whole != Some(true)),
+                    };
+                    let (age, cost) = rank.age_and_cost(k, every_step, whole, cost, bound);
                     (rank.candidate(k, cost, reached, age, bound), really)
                 })
                 .unzip();
@@ -599,7 +639,7 @@ impl Pipeline {
             .enumerate()
             .filter(|&(_, (&(is_apart, _), &c))| c && is_apart)
             .filter_map(|(m, (&(_, j), _))| {
-                apart.late.get(j).copied().flatten()?;
+                matches!(apart.how.get(j), Some(ApartAs::Late(_))).then_some(())?;
                 let k = apart.keys[j];
                 self.waiting.late_since(k).map(|since| (m, k, since))
             })
@@ -738,14 +778,24 @@ impl Pipeline {
         }
         let mut take = Vec::new();
         let mut take_apart = Vec::new();
-        for ((&k, late), &go) in apart.keys.iter().zip(&apart.late).zip(&chosen_apart) {
+        for ((&k, how), &go) in apart.keys.iter().zip(&apart.how).zip(&chosen_apart) {
             if go {
                 self.waiting.done(k);
                 take_apart.push(k);
-            } else {
+                continue;
+            }
+            match how {
                 // One planned late waits so while its scores are kept.
-                let full = late.is_none() || self.ray_cache.get(k).is_none();
-                self.waiting.wait(k, full);
+                ApartAs::Late(_) => {
+                    let full = self.ray_cache.get(k).is_none();
+                    self.waiting.wait(k, full);
+                }
+                ApartAs::Full => self.waiting.wait(k, true),
+                // As a planned point traced in full.
+                ApartAs::Moving => {
+                    self.ray_cache.forget(k);
+                    self.waiting.wait(k, true);
+                }
             }
         }
         for (&b, &go) in at.iter().zip(&chosen_at) {
@@ -776,5 +826,95 @@ impl Pipeline {
             }
         }
         (take, take_apart)
+    }
+}
+
+/// `apart` (ascending keys) with the points of the step's `lists` of each
+/// instance whose points wait apart as movers (`moving`) merged in, as
+/// [`ApartAs::Moving`] (each once), those lists emptied.
+fn with_movers(apart: Apart, lists: &mut [Vec<u32>], moving: impl Fn(usize) -> bool) -> Apart {
+    let extra: usize = (0..lists.len())
+        .filter(|&i| moving(i))
+        .map(|i| lists[i].len())
+        .sum();
+    let mut out = Apart {
+        keys: Vec::with_capacity(apart.keys.len() + extra),
+        how: Vec::with_capacity(apart.keys.len() + extra),
+    };
+    let mut from = 0;
+    for (i, l) in lists.iter_mut().enumerate() {
+        // This instance's run of the ascending keys apart.
+        let to = from + apart.keys[from..].partition_point(|&k| k >> 32 == i as u64);
+        let run = from..to;
+        from = to;
+        if !moving(i) || l.is_empty() {
+            out.keys.extend_from_slice(&apart.keys[run.clone()]);
+            out.how.extend_from_slice(&apart.how[run]);
+            continue;
+        }
+        l.sort_unstable();
+        let reached = l.drain(..).map(|p| key(i, p));
+        let mut waiting = apart.keys[run].iter().copied().peekable();
+        let mut reached = reached.peekable();
+        // Both ascending (every waiting point of a moving instance is
+        // apart as a mover): merged, each once.
+        loop {
+            let next = match (waiting.peek(), reached.peek()) {
+                (Some(&w), Some(&r)) if w <= r => {
+                    if w == r {
+                        reached.next();
+                    }
+                    waiting.next()
+                }
+                (_, Some(_)) => reached.next(),
+                (Some(_), None) => waiting.next(),
+                (None, None) => break,
+            };
+            if let Some(k) = next
+                && out.keys.last() != Some(&k)
+            {
+                out.keys.push(k);
+                out.how.push(ApartAs::Moving);
+            }
+        }
+    }
+    // Keys of no instance listed (none are made): kept as they were.
+    out.keys.extend_from_slice(&apart.keys[from..]);
+    out.how.extend_from_slice(&apart.how[from..]);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_moving_instances_points_reached_join_its_waiting_ones_apart_each_once_in_key_order() {
+        // Instance 0 rests (a static point waits for a full trace),
+        // instance 1 moves (two of its points wait), instance 2 moves with
+        // none waiting, instance 3 rests with points reached.
+        let apart = Apart {
+            keys: vec![key(0, 4), key(1, 2), key(1, 7)],
+            how: vec![ApartAs::Full, ApartAs::Moving, ApartAs::Moving],
+        };
+        let mut lists = vec![vec![1, 9], vec![7, 1, 3], vec![5, 0], vec![2]];
+        let moving = |i: usize| i == 1 || i == 2;
+        let out = with_movers(apart, &mut lists, moving);
+        assert_eq!(
+            out.keys,
+            vec![
+                key(0, 4),
+                key(1, 1),
+                key(1, 2),
+                key(1, 3),
+                key(1, 7),
+                key(2, 0),
+                key(2, 5)
+            ]
+        );
+        assert_eq!(out.how[0], ApartAs::Full);
+        assert!(out.how[1..].iter().all(|h| *h == ApartAs::Moving));
+        // The movers' lists are emptied, the others' left to planning.
+        assert_eq!(lists, vec![vec![1, 9], vec![], vec![], vec![2]]);
     }
 }

@@ -160,7 +160,7 @@ impl Pipeline {
         let (apart, mut touched) = self.split_waiting(&mut lists, motion);
         // What clients hold is looked up for the points traced only.
         let batch = self.batch_unheld(&lists);
-        let (mut plans, learnt): (Vec<Plan>, Vec<Learnt>) =
+        let (plans, learnt): (Vec<Plan>, Vec<Learnt>) =
             self.plan(&batch, motion).into_iter().unzip();
         self.remember_envelope(&batch, learnt);
         let budget = self.step_budget(motion, started);
@@ -181,9 +181,6 @@ impl Pipeline {
         }
         let (mut chosen, spent) = select(&cands.all, budget, bound);
         let late = self.plan_late(&apart, &cands, &mut chosen, (budget, spent, bound));
-        if let Some(t) = tracer {
-            self.known_open(t, &batch, &mut plans, &cands, &chosen);
-        }
         // Overdue points, and the rays of those that really waited: what
         // moves the bound.
         let (overdue, forced) = cands
@@ -207,9 +204,12 @@ impl Pipeline {
             self.wait_bound = next_bound(bound, forced, b, oldest, least, limit);
         }
         // The chosen points, planned and apart, in (instance, point) order.
-        let full = Plan::Full { reached: rays };
-        let (mut sub, sub_plans) =
+        let (full, open) = (Plan::Full { reached: rays }, Plan::Open);
+        let (mut sub, mut sub_plans) =
             self.chosen_batch((&batch, &plans), &take, &take_apart, (&late, &full));
+        if let Some(t) = tracer {
+            self.known_open(t, &sub, &mut sub_plans, &open);
+        }
         self.look_up_held(&mut sub);
         let casting = std::time::Instant::now();
         let th = self.config.thresholds;
