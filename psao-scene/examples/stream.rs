@@ -35,6 +35,9 @@
 //!   kept: `psao`'s `--density` is D / 2), `--rays N`, `--lk`
 //!   (Laine-Karras estimator).
 //!
+//! Besides the means it prints how many steps took longer than the 60 Hz
+//! period, with the median, 95th percentile and longest step.
+//!
 //! `cargo run --release -p psao-scene --example stream`
 
 use std::hash::{DefaultHasher, Hasher};
@@ -193,10 +196,13 @@ fn main() {
     let mut frames_hash = DefaultHasher::new();
     let audit = flag("--early-audit");
     let (mut audited, mut audit_time) = (EarlyAudit::default(), std::time::Duration::ZERO);
+    // Each step's server time, for the ticks over the period.
+    let mut steps_ms = Vec::with_capacity(frames as usize);
     let t = Instant::now();
     for _ in 0..frames {
         let (frame, r) = server.step(1.0 / 60.0).expect("step");
         sum.accumulate(&r);
+        steps_ms.push(r.total_time().as_secs_f64() * 1e3);
         if audit {
             let at = Instant::now();
             let a = server.early_audit().expect("audit");
@@ -319,6 +325,20 @@ fn main() {
         ms(sum.t_bvh),
         ms(sum.t_trace),
         ms(sum.t_encode)
+    );
+    steps_ms.sort_by(f64::total_cmp);
+    let period_ms = 1e3 / 60.0;
+    let over = steps_ms.iter().filter(|&&x| x > period_ms).count();
+    let at = |q: f64| {
+        let i = ((steps_ms.len() as f64 * q).ceil() as usize).clamp(1, steps_ms.len().max(1));
+        steps_ms.get(i - 1).copied().unwrap_or(0.0)
+    };
+    println!(
+        "  ticks over period  {over} of {} over {period_ms:.3} ms (median {:.3}, 95th percentile {:.3}, longest {:.3} ms)",
+        steps_ms.len(),
+        at(0.5),
+        at(0.95),
+        at(1.0)
     );
     let ph = sum.trace_phases;
     println!(
