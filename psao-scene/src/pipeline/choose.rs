@@ -18,17 +18,20 @@ use super::{InstanceState, Pipeline};
 use crate::trace::ao::{AoTracer, PointRays};
 
 /// A step's budget candidates: the planned points that trace and the
-/// waiting points apart, merged in (instance, point) order.
+/// points apart (waiting ones, and a moving instance's), merged in
+/// (instance, point) order.
 pub(super) struct Candidates {
     /// The batch index of each planned candidate.
     pub at: Vec<usize>,
     /// Per planned candidate, whether it really waited (a mover's point
     /// traced every step, or one of a part traced whole this step,
-    /// counts as overdue without having waited).
+    /// counts as overdue without having waited; with ray reuse a mover's
+    /// points wait apart).
     pub waited_really: Vec<bool>,
-    /// The same per point apart: one planned late, of a part traced whole
-    /// this step, has not really waited (as it would not have, planned
-    /// with the others).
+    /// The same per point apart: a mover's point traced every step, or
+    /// one of a part traced whole this step (a mover's, or one planned
+    /// late), has not really waited (as it would not have, planned with
+    /// the others).
     pub apart_really: Vec<bool>,
     /// Each candidate in merged order: (apart, index into `at` or into
     /// the points apart).
@@ -49,13 +52,14 @@ pub(super) struct Candidates {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) enum ApartAs {
     /// A waiting point of an instance that did not move, with no kept
-    /// scores: a full trace.
+    /// scores, flagged as needing a full trace: a full trace.
     Full,
     /// A waiting point of an instance that did not move, planned late:
     /// the rays of it known stale (what it costs until it is planned).
     Late(u32),
     /// A point of an instance that moved this step (waiting, or reached
-    /// now): a full trace, as `plan` plans every such point.
+    /// now), with ray reuse: a full trace, as `plan` plans every such
+    /// point (with early decisions, one that may stop early).
     Moving,
 }
 
@@ -214,7 +218,8 @@ impl Pipeline {
 
     /// Adds the waiting points to the step's `lists` (ascending, each
     /// once), except those whose plan is known without planning them,
-    /// which are returned apart: every point of an instance that moved
+    /// which are returned apart, and takes a moving instance's listed
+    /// points out of `lists`: every point of an instance that moved
     /// (with ray reuse: `plan` traces each such point in full), waiting
     /// or reached now; and, of instances that did not move, those that
     /// need a full trace and have no kept scores (every ray, all
@@ -327,8 +332,9 @@ impl Pipeline {
     }
 
     /// The budget's candidates of a step: the points of `batch` their
-    /// `plans` trace, each costing the rays it casts, and the waiting
-    /// points `apart` (a full trace each, or the rays known stale of one
+    /// `plans` trace, each costing the rays it casts, and the points
+    /// `apart` (a full trace each, a mover's with early decisions at what
+    /// such points cast on average, or the rays known stale of one
     /// planned late), merged in (instance, point) order so that `select`
     /// breaks ties by position.
     pub(super) fn candidates(
@@ -607,9 +613,10 @@ impl Pipeline {
     }
 
     /// Plans the `chosen` candidates planned late, which wait `apart`
-    /// (one in the step's batch has a reason for the full trace `plan`
-    /// gave it: its instance moved, it stopped early last step, or its
-    /// scores are gone): until now each cost the rays known stale; now it
+    /// (one whose instance moved waits apart as a mover's point, traced
+    /// in full; one in the step's batch has a reason for the full trace
+    /// `plan` gave it: it stopped early last step, or its scores are
+    /// gone): until now each cost the rays known stale; now it
     /// also needs every ray of it that what moved reached in the steps
     /// since it was last planned (tested against their boxes,
     /// [`MotionBoxes::joined`], with its kept scores: what planning each
@@ -893,11 +900,20 @@ mod tests {
         // Instance 0 rests (a static point waits for a full trace),
         // instance 1 moves (two of its points wait), instance 2 moves with
         // none waiting, instance 3 rests with points reached.
+        // Instance 3's point 0 waits apart for a full trace, and a key of
+        // an instance past the lists (5) waits planned late.
         let apart = Apart {
-            keys: vec![key(0, 4), key(1, 2), key(1, 7)],
-            how: vec![ApartAs::Full, ApartAs::Moving, ApartAs::Moving],
+            keys: vec![key(0, 4), key(1, 2), key(1, 7), key(3, 0), key(5, 1)],
+            how: vec![
+                ApartAs::Full,
+                ApartAs::Moving,
+                ApartAs::Moving,
+                ApartAs::Full,
+                ApartAs::Late(3),
+            ],
         };
-        let mut lists = vec![vec![1, 9], vec![7, 1, 3], vec![5, 0], vec![2]];
+        // Instance 1's list out of order, with a point twice.
+        let mut lists = vec![vec![1, 9], vec![7, 1, 3, 1], vec![5, 0], vec![2]];
         let moving = |i: usize| i == 1 || i == 2;
         let out = with_movers(apart, &mut lists, moving);
         assert_eq!(
@@ -909,11 +925,14 @@ mod tests {
                 key(1, 3),
                 key(1, 7),
                 key(2, 0),
-                key(2, 5)
+                key(2, 5),
+                key(3, 0),
+                key(5, 1)
             ]
         );
         assert_eq!(out.how[0], ApartAs::Full);
-        assert!(out.how[1..].iter().all(|h| *h == ApartAs::Moving));
+        assert!(out.how[1..7].iter().all(|h| *h == ApartAs::Moving));
+        assert_eq!(out.how[7..], [ApartAs::Full, ApartAs::Late(3)]);
         // The movers' lists are emptied, the others' left to planning.
         assert_eq!(lists, vec![vec![1, 9], vec![], vec![], vec![2]]);
     }
