@@ -136,8 +136,9 @@ pub struct PipelineConfig {
     /// CPU tracer and
     /// [`skip`](Self::skip): a backend (psao-gpu's) casts them.
     pub skip_open: bool,
-    /// Most bytes the kept ray scores take (64 MiB: about 400,000 points
-    /// of 32 rays); beyond it, points are traced in full.
+    /// Most bytes the kept ray scores take (64 MiB: about 94,000 points
+    /// of 32 rays, at 712 bytes each with their rays' directions);
+    /// beyond it, points are traced in full.
     pub ray_cache_bytes: u64,
     /// How many rays a step may trace ([`RayBudget::Unlimited`]: every
     /// point motion reached, in its step). A backend

@@ -193,4 +193,12 @@ mod tests {
             "wrong ray count"
         );
     }
+
+    #[test]
+    fn the_default_cap_holds_about_94000_points_of_32_rays() {
+        // The figure `PipelineConfig::ray_cache_bytes` states.
+        let c = RayCache::new(32, 64 << 20);
+        assert_eq!(entry_bytes(32), 712);
+        assert_eq!(c.max_entries, 94_254);
+    }
 }
