@@ -184,17 +184,25 @@ impl MotionBoxes {
     /// point whose hemisphere reaches none needs no ray tested (the reach
     /// of item 3 of issue 20: not only the sphere around it); one that
     /// sees a box tests only the rays that can point at it. With
-    /// `hemisphere` false every box is kept (with its cone).
+    /// `hemisphere` false every box within `len` of the origin (and a
+    /// margin above rounding) is kept (with its cone), on either side of
+    /// the tangent plane.
     pub fn seen_from(&self, rays: &PointRays, len: f32, hemisphere: bool) -> Vec<SeenBox> {
         let (origin, normal) = (rays.origin(), rays.normal());
         self.boxes
             .iter()
             .copied()
             .filter(|&(lo, hi)| {
-                if !hemisphere {
-                    return true;
-                }
                 let nearest = origin.clamp(lo, hi);
+                if !hemisphere {
+                    // Rays given with their lengths (at most `len`): a box
+                    // beyond `len` of the origin, with a margin far above
+                    // the rounding of the slab test (so that no box it
+                    // would enter is left out), is entered by none.
+                    let far = origin.abs().max(hi.abs()).max(lo.abs()).max_element();
+                    let slack = len * 1e-3 + far * (1.0 / (1u32 << 16) as f32);
+                    return nearest.distance_squared(origin) <= (len + slack) * (len + slack);
+                }
                 if nearest.distance_squared(origin) > len * len {
                     return false;
                 }
@@ -438,7 +446,7 @@ pub fn reached_rays(
     // Only the boxes its hemisphere can reach (closest-hit rays and
     // Laine-Karras ones are no longer than the radius), and of each the
     // cone its rays can enter it by. Rays given `among` are tested
-    // against every box, as they always were.
+    // against every box within their reach, on either side.
     let seen = motion.seen_from(rays, radius, among.is_none());
     if seen.is_empty() {
         return mask;
@@ -610,7 +618,7 @@ mod tests {
         // Every ray against every box, as before cones: what reached_rays
         // must still find, ray for ray, drawing the rays or given them,
         // among all rays or some.
-        let (mut partial, mut pruned) = (0, 0);
+        let (mut partial, mut pruned, mut beyond) = (0, 0, 0);
         for case in 0..3000 {
             let (rays, count, boxes, estimator) = drawn_case(case);
             let drawn: Vec<Vec4> = (0..count)
@@ -652,10 +660,16 @@ mod tests {
             let seen = boxes.seen_from(&rays, 0.6, true);
             pruned +=
                 usize::from(!seen.is_empty() && seen.iter().all(|b| b.rays.len() < count as usize));
+            // Rays given `among` skip the boxes beyond their reach.
+            beyond += usize::from(boxes.seen_from(&rays, 0.6, false).len() < boxes.boxes.len());
         }
         // The cases are worth the name: many reach some rays, not all,
-        // and in many the cones leave rays out untested.
-        assert!(partial > 500 && pruned > 300, "{partial} {pruned}");
+        // in many the cones leave rays out untested, and in many boxes
+        // lie beyond the rays given.
+        assert!(
+            partial > 500 && pruned > 300 && beyond > 300,
+            "{partial} {pruned} {beyond}"
+        );
     }
 
     #[test]
