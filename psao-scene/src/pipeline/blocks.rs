@@ -70,17 +70,23 @@ impl PointBlocks {
         transform: &Affine3A,
         swept: &[(Vec3, Vec3)],
     ) -> Vec<u32> {
-        // One block's points inside the boxes (none where its box meets
-        // none of them).
+        // One block's points inside the boxes, each tested only against
+        // the boxes its block's box meets (none where it meets none: a
+        // floor under many moving parts meets a few of them a block).
         let block = |(chunk, &b): (&[u32], &(Vec3, Vec3))| -> Vec<u32> {
             let world = transformed_bounds(transform, b);
-            if !swept.iter().any(|&s| overlaps(s, world)) {
+            let near: Vec<(Vec3, Vec3)> = swept
+                .iter()
+                .copied()
+                .filter(|&s| overlaps(s, world))
+                .collect();
+            if near.is_empty() {
                 return Vec::new();
             }
             chunk
                 .iter()
                 .copied()
-                .filter(|&k| inside_any(transform.transform_point3(positions[k as usize]), swept))
+                .filter(|&k| inside_any(transform.transform_point3(positions[k as usize]), &near))
                 .collect()
         };
         // Many blocks are tested in parallel (a floor under many moving
