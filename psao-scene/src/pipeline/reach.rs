@@ -6,7 +6,10 @@
 //! with some re-traces only those when its other rays' scores are kept
 //! ([`super::ray_cache`]).
 
-use glam::{Vec3, Vec3A, Vec4};
+use std::sync::OnceLock;
+
+use glam::{IVec3, Vec3, Vec3A, Vec4};
+use rustc_hash::FxHashMap;
 
 use crate::trace::ao::{Estimator, PointRays};
 use crate::trace::geometry::RAY_LEAD;
@@ -125,6 +128,90 @@ impl RayMask {
 #[derive(Clone, Debug, Default)]
 pub struct MotionBoxes {
     boxes: Vec<(Vec3A, Vec3A)>,
+    /// With many boxes, which lie near each place: made on the first
+    /// look from a point ([`Self::seen_from`]).
+    index: OnceLock<BoxIndex>,
+}
+
+/// Boxes fewer than this are looked at one by one from every point.
+const INDEX_FROM: usize = 32;
+
+/// A box that would cover more cells of a [`BoxIndex`] than this is
+/// looked at from every point instead.
+const INDEX_MOST_CELLS: i64 = 512;
+
+/// Which boxes of a [`MotionBoxes`] lie within `len` of each place: a
+/// grid of cubes of side twice `len`, each listing (ascending) the boxes
+/// that, grown by `len` and a margin above rounding, meet it; and the
+/// boxes too large to list, looked at from everywhere.
+#[derive(Clone, Debug)]
+struct BoxIndex {
+    /// The reach it was made for.
+    len: f32,
+    /// The cubes' side.
+    cell: f32,
+    /// Per cube, the boxes near it.
+    cells: FxHashMap<IVec3, Vec<u32>>,
+    /// The boxes listed in no cube.
+    everywhere: Vec<u32>,
+}
+
+impl BoxIndex {
+    fn new(boxes: &[(Vec3A, Vec3A)], len: f32) -> BoxIndex {
+        let cell = (2.0 * len).max(1e-3);
+        let mut cells: FxHashMap<IVec3, Vec<u32>> = FxHashMap::default();
+        let mut everywhere = Vec::new();
+        let at = |p: Vec3A| (p / cell).floor();
+        for (i, &(lo, hi)) in boxes.iter().enumerate() {
+            // Grown by more than any box the look keeps lies from a point
+            // it keeps it for (`seen_from`'s reach and margin).
+            let far = lo.abs().max(hi.abs()).max_element();
+            let grow = Vec3A::splat(len * 1.01 + far * (1.0 / (1u32 << 15) as f32) + 1e-6);
+            let (a, b) = (at(lo - grow), at(hi + grow));
+            let n = (b - a + Vec3A::ONE).max(Vec3A::ZERO);
+            let count = n.x as i64 * n.y as i64 * n.z as i64;
+            // (A box past the grid's range of cubes, or not finite, too.)
+            let on_grid = |c: Vec3A| c.is_finite() && c.abs().max_element() < (i32::MAX / 2) as f32;
+            if !on_grid(a) || !on_grid(b) || !(1..=INDEX_MOST_CELLS).contains(&count) {
+                everywhere.push(i as u32);
+                continue;
+            }
+            let (a, b) = (a.as_ivec3(), b.as_ivec3());
+            for z in a.z..=b.z {
+                for y in a.y..=b.y {
+                    for x in a.x..=b.x {
+                        cells.entry(IVec3::new(x, y, z)).or_default().push(i as u32);
+                    }
+                }
+            }
+        }
+        BoxIndex {
+            len,
+            cell,
+            cells,
+            everywhere,
+        }
+    }
+
+    /// The boxes that may lie within the reach of `origin`, ascending
+    /// (`None` for an origin off the grid: every box).
+    fn near(&self, origin: Vec3A) -> Option<Vec<u32>> {
+        let key = (origin / self.cell).floor();
+        if !key.is_finite() || key.abs().max_element() >= i32::MAX as f32 {
+            return None;
+        }
+        let listed: &[u32] = self
+            .cells
+            .get(&key.as_ivec3())
+            .map_or(&[], |v| v.as_slice());
+        let mut out = Vec::with_capacity(listed.len() + self.everywhere.len());
+        out.extend_from_slice(listed);
+        out.extend_from_slice(&self.everywhere);
+        if !self.everywhere.is_empty() {
+            out.sort_unstable();
+        }
+        Some(out)
+    }
 }
 
 impl MotionBoxes {
@@ -133,6 +220,7 @@ impl MotionBoxes {
     /// triangle the tracer would hit).
     pub fn new(boxes: impl IntoIterator<Item = (Vec3, Vec3)>, pad: f32) -> MotionBoxes {
         MotionBoxes {
+            index: OnceLock::new(),
             boxes: boxes
                 .into_iter()
                 .map(|(lo, hi)| {
@@ -174,7 +262,10 @@ impl MotionBoxes {
                 None => boxes.push((lo, hi)),
             }
         }
-        MotionBoxes { boxes }
+        MotionBoxes {
+            boxes,
+            index: OnceLock::new(),
+        }
     }
 
     /// The boxes a point's hemisphere of rays can enter, as it sees
@@ -186,12 +277,26 @@ impl MotionBoxes {
     /// sees a box tests only the rays that can point at it. With
     /// `hemisphere` false every box within `len` of the origin (and a
     /// margin above rounding) is kept (with its cone), on either side of
-    /// the tangent plane.
+    /// the tangent plane. With many boxes (a hall of moving props) only
+    /// those an index lists near the origin are looked at (made on the
+    /// first look, for the first `len` asked; the same boxes are kept).
     pub fn seen_from(&self, rays: &PointRays, len: f32, hemisphere: bool) -> Vec<SeenBox> {
         let (origin, normal) = (rays.origin(), rays.normal());
-        self.boxes
-            .iter()
-            .copied()
+        // With many boxes only those the index lists near the origin are
+        // looked at: every one the test below keeps is among them.
+        let near = (self.boxes.len() >= INDEX_FROM)
+            .then(|| self.index.get_or_init(|| BoxIndex::new(&self.boxes, len)))
+            .filter(|index| index.len == len)
+            .and_then(|index| index.near(origin));
+        let all;
+        let listed: Box<dyn Iterator<Item = (Vec3A, Vec3A)>> = match &near {
+            Some(ids) => Box::new(ids.iter().map(|&i| self.boxes[i as usize])),
+            None => {
+                all = &self.boxes;
+                Box::new(all.iter().copied())
+            }
+        };
+        listed
             .filter(|&(lo, hi)| {
                 let nearest = origin.clamp(lo, hi);
                 if !hemisphere {
@@ -557,6 +662,112 @@ mod tests {
     }
 
     #[test]
+    fn many_boxes_are_looked_up_by_place_and_reach_the_same_rays() {
+        // 40 to 100 boxes about a point (past the count from which
+        // `seen_from` looks them up in its index), some huge (listed
+        // everywhere), far from the origin of the world in some cases:
+        // every ray, drawn or given, reaches what it reaches against
+        // every box one by one.
+        let (mut left_out, mut reached) = (0, 0);
+        for case in 0..400u32 {
+            let (rays, count, _, estimator) = drawn_case(case);
+            let r = |j: u32| crate::random::uniform(11, case, j);
+            let v = |j: u32| Vec3::new(r(j), r(j + 1), r(j + 2)) * 2.0 - 1.0;
+            let offset = if case % 5 == 0 {
+                Vec3::splat(3000.0)
+            } else {
+                Vec3::ZERO
+            };
+            let n = 40 + case % 61;
+            let boxes: Vec<(Vec3, Vec3)> = (0..n)
+                .map(|b| {
+                    let centre = Vec3::from(rays.origin()) + v(10 * b) * 3.0;
+                    let size = if b % 17 == 0 { 40.0 } else { 0.3 };
+                    let half = (v(10 * b + 3) + 1.0) * 0.5 * size;
+                    (centre - half, centre + half)
+                })
+                .collect();
+            // The same point moved far out with its boxes.
+            let p = AoParams {
+                rays: count,
+                estimator,
+                ..AoParams::default()
+            };
+            let rays = PointRays::new(
+                case,
+                Vec3::from(rays.origin()) + offset,
+                rays.normal().into(),
+                &p,
+            )
+            .expect("rays");
+            let boxes = MotionBoxes::new(
+                boxes.iter().map(|&(lo, hi)| (lo + offset, hi + offset)),
+                0.0,
+            );
+            assert!(boxes.boxes.len() >= INDEX_FROM);
+            let drawn: Vec<Vec4> = (0..count)
+                .map(|k| {
+                    let (d, len) = rays.ray(k);
+                    Vec3::from(d).extend(len)
+                })
+                .collect();
+            let all = RayMask::all(count);
+            let reach = |q: ReachQuery<'_>| reached_rays(&rays, count, &boxes, estimator, 0.6, q);
+            let (plain, given) = (
+                reach(ReachQuery::default()),
+                reach(ReachQuery {
+                    among: Some(Among {
+                        mask: &all,
+                        dirs: Some(&drawn),
+                    }),
+                    ..ReachQuery::default()
+                }),
+            );
+            for k in 0..count {
+                let (d, len) = rays.ray(k);
+                let enters = boxes.entry(rays.origin(), d, len).is_some();
+                assert_eq!(plain.has(k), enters, "case {case}, ray {k}");
+                assert_eq!(given.has(k), enters, "case {case}, ray {k}, given");
+            }
+            let index = boxes.index.get().expect("looked up by place");
+            let near = index.near(rays.origin()).expect("on the grid");
+            left_out += usize::from(near.len() < boxes.boxes.len());
+            reached += usize::from(!plain.is_empty());
+        }
+        // The index leaves boxes out, and rays do reach boxes.
+        assert!(left_out > 300 && reached > 100, "{left_out} {reached}");
+        // Looked up from anywhere, near cube edges too, the index lists
+        // every box within reach.
+        let r = |j: u32| crate::random::uniform(13, 0, j);
+        let boxes: Vec<(Vec3A, Vec3A)> = (0..200)
+            .map(|b| {
+                let c = Vec3A::new(r(6 * b), r(6 * b + 1), r(6 * b + 2)) * 10.0;
+                let h = Vec3A::new(r(6 * b + 3), r(6 * b + 4), r(6 * b + 5)) * 0.4;
+                (c - h, c + h)
+            })
+            .collect();
+        let index = BoxIndex::new(&boxes, 0.6);
+        let mut within = 0;
+        for q in 0..20_000u32 {
+            let u = |a: u32| crate::random::uniform(17, q, a);
+            // Half of them within 1% of a cube's edge.
+            let mut p = Vec3A::new(u(0), u(1), u(2)) * 10.0;
+            if q % 2 == 0 {
+                p = (p / index.cell).round() * index.cell
+                    + (Vec3A::new(u(3), u(4), u(5)) - 0.5) * 0.012;
+            }
+            let near = index.near(p).expect("on the grid");
+            for (i, &(lo, hi)) in boxes.iter().enumerate() {
+                if p.clamp(lo, hi).distance(p) <= 0.6 * 1.001 {
+                    within += 1;
+                    assert!(near.binary_search(&(i as u32)).is_ok(), "box {i} from {p}");
+                }
+            }
+        }
+        assert!(within > 10_000, "{within}");
+    }
+
+    #[test]
     fn joined_boxes_are_reached_by_every_ray_that_reaches_a_box_of_a_set() {
         // A box sliding step by step (overlapping boxes) and other sets
         // drawn at random: every ray that enters a box of some set enters
@@ -576,6 +787,7 @@ mod tests {
                     let boxes = slid.chain(drawn.boxes.iter().copied().take(s as usize % 2));
                     MotionBoxes {
                         boxes: boxes.collect(),
+                        index: OnceLock::new(),
                     }
                 })
                 .collect();
