@@ -644,9 +644,10 @@ impl Pipeline {
         // order, so ascending keys.
         let late: Vec<(usize, u64, u32)> = (cands.merged.iter().zip(chosen.iter()))
             .enumerate()
-            .filter(|&(_, (&(is_apart, _), &c))| c && is_apart)
+            .filter(|&(_, (&(is_apart, j), &c))| {
+                c && is_apart && matches!(apart.how.get(j), Some(ApartAs::Late(_)))
+            })
             .filter_map(|(m, (&(_, j), _))| {
-                matches!(apart.how.get(j), Some(ApartAs::Late(_))).then_some(())?;
                 let k = apart.keys[j];
                 self.waiting.late_since(k).map(|since| (m, k, since))
             })
@@ -899,9 +900,9 @@ mod tests {
     fn a_moving_instances_points_reached_join_its_waiting_ones_apart_each_once_in_key_order() {
         // Instance 0 rests (a static point waits for a full trace),
         // instance 1 moves (two of its points wait), instance 2 moves with
-        // none waiting, instance 3 rests with points reached.
-        // Instance 3's point 0 waits apart for a full trace, and a key of
-        // an instance past the lists (5) waits planned late.
+        // none waiting, instance 3 rests with points reached and its point
+        // 0 waiting for a full trace, and a key of an instance past the
+        // lists (5) waits planned late.
         let apart = Apart {
             keys: vec![key(0, 4), key(1, 2), key(1, 7), key(3, 0), key(5, 1)],
             how: vec![

@@ -6,6 +6,7 @@
 //! with some re-traces only those when its other rays' scores are kept
 //! ([`super::ray_cache`]).
 
+use std::borrow::Cow;
 use std::sync::OnceLock;
 
 use glam::{IVec3, Vec3, Vec3A, Vec4};
@@ -194,8 +195,9 @@ impl BoxIndex {
     }
 
     /// The boxes that may lie within the reach of `origin`, ascending
-    /// (`None` for an origin off the grid: every box).
-    fn near(&self, origin: Vec3A) -> Option<Vec<u32>> {
+    /// (`None` for an origin off the grid: every box); borrowed from its
+    /// cube where no box is listed everywhere.
+    fn near(&self, origin: Vec3A) -> Option<Cow<'_, [u32]>> {
         let key = (origin / self.cell).floor();
         if !key.is_finite() || key.abs().max_element() >= i32::MAX as f32 {
             return None;
@@ -204,13 +206,14 @@ impl BoxIndex {
             .cells
             .get(&key.as_ivec3())
             .map_or(&[], |v| v.as_slice());
+        if self.everywhere.is_empty() {
+            return Some(Cow::Borrowed(listed));
+        }
         let mut out = Vec::with_capacity(listed.len() + self.everywhere.len());
         out.extend_from_slice(listed);
         out.extend_from_slice(&self.everywhere);
-        if !self.everywhere.is_empty() {
-            out.sort_unstable();
-        }
-        Some(out)
+        out.sort_unstable();
+        Some(Cow::Owned(out))
     }
 }
 
@@ -288,41 +291,39 @@ impl MotionBoxes {
             .then(|| self.index.get_or_init(|| BoxIndex::new(&self.boxes, len)))
             .filter(|index| index.len == len)
             .and_then(|index| index.near(origin));
-        let all;
-        let listed: Box<dyn Iterator<Item = (Vec3A, Vec3A)>> = match &near {
-            Some(ids) => Box::new(ids.iter().map(|&i| self.boxes[i as usize])),
-            None => {
-                all = &self.boxes;
-                Box::new(all.iter().copied())
+        let keep = |&(lo, hi): &(Vec3A, Vec3A)| {
+            let nearest = origin.clamp(lo, hi);
+            if !hemisphere {
+                // Rays given with their lengths (at most `len`): a box
+                // beyond `len` of the origin, with a margin far above
+                // the rounding of the slab test (so that no box it
+                // would enter is left out), is entered by none.
+                let far = origin.abs().max(hi.abs()).max(lo.abs()).max_element();
+                let slack = len * 1e-3 + far * (1.0 / (1u32 << 16) as f32);
+                return nearest.distance_squared(origin) <= (len + slack) * (len + slack);
             }
+            if nearest.distance_squared(origin) > len * len {
+                return false;
+            }
+            // A corner in front of the tangent plane (or on it).
+            let c = (0..8).map(|k| {
+                Vec3A::new(
+                    if k & 1 == 0 { lo.x } else { hi.x },
+                    if k & 2 == 0 { lo.y } else { hi.y },
+                    if k & 4 == 0 { lo.z } else { hi.z },
+                )
+            });
+            c.into_iter().any(|c| normal.dot(c - origin) >= 0.0)
         };
-        listed
-            .filter(|&(lo, hi)| {
-                let nearest = origin.clamp(lo, hi);
-                if !hemisphere {
-                    // Rays given with their lengths (at most `len`): a box
-                    // beyond `len` of the origin, with a margin far above
-                    // the rounding of the slab test (so that no box it
-                    // would enter is left out), is entered by none.
-                    let far = origin.abs().max(hi.abs()).max(lo.abs()).max_element();
-                    let slack = len * 1e-3 + far * (1.0 / (1u32 << 16) as f32);
-                    return nearest.distance_squared(origin) <= (len + slack) * (len + slack);
-                }
-                if nearest.distance_squared(origin) > len * len {
-                    return false;
-                }
-                // A corner in front of the tangent plane (or on it).
-                let c = (0..8).map(|k| {
-                    Vec3A::new(
-                        if k & 1 == 0 { lo.x } else { hi.x },
-                        if k & 2 == 0 { lo.y } else { hi.y },
-                        if k & 4 == 0 { lo.z } else { hi.z },
-                    )
-                });
-                c.into_iter().any(|c| normal.dot(c - origin) >= 0.0)
-            })
-            .map(|(lo, hi)| SeenBox::new(lo, hi, rays))
-            .collect()
+        let seen = |(lo, hi)| SeenBox::new(lo, hi, rays);
+        match near {
+            Some(ids) => (ids.iter())
+                .map(|&i| self.boxes[i as usize])
+                .filter(keep)
+                .map(seen)
+                .collect(),
+            None => self.boxes.iter().copied().filter(keep).map(seen).collect(),
+        }
     }
 
     /// The distance along the ray from `origin` in unit direction `dir`
