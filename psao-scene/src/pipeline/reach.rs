@@ -139,7 +139,7 @@ const INDEX_FROM: usize = 32;
 
 /// A box that would cover more cells of a [`BoxIndex`] than this is
 /// looked at from every point instead.
-const INDEX_MOST_CELLS: i64 = 512;
+const INDEX_MOST_CELLS: f64 = 512.0;
 
 /// Which boxes of a [`MotionBoxes`] lie within `len` of each place: a
 /// grid of cubes of side twice `len`, each listing (ascending) the boxes
@@ -170,10 +170,12 @@ impl BoxIndex {
             let grow = Vec3A::splat(len * 1.01 + far * (1.0 / (1u32 << 15) as f32) + 1e-6);
             let (a, b) = (at(lo - grow), at(hi + grow));
             let n = (b - a + Vec3A::ONE).max(Vec3A::ZERO);
-            let count = n.x as i64 * n.y as i64 * n.z as i64;
+            // (In f64: a box of a file's wild transform spans up to 2^31
+            // cubes a side, past i64 when multiplied.)
+            let count = f64::from(n.x) * f64::from(n.y) * f64::from(n.z);
             // (A box past the grid's range of cubes, or not finite, too.)
             let on_grid = |c: Vec3A| c.is_finite() && c.abs().max_element() < (i32::MAX / 2) as f32;
-            if !on_grid(a) || !on_grid(b) || !(1..=INDEX_MOST_CELLS).contains(&count) {
+            if !on_grid(a) || !on_grid(b) || !(1.0..=INDEX_MOST_CELLS).contains(&count) {
                 everywhere.push(i as u32);
                 continue;
             }
@@ -766,6 +768,22 @@ mod tests {
             }
         }
         assert!(within > 10_000, "{within}");
+        // Boxes spanning most of the grid's range, or past it, or not
+        // finite (a file's wild transform) are looked at from everywhere.
+        let wild = [
+            (Vec3A::splat(-1e9), Vec3A::splat(1e9)),
+            (Vec3A::splat(1e12), Vec3A::splat(1e12 + 1.0)),
+            (Vec3A::splat(f32::NAN), Vec3A::ONE),
+            (Vec3A::ZERO, Vec3A::splat(f32::INFINITY)),
+            (Vec3A::ZERO, Vec3A::ONE),
+        ];
+        let index = BoxIndex::new(&wild, 0.6);
+        assert_eq!(index.everywhere, vec![0, 1, 2, 3]);
+        assert_eq!(
+            index.near(Vec3A::splat(0.5)).as_deref(),
+            Some(&[0, 1, 2, 3, 4][..])
+        );
+        assert_eq!(index.near(Vec3A::splat(f32::NAN)), None);
     }
 
     #[test]
