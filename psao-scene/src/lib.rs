@@ -84,7 +84,7 @@ pub use model::pose::{Pose, normal_matrix};
 pub use model::scene::{Instance, MIN_TRANSFORM_RATIO, Scene, invertible};
 pub use model::skin::{Skin, SkinWeights};
 pub use morton::morton_order;
-pub use pipeline::backend::AoBackend;
+pub use pipeline::backend::{AoBackend, RayJob};
 pub use pipeline::config::{
     DEFAULT_MAX_POINTS, EarlyDecisions, PipelineConfig, RayBudget, ViewerCull, Views,
 };

@@ -236,7 +236,7 @@ impl Pipeline {
     ) -> (Apart, Vec<bool>) {
         let keys = self.waiting.keys();
         let reuse = self.config.ray_reuse && self.config.skip;
-        let cache = reuse && self.backend.is_none();
+        let cache = reuse && self.keeps_ray_scores();
         let (waiting, ray_cache, rested) = (&self.waiting, &self.ray_cache, &self.early_rested);
         // Whether instance `i` moved this step (`true` for one unknown, so
         // that it is planned).

@@ -5,21 +5,23 @@
 
 use std::time::Duration;
 
-use glam::{Affine3A, Vec3};
+use glam::{Affine3A, Vec3, Vec3A};
 use psao_codec::{SentPoint, Thresholds};
 use rayon::prelude::*;
 
 use super::Pipeline;
+use super::backend::{AoBackend, RayJob};
 use super::budget::{next_bound, select};
-use super::early::{Kept, trace_early};
+use super::early::Kept;
 use super::plan::{Learnt, Plan};
 use super::ray_cache::key;
 use super::reach::MotionBoxes;
 use super::report::TracePhases;
+use super::work::{Moving, PointWork, Traced};
 use crate::error::SceneError;
 use crate::model::pose::normal_matrix;
 use crate::morton::morton_order;
-use crate::trace::ao::{AoResult, AoTracer, ChangedPoints, PointRays, ao_of_scores};
+use crate::trace::ao::{AoParams, AoResult, AoTracer, ChangedPoints, PointRays};
 use psao_codec::wire::point::{dequantize_ao, quantize_ao};
 
 /// The fewest points a parallel pass over a step's points hands a thread
@@ -216,16 +218,21 @@ impl Pipeline {
         let settling = self.config.settle_steps > 0;
         // Under a budget every value comes back for the points' trends.
         let every_value = settling || budget.is_some();
-        let (result, settled) = if self.backend.is_some() && !every_value {
+        // A backend that casts single rays follows the CPU's rules.
+        let planned_on_backend = self.planned_on_backend();
+        let (result, settled) = if self.backend.is_some() && !planned_on_backend && !every_value {
             // Compared where it was traced.
             (self.trace_batch(tracer, &sub, false, &th)?, 0)
         } else {
-            let values = if self.backend.is_some() {
+            let values = if planned_on_backend {
+                self.place_backend()?;
+                self.trace_planned(None, &sub, &sub_plans, &motion.changed)?
+            } else if self.backend.is_some() {
                 self.trace_values(&sub)?
             } else {
                 let owned = tracer.is_none().then(|| self.tracer(false));
                 let tracer = tracer.or(owned.as_ref()).expect("a tracer");
-                self.trace_planned(tracer, &sub, &sub_plans, &motion.changed)?
+                self.trace_planned(Some(tracer), &sub, &sub_plans, &motion.changed)?
             };
             self.compare_remembered(&values, &sub)?
         };
@@ -373,15 +380,38 @@ impl Pipeline {
     /// back, for [`compare_remembered`](Self::compare_remembered).
     fn trace_values(&mut self, batch: &Batch) -> Result<AoResult, SceneError> {
         let ao = self.config.ao;
+        self.place_backend()?;
+        let backend = self.backend.as_mut().expect("a backend");
+        backend.trace_ids(&batch.ids, &batch.points, &batch.normals, &ao)
+    }
+
+    /// Places the scene as it is now on the backend (none: nothing).
+    fn place_backend(&mut self) -> Result<(), SceneError> {
         let transforms: Vec<Affine3A> = self.instances.iter().map(|s| s.transform).collect();
         let vertices: Vec<Option<&[Vec3]>> = self
             .instances
             .iter()
             .map(|s| (!s.vertices.is_empty()).then_some(s.vertices.as_slice()))
             .collect();
-        let backend = self.backend.as_mut().expect("a backend");
-        backend.place(&transforms, &vertices)?;
-        backend.trace_ids(&batch.ids, &batch.points, &batch.normals, &ao)
+        match self.backend.as_mut() {
+            Some(backend) => backend.place(&transforms, &vertices),
+            None => Ok(()),
+        }
+    }
+
+    /// Whether a step's chosen points are traced by their plans on the
+    /// backend, a ray at a time ([`AoBackend::cast_rays`]): where it casts
+    /// single rays and ray reuse or early decisions ask for them.
+    /// Otherwise a backend traces whole points.
+    pub(super) fn planned_on_backend(&self) -> bool {
+        self.backend.as_ref().is_some_and(|b| b.casts_rays())
+            && ((self.config.ray_reuse && self.config.skip) || self.early_decisions().is_some())
+    }
+
+    /// Whether the pipeline keeps ray scores (ray reuse, early decisions):
+    /// with the CPU tracer, or a backend that casts single rays.
+    pub(super) fn keeps_ray_scores(&self) -> bool {
+        self.backend.as_ref().is_none_or(|b| b.casts_rays())
     }
 
     /// Settles the points the last step traced and this one left alone
@@ -474,30 +504,33 @@ impl Pipeline {
     pub(super) fn early_decisions(&self) -> Option<super::early::EarlyDecisions> {
         let c = &self.config;
         c.early
-            .filter(|_| self.backend.is_none() && c.skip && c.settle_steps == 0 && c.ao.rays >= 8)
+            .filter(|_| self.keeps_ray_scores() && c.skip && c.settle_steps == 0 && c.ao.rays >= 8)
     }
 
-    /// Traces `batch` on the CPU by `plans`: a full trace casts every ray
-    /// (and keeps the scores of a static instance's point), a partial one
-    /// casts its needed rays over the kept scores. Each AO is the kept and
-    /// new scores added in the tracer's order: what a full trace gives.
-    /// With [`PipelineConfig::early`] a moving instance's point may stop
-    /// early ([`early`](super::early)): its AO is then given as what
-    /// clients hold, so nothing is sent, and it is listed in
-    /// `last_early`.
+    /// Traces `batch` by `plans`, on the CPU (`tracer`) or, with none, on
+    /// the backend, which casts the rays asked of it
+    /// ([`AoBackend::cast_rays`]): a full trace casts every ray (and keeps
+    /// the scores of a static instance's point), a partial one casts its
+    /// needed rays over the kept scores. Each AO is the kept and new
+    /// scores added in the tracer's order: what a full trace gives. With
+    /// [`PipelineConfig::early`] a moving instance's point may stop early
+    /// ([`early`](super::early)): its AO is then given as what clients
+    /// hold, so nothing is sent, and it is listed in `last_early`. Both
+    /// take the same decisions from the same scores
+    /// ([`work`](super::work)).
     ///
     /// [`PipelineConfig::early`]: super::config::PipelineConfig::early
+    /// [`AoBackend::cast_rays`]: super::backend::AoBackend::cast_rays
     fn trace_planned(
         &mut self,
-        tracer: &AoTracer,
+        tracer: Option<&AoTracer>,
         batch: &Batch,
         plans: &[&Plan],
         changed: &[bool],
     ) -> Result<AoResult, SceneError> {
         let ao = self.config.ao;
         ao.validate()?;
-        let rays = ao.rays as usize;
-        let order = morton_order(&batch.points);
+        let rays = ao.rays;
         let keep = self.config.ray_reuse && self.config.skip;
         let early = self.early_decisions();
         // Moving points' kept scores, taken out for the parallel trace.
@@ -513,62 +546,72 @@ impl Pipeline {
                 })
                 .collect();
         }
-        let work: Vec<(usize, Option<Kept>)> = order
-            .iter()
-            .map(|&b| (b, taken.get_mut(b).and_then(Option::take)))
-            .collect();
         let cache = &self.ray_cache;
         let instances = &self.instances;
-        let (th, ray_order) = (self.config.thresholds, &self.ray_order);
+        let th = self.config.thresholds;
         let moving = early.as_ref().map(|test| Moving {
             test,
-            order: ray_order,
+            order: &self.ray_order,
             rot: super::early::rotation(ao.rays, self.frame),
             tolerance: th.ao_steps as f32 / 255.0,
             th: &th,
-            ao: &ao,
-            open: false,
         });
-        let mut done: Vec<Traced> = work
-            .into_par_iter()
-            .map(|(b, kept)| {
-                let (i, k) = batch.owner[b];
-                let key = key(i, k);
-                let (id, p, n) = (batch.ids[b], batch.points[b], batch.normals[b]);
-                let dynamic = instances[i].dynamic;
-                // Every ray scores 1, known without casting one.
-                let open = matches!(plans[b], Plan::Open);
-                if let (Some(how), true) = (&moving, dynamic && changed[i]) {
-                    return trace_moving(tracer, batch, b, kept, &Moving { open, ..*how });
+        // What point `b` casts.
+        let work_of = |b: usize, kept: Option<Kept>| -> PointWork {
+            let (i, k) = batch.owner[b];
+            let (id, p, n) = (batch.ids[b], batch.points[b], batch.normals[b]);
+            let dynamic = instances[i].dynamic;
+            // Every ray scores 1, known without casting one.
+            let open = matches!(plans[b], Plan::Open);
+            if let (Some(how), true) = (&moving, dynamic && changed[i]) {
+                let has_rays = PointRays::new(id, p, n, &ao).is_some();
+                let sent = &batch.sent[b];
+                return PointWork::moving(b, kept, sent, n, (rays, has_rays, open), how);
+            }
+            if !keep || dynamic {
+                // Nothing kept (a moving instance's point).
+                return PointWork::plain(b, rays, open);
+            }
+            let ones = || vec![1.0f32; rays as usize];
+            match (plans[b], cache.get(key(i, k))) {
+                (Plan::Rays { need, .. }, Some(e)) if !open => {
+                    PointWork::kept(b, e.scores.to_vec(), Some(need), false)
                 }
-                if open {
-                    let scores = (keep && !dynamic).then(|| vec![1.0; rays]);
-                    return Traced::new(b, 1.0, 0, scores);
-                }
-                if !keep || dynamic {
-                    // Nothing kept (a moving instance's point): the
-                    // tracer's own sum, no scores to hold.
-                    let value = tracer.point_ao(id, p, n, &ao);
-                    return Traced::new(b, value, ao.rays as u64, None);
-                }
-                let mut scores = vec![0.0f32; rays];
-                let kept = match plans[b] {
-                    Plan::Rays { need, .. } => cache.get(key).map(|e| (e, need)),
-                    _ => None,
-                };
-                let cast = match kept {
-                    Some((e, need)) => {
-                        scores.copy_from_slice(&e.scores);
-                        tracer.trace_kept_rays(id, p, n, &ao, &e.rays, &mut scores, |r| need.has(r))
-                    }
-                    // A full trace (or, were its scores gone, a partial one).
-                    None => tracer.trace_point_rays(id, p, n, &ao, &mut scores, |_| true),
-                };
-                let value = ao_of_scores(&scores);
-                Traced::new(b, value, cast, Some(scores))
-            })
-            .collect();
-        done.sort_unstable_by_key(|d| d.b);
+                // A full trace (or, were its scores gone, a partial one).
+                _ => PointWork::kept(b, ones(), None, open),
+            }
+        };
+        let mut done: Vec<Traced> = match tracer {
+            Some(tracer) => {
+                let work: Vec<(usize, Option<Kept>)> = morton_order(&batch.points)
+                    .into_iter()
+                    .map(|b| (b, taken.get_mut(b).and_then(Option::take)))
+                    .collect();
+                let mut done: Vec<Traced> = work
+                    .into_par_iter()
+                    .map(|(b, kept)| {
+                        let w = work_of(b, kept);
+                        let (i, k) = batch.owner[b];
+                        let entry = if w.over_kept() {
+                            cache.get(key(i, k))
+                        } else {
+                            None
+                        };
+                        cast_on_cpu(tracer, batch, w, entry.map(|e| &e.rays[..]), &ao)
+                    })
+                    .collect();
+                done.sort_unstable_by_key(|d| d.b);
+                done
+            }
+            None => {
+                let mut works: Vec<PointWork> = (0..batch.ids.len())
+                    .map(|b| work_of(b, taken.get_mut(b).and_then(Option::take)))
+                    .collect();
+                let backend = self.backend.as_mut().expect("a backend");
+                cast_on_backend(backend.as_mut(), batch, &mut works, &ao)?;
+                works.into_iter().map(PointWork::finish).collect()
+            }
+        };
         let mut result = AoResult {
             ao: Vec::with_capacity(done.len()),
             rays: 0,
@@ -765,143 +808,71 @@ impl Pipeline {
     }
 }
 
-/// One point as [`Pipeline::trace_planned`] traced it.
-struct Traced {
-    /// Its index in the batch.
-    b: usize,
-    /// Its AO (what clients hold, for a point that stopped early).
-    value: f32,
-    /// Rays cast.
-    cast: u64,
-    /// A static point's scores, to keep.
-    scores: Option<Vec<f32>>,
-    /// A moving point's kept scores, to put back (early decisions).
-    kept: Option<Kept>,
-    /// Whether it stopped early.
-    stopped: bool,
-    /// Rays it would have cast had it not been known open (`cast`
-    /// otherwise): what the budget prices a moving point at.
-    priced: u64,
-}
-
-impl Traced {
-    fn new(b: usize, value: f32, cast: u64, scores: Option<Vec<f32>>) -> Traced {
-        Traced {
-            b,
-            value,
-            cast,
-            scores,
-            kept: None,
-            stopped: false,
-            priced: cast,
-        }
-    }
-}
-
-/// How [`trace_moving`] traces a point of a moving instance.
-#[derive(Clone, Copy)]
-struct Moving<'a> {
-    /// The early decisions' settings.
-    test: &'a super::early::EarlyDecisions,
-    /// The rays' spread order (`early::ray_order`).
-    order: &'a [u32],
-    /// Where this step's rotation of the order starts.
-    rot: usize,
-    /// The send threshold of AO, as a fraction.
-    tolerance: f32,
-    /// The send thresholds.
-    th: &'a Thresholds,
-    /// AO parameters.
-    ao: &'a crate::trace::ao::AoParams,
-    /// Whether its rays can hit nothing ([`Plan::Open`]): every score 1.
-    open: bool,
-}
-
-/// Traces point `b` of a moving instance with early decisions: over its
-/// `kept` scores when it has them, has not stopped
-/// [`max_stops`](super::early::EarlyDecisions::max_stops) times in a row,
-/// and could go unsent (clients hold a word for it that its position and
-/// normal alone would not send again); in full otherwise, keeping the
-/// scores for the next time. The AO is the full trace's, bit for bit,
-/// unless it stopped early. A point known open casts no ray, its scores
-/// all 1, and decides as its rays would have: the same frames.
-fn trace_moving(
+/// Casts point `w`'s rays on the CPU, a run at a time as it asks for
+/// them (`kept_rays`: the ray cache's kept directions and lengths, for a
+/// point casting some of its rays over kept scores).
+fn cast_on_cpu(
     tracer: &AoTracer,
     batch: &Batch,
-    b: usize,
-    kept: Option<Kept>,
-    how: &Moving,
+    mut w: PointWork,
+    kept_rays: Option<&[glam::Vec4]>,
+    ao: &AoParams,
 ) -> Traced {
-    let Moving {
-        test,
-        order,
-        rot,
-        tolerance,
-        th,
-        ao,
-        open,
-    } = *how;
-    let (id, p, n) = (batch.ids[b], batch.points[b], batch.normals[b]);
-    let sent = &batch.sent[b];
-    let held = dequantize_ao(sent.word.fields().ao);
-    let could_stay = sent.word.is_allocated() && !sent.changed(held, th);
-    let rays = PointRays::new(id, p, n, ao);
-    match (kept, &rays) {
-        (Some(mut kept), Some(r)) if could_stay && kept.stops < test.max_stops => {
-            // Rays that turned with the point since its scores were kept
-            // change more, and more at once, than rays that held still.
-            let mut test = *test;
-            if kept.normal != n {
-                test.sd_floor = test.sd_floor.max(test.sd_floor_turning);
-            }
-            kept.normal = n;
-            // A point known open decides as its rays would: each scores 1.
-            let out = trace_early(order, rot, &mut kept, held, tolerance, &test, |k| {
-                if open { 1.0 } else { r.score(tracer, k) }
-            });
-            kept.stops = if out.value.is_some() {
-                0
-            } else {
-                kept.stops.saturating_add(1)
-            };
-            Traced {
-                b,
-                value: out.value.unwrap_or(held),
-                cast: if open { 0 } else { out.cast as u64 },
-                priced: out.cast as u64,
-                scores: None,
-                stopped: out.value.is_none(),
-                kept: Some(kept),
-            }
+    if w.wants().is_empty() {
+        return w.finish();
+    }
+    let b = w.b;
+    let rays = tracer.point_rays(batch.ids[b], batch.points[b], batch.normals[b], ao);
+    let mut scores = Vec::with_capacity(ao.rays as usize);
+    while !w.wants().is_empty() {
+        scores.clear();
+        scores.extend(w.wants().iter().map(|&k| match &rays {
+            // Nothing to trace from, or nothing to hit.
+            None => 1.0,
+            Some(r) => match kept_rays.and_then(|e| e.get(k as usize)) {
+                Some(d) => r.score_along(tracer, Vec3A::from(d.truncate()), d.w),
+                None => r.score(tracer, k),
+            },
+        }));
+        w.take(&scores);
+    }
+    w.finish()
+}
+
+/// Casts every point's rays of `works` on `backend`, a round at a time:
+/// each round, the rays each point asks for next, together.
+fn cast_on_backend(
+    backend: &mut dyn AoBackend,
+    batch: &Batch,
+    works: &mut [PointWork],
+    ao: &AoParams,
+) -> Result<(), SceneError> {
+    loop {
+        let jobs: Vec<RayJob> = works
+            .iter()
+            .flat_map(|w| {
+                w.wants().iter().map(|&ray| RayJob {
+                    point: w.b as u32,
+                    ray,
+                })
+            })
+            .collect();
+        if jobs.is_empty() {
+            return Ok(());
         }
-        (old, _) => {
-            let mut scores = vec![1.0f32; ao.rays as usize];
-            let cast = if open {
-                0
-            } else {
-                tracer.trace_point_rays(id, p, n, ao, &mut scores, |_| true)
-            };
-            // The rays that changed since the kept scores (all of them
-            // with nothing kept).
-            let changed = match &old {
-                Some(o) if o.scores.len() == scores.len() => {
-                    super::early::changed_rays(&o.scores, &scores)
-                }
-                _ => super::reach::RayMask::all(ao.rays),
-            };
-            Traced {
-                b,
-                value: ao_of_scores(&scores),
-                cast,
-                priced: if open { u64::from(ao.rays) } else { cast },
-                scores: None,
-                stopped: false,
-                kept: Some(Kept {
-                    normal: n,
-                    changed,
-                    scores: scores.into(),
-                    stops: 0,
-                }),
+        let scores = backend.cast_rays(&batch.ids, &batch.points, &batch.normals, &jobs, ao)?;
+        if scores.len() != jobs.len() {
+            return Err(SceneError::Backend {
+                backend: backend.name(),
+                reason: format!("{} scores for {} rays", scores.len(), jobs.len()),
+            });
+        }
+        let mut at = 0;
+        for w in works.iter_mut() {
+            let m = w.wants().len();
+            if m > 0 {
+                w.take(&scores[at..at + m]);
+                at += m;
             }
         }
     }

@@ -253,14 +253,9 @@ pub(super) struct Outcome {
 /// Casts a point's rays over its `kept` scores (updated in place, with
 /// the rays whose score changed), with `score(k)` giving ray `k`'s score
 /// now, and stops early when the test of the module says that the full
-/// trace's AO lies within `tolerance` of `held`. The rays that changed at
-/// their last cast go first, all of them; then the others in `order` from
-/// `rot` on, tested after a quarter, a half and three quarters of them.
-/// When more than half the rays changed (a turning or deforming point,
-/// whose rays all turn with it) they are all sampled alike in `order`.
-/// A point that does not stop casts every ray; its value is then
-/// [`ao_of_scores`](crate::trace::ao::ao_of_scores) of the new scores,
-/// what a full trace gives, bit for bit.
+/// trace's AO lies within `tolerance` of `held`: an [`EarlyRun`] whose
+/// runs are cast as they come (the tests' way in).
+#[cfg(test)]
 pub(super) fn trace_early(
     order: &[u32],
     rot: usize,
@@ -270,81 +265,180 @@ pub(super) fn trace_early(
     test: &EarlyDecisions,
     mut score: impl FnMut(u32) -> f32,
 ) -> Outcome {
-    let n = kept.scores.len();
-    let rays = n as u32;
-    let held_below_open = quantize_ao(held) != u8::MAX;
-    let c = kept.scores.iter().map(|&s| s as f64).sum::<f64>() / n.max(1) as f64;
-    let mut changed = RayMask::none(rays);
-    let mut cast = 0u32;
-    let mut cast_mask = RayMask::none(rays);
-    let mut cast_ray = |k: u32, kept: &mut Kept, changed: &mut RayMask| {
-        cast_mask.set(k);
-        let s = score(k);
-        let d = (s - kept.scores[k as usize]) as f64;
-        kept.scores[k as usize] = s;
-        if d.abs() > CHANGED {
-            changed.set(k);
+    let mut run = EarlyRun::new(order, rot, kept, held, tolerance, test);
+    let mut scores = Vec::with_capacity(kept.scores.len());
+    while !run.wants().is_empty() {
+        scores.clear();
+        scores.extend(run.wants().iter().map(|&k| score(k)));
+        run.take(kept, &scores);
+    }
+    run.finish(kept)
+}
+
+/// One point's early decision, a run of rays at a time, so that a caller
+/// may cast each run where it likes (the CPU tracer at once, a backend
+/// for many points together) with the same outcome, bit for bit.
+///
+/// The rays that changed at their last cast go first, all of them; then
+/// the others in `order` from `rot` on, tested after a quarter, a half
+/// and three quarters of them (each at least 4 rays, fewer than all).
+/// When more than half the rays changed (a turning or deforming point,
+/// whose rays all turn with it) they are all sampled alike in `order`. A
+/// point that does not stop casts every ray; its value is then
+/// [`ao_of_scores`](crate::trace::ao::ao_of_scores) of the new scores,
+/// what a full trace gives, bit for bit. Which rays each run holds
+/// depends on the kept scores' marks alone, never on the scores cast.
+#[derive(Clone, Debug)]
+pub(super) struct EarlyRun {
+    /// The rays in the order they are cast: those enumerated (that
+    /// changed last time), then the sampled ones.
+    rays: Vec<u32>,
+    /// How many of `rays` are enumerated.
+    enumerated: usize,
+    /// Where each run ends in `rays` (the last at `rays.len()`, the
+    /// others at a check).
+    ends: Vec<usize>,
+    /// The run to cast next (`ends.len()`: done).
+    next: usize,
+    /// How many of `rays` were cast.
+    at: usize,
+    /// The mean of the kept scores.
+    c: f64,
+    /// The enumerated rays' summed change.
+    exact: f64,
+    /// The sampled rays' summed change and summed squared change.
+    sum: f64,
+    sum2: f64,
+    /// The rays whose score changed, of those cast.
+    changed: RayMask,
+    held: f32,
+    tolerance: f32,
+    test: EarlyDecisions,
+    stopped: bool,
+}
+
+impl EarlyRun {
+    /// The run of a point with `kept` scores, against `held` (what
+    /// clients hold) within `tolerance`.
+    pub fn new(
+        order: &[u32],
+        rot: usize,
+        kept: &Kept,
+        held: f32,
+        tolerance: f32,
+        test: &EarlyDecisions,
+    ) -> EarlyRun {
+        let n = kept.scores.len();
+        let rays = n as u32;
+        let c = kept.scores.iter().map(|&s| s as f64).sum::<f64>() / n.max(1) as f64;
+        let active = kept.changed.count() as usize;
+        let enumerate = active * 2 <= n;
+        let mut list: Vec<u32> = Vec::with_capacity(n);
+        if enumerate {
+            list.extend((0..rays).filter(|&k| kept.changed.has(k)));
         }
-        d
-    };
-    // The rays that changed last time, enumerated: their change is summed
-    // exactly.
-    let active = kept.changed.count() as usize;
-    let enumerate = active * 2 <= n;
-    let mut exact = 0.0f64;
-    if enumerate {
-        for k in 0..rays {
+        let enumerated = list.len();
+        list.extend(
+            (0..n)
+                .map(|j| order[(j + rot) % n])
+                .filter(|&k| !(enumerate && kept.changed.has(k))),
+        );
+        let rest = n - enumerated;
+        let mut ends: Vec<usize> = [rest / 4, rest / 2, 3 * rest / 4]
+            .into_iter()
+            .filter(|&m| m >= 4 && m < rest)
+            .map(|m| enumerated + m)
+            .collect();
+        ends.dedup();
+        ends.push(n);
+        EarlyRun {
+            rays: list,
+            enumerated,
+            ends,
+            next: 0,
+            at: 0,
+            c,
+            exact: 0.0,
+            sum: 0.0,
+            sum2: 0.0,
+            changed: RayMask::none(rays),
+            held,
+            tolerance,
+            test: *test,
+            stopped: false,
+        }
+    }
+
+    /// The rays to cast next, in order (none once decided).
+    pub fn wants(&self) -> &[u32] {
+        match self.ends.get(self.next) {
+            Some(&end) if !self.stopped => &self.rays[self.at..end],
+            _ => &[],
+        }
+    }
+
+    /// Takes the scores of the rays [`wants`](Self::wants) gave, in its
+    /// order, into `kept`, and tests whether the point may stop.
+    pub fn take(&mut self, kept: &mut Kept, scores: &[f32]) {
+        let Some(&end) = self.ends.get(self.next).filter(|_| !self.stopped) else {
+            return;
+        };
+        debug_assert_eq!(scores.len(), end - self.at);
+        for (j, &s) in (self.at..end).zip(scores) {
+            let k = self.rays[j];
+            let d = (s - kept.scores[k as usize]) as f64;
+            kept.scores[k as usize] = s;
+            if d.abs() > CHANGED {
+                self.changed.set(k);
+            }
+            if j < self.enumerated {
+                self.exact += d;
+            } else {
+                self.sum += d;
+                self.sum2 += d * d;
+            }
+        }
+        self.at = end;
+        self.next += 1;
+        if self.next < self.ends.len() {
+            self.stopped = self.may_stop();
+        }
+    }
+
+    /// The module's test after the rays cast so far.
+    fn may_stop(&self) -> bool {
+        let n = self.rays.len();
+        let rest = n - self.enumerated;
+        let m = self.at - self.enumerated;
+        let mean = self.sum / m as f64;
+        let var = ((self.sum2 - m as f64 * mean * mean) / (m - 1) as f64)
+            .max((self.test.sd_floor as f64).powi(2));
+        // The rest's share of the rays times the error of its mean.
+        let se = rest as f64 / n as f64
+            * (var / m as f64 * (rest - m) as f64 / (rest - 1) as f64).sqrt();
+        let estimate = self.c + (self.exact + mean * rest as f64) / n as f64;
+        let margin = self.test.z as f64 * se;
+        // A full trace that could be open is sent whatever the threshold
+        // (`SentPoint::changed`), unless clients hold open.
+        let held_below_open = quantize_ao(self.held) != u8::MAX;
+        let could_open = held_below_open && estimate + margin >= OPEN_FROM;
+        !could_open && (estimate - self.held as f64).abs() + margin <= self.tolerance as f64
+    }
+
+    /// Ends the run: `kept`'s marks become the rays that changed (a ray
+    /// not cast, of a point that stopped, keeps its mark).
+    pub fn finish(self, kept: &mut Kept) -> Outcome {
+        let mut changed = self.changed;
+        for &k in &self.rays[self.at..] {
             if kept.changed.has(k) {
-                exact += cast_ray(k, kept, &mut changed);
-                cast += 1;
-            }
-        }
-    }
-    // The rest, sampled in the spread order.
-    let rest = if enumerate { n - active } else { n };
-    let checks = [rest / 4, rest / 2, 3 * rest / 4];
-    let (mut sum, mut sum2, mut m) = (0.0f64, 0.0f64, 0usize);
-    let mut stopped = false;
-    for j in 0..n {
-        let k = order[(j + rot) % n];
-        if enumerate && kept.changed.has(k) {
-            continue;
-        }
-        let d = cast_ray(k, kept, &mut changed);
-        cast += 1;
-        sum += d;
-        sum2 += d * d;
-        m += 1;
-        if m >= 4 && m < rest && checks.contains(&m) {
-            let mean = sum / m as f64;
-            let var = ((sum2 - m as f64 * mean * mean) / (m - 1) as f64)
-                .max((test.sd_floor as f64).powi(2));
-            // The rest's share of the rays times the error of its mean.
-            let se = rest as f64 / n as f64
-                * (var / m as f64 * (rest - m) as f64 / (rest - 1) as f64).sqrt();
-            let estimate = c + (exact + mean * rest as f64) / n as f64;
-            let margin = test.z as f64 * se;
-            // A full trace that could be open is sent whatever the
-            // threshold (`SentPoint::changed`), unless clients hold open.
-            let could_open = held_below_open && estimate + margin >= OPEN_FROM;
-            if !could_open && (estimate - held as f64).abs() + margin <= tolerance as f64 {
-                stopped = true;
-                break;
-            }
-        }
-    }
-    // Rays not cast keep their marks (only a point that stopped has any).
-    if stopped {
-        for k in 0..rays {
-            if kept.changed.has(k) && !cast_mask.has(k) {
                 changed.set(k);
             }
         }
-    }
-    kept.changed = changed;
-    Outcome {
-        value: (!stopped).then(|| crate::trace::ao::ao_of_scores(&kept.scores)),
-        cast,
+        kept.changed = changed;
+        Outcome {
+            value: (!self.stopped).then(|| crate::trace::ao::ao_of_scores(&kept.scores)),
+            cast: self.at as u32,
+        }
     }
 }
 

@@ -25,7 +25,8 @@
 //! first trace of every point) and its accessors; [`config`] holds the
 //! settings, [`step`] one frame in its phases, [`bvh`] the BVHs it traces
 //! against, [`dirty`] the tracing and thresholds that make the dirty set,
-//! [`backend`] the [`AoBackend`] it may trace on instead, and [`report`]
+//! [`backend`] the [`AoBackend`] it may trace on instead, [`work`] what
+//! each chosen point casts (the same rules on either), and [`report`]
 //! what a frame did.
 
 pub(crate) mod backend;
@@ -44,6 +45,7 @@ pub(crate) mod report;
 mod slots;
 mod step;
 mod trend;
+mod work;
 
 use std::sync::Arc;
 

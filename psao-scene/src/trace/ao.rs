@@ -269,6 +269,19 @@ impl AoTracer {
         sums.iter().fold(0.0, |total, &s| total + s) / p.rays as f32
     }
 
+    /// The rays of a point to score against this tracer (`None`: every
+    /// ray scores 1, as there is nothing to trace from or nothing to
+    /// hit).
+    pub(crate) fn point_rays(
+        &self,
+        id: u32,
+        point: Vec3,
+        normal: Vec3,
+        p: &AoParams,
+    ) -> Option<PointRays> {
+        PointRays::new(id, point, normal, p).filter(|_| !self.top.is_empty())
+    }
+
     /// As [`trace_point_rays`](Self::trace_point_rays) for rays whose
     /// directions and lengths (`w`) are kept in `rays` (as
     /// [`PointRays::ray`] gives them), traced where `trace(k)`.
