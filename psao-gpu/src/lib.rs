@@ -49,4 +49,6 @@ pub use error::GpuError;
 #[cfg(feature = "baseline")]
 pub use sao::GpuSao;
 #[cfg(feature = "server")]
-pub use server::{accel::GpuScene, accel::TriangleOrder, ao::GpuAo, backend::GpuBackend};
+pub use server::{
+    accel::GpuScene, accel::TriangleOrder, ao::GpuAo, ao::JOB_CHUNK, backend::GpuBackend,
+};

@@ -85,6 +85,116 @@ fn gpu_ao_matches_the_cpu_backend_with_both_estimators_and_any_ray_count() {
 }
 
 #[test]
+fn single_rays_add_up_to_the_gpus_point_ao_bit_for_bit_and_bad_jobs_are_errors() {
+    let Some(ctx) = context() else { return };
+    let scene = default_scene();
+    let p = pipeline(&scene, 16.0, default_rays());
+    let (ids, mut pts, nrm) = world_points(&p);
+    // Some points with nothing to trace from: each of their rays scores 1.
+    for (k, p) in pts.iter_mut().enumerate().filter(|(k, _)| k % 97 == 0) {
+        *p = if k % 2 == 0 {
+            Vec3::NAN
+        } else {
+            Vec3::INFINITY
+        };
+    }
+    let n = pts.len();
+    let cpu_tracer = PosedScene::new(&scene, 0.0).unwrap().tracer();
+    let gpu_scene = GpuScene::new(&ctx, &scene).unwrap();
+    let ao = GpuAo::new(&ctx).unwrap();
+    for (rays, estimator) in [
+        (32, Estimator::ClosestHit),
+        (13, Estimator::ClosestHit),
+        (13, Estimator::LaineKarras),
+    ] {
+        let params = AoParams {
+            rays,
+            estimator,
+            ..AoParams::default()
+        };
+        // Every ray of every point, in a scrambled order; with 32 rays
+        // every job twice over as well, past one dispatch's jobs.
+        let mut jobs: Vec<RayJob> = (0..n as u32)
+            .flat_map(|point| (0..rays).map(move |ray| RayJob { point, ray }))
+            .collect();
+        jobs.sort_by_key(|j| hash(j.point.wrapping_mul(7919) ^ j.ray));
+        let once = jobs.len();
+        if rays == 32 {
+            while jobs.len() <= JOB_CHUNK {
+                jobs.extend_from_within(..once);
+            }
+        }
+        let scores = ao
+            .cast_rays(&ctx, &gpu_scene, &ids, &pts, &nrm, &jobs, &params)
+            .unwrap();
+        assert_eq!(scores.len(), jobs.len());
+        let mut per_point = vec![vec![f32::NAN; rays as usize]; n];
+        for (j, &s) in jobs.iter().zip(&scores).take(once) {
+            per_point[j.point as usize][j.ray as usize] = s;
+        }
+        // A ray cast again, in another dispatch, scores the same.
+        for (j, &s) in jobs.iter().zip(&scores).skip(once) {
+            let first = per_point[j.point as usize][j.ray as usize];
+            assert_eq!(s.to_bits(), first.to_bits(), "{j:?}");
+        }
+        // Summed as the AO pass sums them: its AO, bit for bit.
+        let whole = ao
+            .trace_ids(&ctx, &gpu_scene, &ids, &pts, &nrm, &params)
+            .unwrap();
+        let mut agree = 0usize;
+        for (i, scores) in per_point.iter().enumerate() {
+            assert_eq!(
+                ao_of_scores(scores).to_bits(),
+                whole.ao[i].to_bits(),
+                "{rays} rays, {estimator:?}: point {i}"
+            );
+            // The CPU's rays are the same rays.
+            let cpu = PointRays::new(ids[i], pts[i], nrm[i], &params);
+            for (k, &s) in scores.iter().enumerate() {
+                let c = cpu.as_ref().map_or(1.0, |r| r.score(&cpu_tracer, k as u32));
+                agree += usize::from((c - s).abs() <= 1e-3);
+            }
+            if !pts[i].is_finite() {
+                assert!(scores.iter().all(|&s| s == 1.0), "point {i}");
+            }
+        }
+        let share = agree as f64 / (n as f64 * rays as f64);
+        eprintln!(
+            "{rays} rays, {estimator:?}: {:.4}% of rays as on the CPU",
+            share * 100.0
+        );
+        assert!(share >= 0.999, "{rays} rays, {estimator:?}: {share}");
+    }
+    let params = AoParams::default();
+    // Nothing asked, nothing cast.
+    let none = ao.cast_rays(&ctx, &gpu_scene, &ids, &pts, &nrm, &[], &params);
+    assert_eq!(none.unwrap(), Vec::<f32>::new());
+    // A job past the batch or the point's rays is an error naming it.
+    for bad in [
+        RayJob {
+            point: n as u32,
+            ray: 0,
+        },
+        RayJob {
+            point: 0,
+            ray: params.rays,
+        },
+    ] {
+        let jobs = [RayJob { point: 1, ray: 1 }, bad];
+        let e = ao
+            .cast_rays(&ctx, &gpu_scene, &ids, &pts, &nrm, &jobs, &params)
+            .unwrap_err();
+        assert!(matches!(e, GpuError::Input(_)), "{e}");
+        assert!(e.to_string().contains("ray job 1"), "{e}");
+    }
+    // Points, normals and ids that do not line up.
+    let e = ao
+        .cast_rays(&ctx, &gpu_scene, &ids[1..], &pts, &nrm, &[], &params)
+        .unwrap_err();
+    assert!(matches!(e, GpuError::Input(_)), "{e}");
+}
+
+#[test]
 fn rays_pass_through_alpha_mask_holes_on_the_gpu_as_on_the_cpu() {
     let Some(ctx) = context() else { return };
     let scene = default_scene();
@@ -266,18 +376,55 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
     // traces (no kept ray scores, which only the CPU tracer has and which
     // make its points cheaper under a budget), so they take the same
     // budget decisions and must send the same frames.
+    // With kept ray scores too (ray reuse and early decisions): the GPU
+    // casts the rays each point asks for (`AoBackend::cast_rays`), so
+    // both take the same decisions from the same scores, cast the same
+    // rays and send the same frames.
     let budget = RayBudget::Rays(800);
-    for (name, scene, settle_steps, lead, budget) in [
-        ("default", default_scene(), 0, 0.0, RayBudget::Unlimited),
+    let (plain, kept) = (false, true);
+    for (name, scene, settle_steps, lead, budget, scores) in [
+        (
+            "default",
+            default_scene(),
+            0,
+            0.0,
+            RayBudget::Unlimited,
+            plain,
+        ),
         (
             "default, settling, lead",
             default_scene(),
             1,
             1.0 / 30.0,
             RayBudget::Unlimited,
+            plain,
         ),
-        ("morph cube", morph, 0, 0.0, RayBudget::Unlimited),
-        ("default, a budget", default_scene(), 0, 0.0, budget),
+        (
+            "morph cube",
+            morph.clone(),
+            0,
+            0.0,
+            RayBudget::Unlimited,
+            plain,
+        ),
+        ("default, a budget", default_scene(), 0, 0.0, budget, plain),
+        (
+            "default, a budget, kept scores",
+            default_scene(),
+            0,
+            0.0,
+            budget,
+            kept,
+        ),
+        (
+            "default, kept scores",
+            default_scene(),
+            0,
+            0.0,
+            RayBudget::Unlimited,
+            kept,
+        ),
+        ("morph cube, kept scores", morph, 0, 0.0, budget, kept),
     ] {
         let config = PipelineConfig {
             density: 16.0,
@@ -288,7 +435,11 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
             settle_steps,
             lead,
             budget,
-            ray_reuse: budget == RayBudget::Unlimited,
+            ray_reuse: budget == RayBudget::Unlimited || scores,
+            early: scores.then(EarlyDecisions::default),
+            // Points known open cast no ray on the CPU alone: off, so
+            // that the rays cast compare.
+            skip_open: !scores,
             ..PipelineConfig::default()
         };
         let mut cpu = Pipeline::new(scene.clone(), config.clone()).unwrap();
@@ -302,10 +453,18 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
         assert_eq!(cpu.keyframe().unwrap().bytes, gpu.keyframe().unwrap().bytes);
         // The same points are traced and the same dirty sets sent.
         let (mut traced, mut deformed, mut settled, mut waited) = (0, 0, 0, 0);
+        let (mut early, mut rays_kept) = (0, 0);
         for _ in 0..20 {
             let (a, ra) = cpu.step(1.0 / 30.0).unwrap();
             let (b, rb) = gpu.step(1.0 / 30.0).unwrap();
             assert_eq!(ra.traced, rb.traced, "{name}");
+            if scores {
+                assert_eq!(ra.rays, rb.rays, "{name}: rays cast");
+                assert_eq!(ra.rays_kept, rb.rays_kept, "{name}: rays kept");
+                assert_eq!(ra.early, rb.early, "{name}: early stops");
+                early += rb.early;
+                rays_kept += rb.rays_kept;
+            }
             assert_eq!(ra.waiting, rb.waiting, "{name}: points left waiting");
             waited += rb.waiting;
             assert_eq!(ra.updated, rb.updated, "{name}: dirty sets differ");
@@ -316,6 +475,12 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
             deformed += rb.deformed;
         }
         assert!(traced > 0 && deformed > 0, "{name}: {traced} {deformed}");
+        // Kept scores at work on the GPU: rays kept, points stopped early.
+        assert_eq!(
+            (rays_kept > 0, early > 0),
+            (scores, scores),
+            "{name}: {rays_kept} rays kept, {early} early stops"
+        );
         assert_eq!(settled > 0, settle_steps > 0, "{name}: {settled} settled");
         // The budget bound: points waited for a later step.
         assert_eq!(

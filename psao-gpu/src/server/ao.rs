@@ -5,7 +5,7 @@
 //! on the GPU and hands back only the points worth sending.
 
 use psao_codec::{SentPoint, Thresholds, normal_table};
-use psao_scene::{AoParams, AoResult, ChangedPoints, Estimator, morton_order};
+use psao_scene::{AoParams, AoResult, ChangedPoints, Estimator, RayJob, morton_order};
 
 use crate::context::{GpuContext, storage_layout, uniform_layout};
 use crate::error::GpuError;
@@ -30,6 +30,10 @@ const SPREAD_BLOCK: usize = 64;
 /// device's storage binding limit, and short enough for a watchdog).
 const CHUNK: usize = 1 << 18;
 
+/// Most single rays cast in one dispatch ([`GpuAo::cast_rays`]): 8 MiB of
+/// jobs, and as many rays as [`CHUNK`] points of 4 rays.
+pub const JOB_CHUNK: usize = 1 << 20;
+
 /// The shader's `Params`.
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -42,6 +46,26 @@ struct Params {
     seed_hi: u32,
     count: u32,
     row: u32,
+}
+
+impl Params {
+    /// The shader's parameters for `p`, `count` points (or jobs) and
+    /// `row` invocations per row of workgroups.
+    fn new(p: &AoParams, count: usize, row: u32) -> Params {
+        Params {
+            radius: p.radius,
+            bias: p.bias,
+            rays: p.rays,
+            estimator: match p.estimator {
+                Estimator::ClosestHit => 0,
+                Estimator::LaineKarras => 1,
+            },
+            seed_lo: p.seed as u32,
+            seed_hi: (p.seed >> 32) as u32,
+            count: count as u32,
+            row,
+        }
+    }
 }
 
 /// The compare pass's `Params`.
@@ -73,6 +97,8 @@ struct SentGpu {
 pub struct GpuAo {
     pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
+    cast: wgpu::ComputePipeline,
+    cast_layout: wgpu::BindGroupLayout,
     compare: wgpu::ComputePipeline,
     compare_layout: wgpu::BindGroupLayout,
     normal_table: wgpu::Buffer,
@@ -163,6 +189,36 @@ impl GpuAo {
                 include_str!("../shaders/ao.wgsl"),
                 &[&layout],
             );
+            // The single-ray pass: the AO pass's bindings and the jobs.
+            let cast_layout =
+                ctx.device
+                    .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                        label: Some("psao-gpu cast layout"),
+                        entries: &[
+                            wgpu::BindGroupLayoutEntry {
+                                binding: 0,
+                                visibility: wgpu::ShaderStages::COMPUTE,
+                                ty: wgpu::BindingType::AccelerationStructure {
+                                    vertex_return: false,
+                                },
+                                count: None,
+                            },
+                            uniform_layout(1),
+                            storage_layout(2, true),
+                            storage_layout(3, true),
+                            storage_layout(4, true),
+                            storage_layout(5, false),
+                            storage_layout(6, true),
+                            storage_layout(7, true),
+                            storage_layout(8, true),
+                        ],
+                    });
+            let cast = ctx.compute_pipeline_at(
+                "psao-gpu ao.wgsl cast",
+                include_str!("../shaders/ao.wgsl"),
+                "cast_rays",
+                &[&cast_layout],
+            );
             let compare_layout =
                 ctx.device
                     .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -195,6 +251,8 @@ impl GpuAo {
             GpuAo {
                 pipeline,
                 layout,
+                cast,
+                cast_layout,
                 compare,
                 compare_layout,
                 normal_table,
@@ -479,6 +537,116 @@ impl GpuAo {
         Ok((pairs, cells))
     }
 
+    /// The score of each ray of `jobs` (in its order) against `scene`,
+    /// as [`psao_scene::AoBackend::cast_rays`] asks: ray `ray` of point
+    /// `point`, with the CPU tracer's sampling, and the same arithmetic
+    /// as [`trace_ids`](Self::trace_ids), whose AO of a point is
+    /// [`psao_scene::ao_of_scores`] of its rays' scores, bit for bit. A
+    /// job naming a point or ray out of range is an
+    /// [`GpuError::Input`]. Jobs go out in Morton order of their points
+    /// (a point's rays and its neighbours' side by side), at most
+    /// [`JOB_CHUNK`] a dispatch, each with only the points it names.
+    #[allow(clippy::too_many_arguments)]
+    pub fn cast_rays(
+        &self,
+        ctx: &GpuContext,
+        scene: &GpuScene,
+        ids: &[u32],
+        points: &[glam::Vec3],
+        normals: &[glam::Vec3],
+        jobs: &[RayJob],
+        p: &AoParams,
+    ) -> Result<Vec<f32>, GpuError> {
+        p.validate()?;
+        let n = points.len();
+        if normals.len() != n || ids.len() != n {
+            return Err(GpuError::Input(format!(
+                "{n} points, {} normals and {} ids",
+                normals.len(),
+                ids.len()
+            )));
+        }
+        if let Some((j, job)) = jobs
+            .iter()
+            .enumerate()
+            .find(|(_, job)| job.point as usize >= n || job.ray >= p.rays)
+        {
+            return Err(GpuError::Input(format!(
+                "ray job {j} asks for ray {} of point {}, in a batch of {n} points of {} rays",
+                job.ray, job.point, p.rays
+            )));
+        }
+        let Some(tlas) = scene.tlas().filter(|_| !jobs.is_empty()) else {
+            // Nothing to hit (or nothing asked): every ray misses.
+            return Ok(vec![1.0; jobs.len()]);
+        };
+        // Each point's place in Morton order (blocks spread, as the AO
+        // pass orders them), and the jobs in that order.
+        let mut place = vec![0u32; n];
+        for (at, &i) in spread_blocks(&morton_order(points)).iter().enumerate() {
+            place[i] = at as u32;
+        }
+        let mut order: Vec<usize> = (0..jobs.len()).collect();
+        order.sort_unstable_by_key(|&j| (place[jobs[j].point as usize], jobs[j].ray, j));
+        let mut scores = vec![1.0f32; jobs.len()];
+        for chunk in order.chunks(JOB_CHUNK) {
+            // The points this chunk names, each once, in order.
+            let (mut pts, mut nrm, mut pid) = (Vec::new(), Vec::new(), Vec::new());
+            let mut list: Vec<[u32; 2]> = Vec::with_capacity(chunk.len());
+            let mut last = None;
+            for &j in chunk {
+                let i = jobs[j].point as usize;
+                if last != Some(i) {
+                    pts.push(points[i].extend(0.0).to_array());
+                    nrm.push(normals[i].extend(0.0).to_array());
+                    pid.push(ids[i]);
+                    last = Some(i);
+                }
+                list.push([pid.len() as u32 - 1, jobs[j].ray]);
+            }
+            let s = wgpu::BufferUsages::STORAGE;
+            let readback = ctx.checked("single-ray pass", || {
+                let grid = ctx.grid(chunk.len(), WORKGROUP);
+                let params = Params::new(p, chunk.len(), grid.0 * WORKGROUP);
+                let uniform = ctx.uniform("psao-gpu cast params", &params);
+                let pb = ctx.buffer_with("psao-gpu cast points", bytemuck::cast_slice(&pts), s);
+                let nb = ctx.buffer_with("psao-gpu cast normals", bytemuck::cast_slice(&nrm), s);
+                let ib = ctx.buffer_with("psao-gpu cast ids", bytemuck::cast_slice(&pid), s);
+                let jb = ctx.buffer_with("psao-gpu cast jobs", bytemuck::cast_slice(&list), s);
+                let out = ctx.storage_out("psao-gpu cast out", (chunk.len() * 4) as u64);
+                let entries: Vec<wgpu::BindGroupEntry<'_>> = [
+                    (0, tlas.as_binding()),
+                    (1, uniform.as_entire_binding()),
+                    (2, pb.as_entire_binding()),
+                    (3, nb.as_entire_binding()),
+                    (4, ib.as_entire_binding()),
+                    (5, out.as_entire_binding()),
+                    (8, jb.as_entire_binding()),
+                ]
+                .into_iter()
+                .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource })
+                .chain(scene.alpha().bind_entries())
+                .collect();
+                let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("psao-gpu cast bind"),
+                    layout: &self.cast_layout,
+                    entries: &entries,
+                });
+                let mut enc = ctx.encoder("psao-gpu cast");
+                GpuContext::record_pass(&mut enc, "psao-gpu cast", &self.cast, &[&bind], grid);
+                let readback = ctx.readback("psao-gpu cast readback", out.size());
+                enc.copy_buffer_to_buffer(&out, 0, &readback, 0, out.size());
+                ctx.queue.submit(Some(enc.finish()));
+                readback
+            })?;
+            let values = ctx.read_f32(&readback)?;
+            for (&j, &v) in chunk.iter().zip(&values) {
+                scores[j] = v;
+            }
+        }
+        Ok(scores)
+    }
+
     /// Records the AO pass over `range` of a sorted batch into `enc` and
     /// returns its output buffer (AO in sorted order). Call inside
     /// [`GpuContext::checked`].
@@ -495,19 +663,7 @@ impl GpuAo {
     ) -> wgpu::Buffer {
         let n = range.len();
         let grid = ctx.grid(n * LANES as usize, WORKGROUP);
-        let params = Params {
-            radius: p.radius,
-            bias: p.bias,
-            rays: p.rays,
-            estimator: match p.estimator {
-                Estimator::ClosestHit => 0,
-                Estimator::LaineKarras => 1,
-            },
-            seed_lo: p.seed as u32,
-            seed_hi: (p.seed >> 32) as u32,
-            count: n as u32,
-            row: grid.0 * WORKGROUP,
-        };
+        let params = Params::new(p, n, grid.0 * WORKGROUP);
         let s = wgpu::BufferUsages::STORAGE;
         let uniform = ctx.uniform("psao-gpu ao params", &params);
         let pb = ctx.buffer_with(
@@ -553,10 +709,14 @@ mod tests {
         let src = include_str!("../shaders/ao.wgsl");
         for decl in [
             format!("const LANES: u32 = {LANES}u;"),
-            format!("@workgroup_size({WORKGROUP})"),
             format!("var<workgroup> partial: array<f32, {WORKGROUP}>;"),
         ] {
             assert_eq!(src.matches(&decl).count(), 1, "ao.wgsl lacks `{decl}`");
         }
+        // Both entry points (the AO pass and the single-ray pass), each
+        // with the host's workgroup size.
+        let sized = format!("@workgroup_size({WORKGROUP})");
+        assert_eq!(src.matches("@workgroup_size(").count(), 2);
+        assert_eq!(src.matches(&sized).count(), 2, "ao.wgsl lacks `{sized}`");
     }
 }

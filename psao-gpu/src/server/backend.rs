@@ -4,7 +4,7 @@
 
 use glam::{Affine3A, Vec3};
 use psao_codec::{SentPoint, Thresholds};
-use psao_scene::{AoBackend, AoParams, AoResult, ChangedPoints, Scene, SceneError};
+use psao_scene::{AoBackend, AoParams, AoResult, ChangedPoints, RayJob, Scene, SceneError};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -66,6 +66,25 @@ impl AoBackend for GpuBackend {
     ) -> Result<AoResult, SceneError> {
         self.ao
             .trace_ids(&self.ctx, &self.accel, ids, points, normals, params)
+            .map_err(|e| self.fail(e))
+    }
+
+    /// It does: the pipeline keeps ray scores on the GPU as on the CPU.
+    fn casts_rays(&self) -> bool {
+        true
+    }
+
+    /// Casts them on the GPU ([`GpuAo::cast_rays`]).
+    fn cast_rays(
+        &mut self,
+        ids: &[u32],
+        points: &[Vec3],
+        normals: &[Vec3],
+        jobs: &[RayJob],
+        params: &AoParams,
+    ) -> Result<Vec<f32>, SceneError> {
+        self.ao
+            .cast_rays(&self.ctx, &self.accel, ids, points, normals, jobs, params)
             .map_err(|e| self.fail(e))
     }
 

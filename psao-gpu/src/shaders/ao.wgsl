@@ -212,14 +212,28 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     }
 }
 
-// Adds to `sum` the scores of rays lane, lane + LANES, ... of point `i`;
-// returns 0, or 1 where the point's AO is 1 without tracing (no rays, or
-// no finite origin).
-fn trace(i: u32, lane: u32, sum: ptr<function, f32>) -> u32 {
+// A point's frame for its rays: where they start, the basis about its
+// normal, and its per-point random offsets.
+struct Frame {
+    // 0: trace; 1: AO is 1 without tracing (no rays, or no finite origin).
+    state: u32,
+    origin: vec3<f32>,
+    n: vec3<f32>,
+    t1: vec3<f32>,
+    t2: vec3<f32>,
+    id: u32,
+    shift: u32,
+    azimuth: u32,
+}
+
+// Point `i`'s frame, as psao_scene::PointRays::new.
+fn frame(i: u32) -> Frame {
+    var f: Frame;
+    f.state = 1u;
     let point = points[i].xyz;
-    let id = ids[i];
+    f.id = ids[i];
     if (params.rays == 0u || !finite3(point)) {
-        return 1u;
+        return f;
     }
     // Normalized as glam's try_normalize (times the reciprocal length), or
     // +Z as the CPU's fallback.
@@ -235,32 +249,71 @@ fn trace(i: u32, lane: u32, sum: ptr<function, f32>) -> u32 {
     let sign = select(1.0, -1.0, (bitcast<u32>(n.z) & 0x80000000u) != 0u);
     let a = -1.0 / (sign + n.z);
     let b = n.x * n.y * a;
-    let t1 = vec3<f32>(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
-    let t2 = vec3<f32>(b, sign + n.y * n.y * a, -n.y);
-    let origin = point + n * ray_offset(point);
-    if (!finite3(origin)) {
-        return 1u;
+    f.n = n;
+    f.t1 = vec3<f32>(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+    f.t2 = vec3<f32>(b, sign + n.y * n.y * a, -n.y);
+    f.origin = point + n * ray_offset(point);
+    if (!finite3(f.origin)) {
+        return f;
     }
-    let shift = hash(params.seed_lo ^ hash(id ^ hash(params.seed_hi)));
-    let azimuth = hash(shift);
+    f.shift = hash(params.seed_lo ^ hash(f.id ^ hash(params.seed_hi)));
+    f.azimuth = hash(f.shift);
+    f.state = 0u;
+    return f;
+}
+
+// The score of ray k of a point with frame f (state 0), as
+// psao_scene::PointRays::score: min(t, R) / R, or 1 or 0.
+fn score(f: Frame, k: u32) -> f32 {
+    let r1 = (f32(k) + uniform01(f.id, 3u * k)) / f32(params.rays);
+    let r2 = f32((k * GOLDEN + f.azimuth) >> 8u) / 16777216.0;
+    // sin and cos of phi in [0, 2 pi), taken in [-pi, pi) where their
+    // accuracy is bounded: sin(x) = -sin(x - pi), cos(x) = -cos(x - pi).
+    let phi = TAU * r2 - PI;
+    let s = -sin(phi);
+    let c = -cos(phi);
+    let rr = sqrt(r1);
+    let dir = f.t1 * (rr * c) + f.t2 * (rr * s) + f.n * sqrt(max(1.0 - r1, 0.0));
+    if (params.estimator == 0u) {
+        return closest(f.origin, dir, params.radius) / params.radius;
+    }
+    let u = f32((k * SQRT2 + f.shift) >> 8u) / 16777216.0;
+    if (misses(f.origin, dir, u * params.radius)) {
+        return 1.0;
+    }
+    return 0.0;
+}
+
+// Adds to `sum` the scores of rays lane, lane + LANES, ... of point `i`;
+// returns 0, or 1 where the point's AO is 1 without tracing (no rays, or
+// no finite origin).
+fn trace(i: u32, lane: u32, sum: ptr<function, f32>) -> u32 {
+    let f = frame(i);
+    if (f.state != 0u) {
+        return f.state;
+    }
     for (var k = lane; k < params.rays; k = k + LANES) {
-        let r1 = (f32(k) + uniform01(id, 3u * k)) / f32(params.rays);
-        let r2 = f32((k * GOLDEN + azimuth) >> 8u) / 16777216.0;
-        // sin and cos of phi in [0, 2 pi), taken in [-pi, pi) where their
-        // accuracy is bounded: sin(x) = -sin(x - pi), cos(x) = -cos(x - pi).
-        let phi = TAU * r2 - PI;
-        let s = -sin(phi);
-        let c = -cos(phi);
-        let rr = sqrt(r1);
-        let dir = t1 * (rr * c) + t2 * (rr * s) + n * sqrt(max(1.0 - r1, 0.0));
-        if (params.estimator == 0u) {
-            *sum = *sum + closest(origin, dir, params.radius) / params.radius;
-        } else {
-            let u = f32((k * SQRT2 + shift) >> 8u) / 16777216.0;
-            if (misses(origin, dir, u * params.radius)) {
-                *sum = *sum + 1.0;
-            }
-        }
+        *sum = *sum + score(f, k);
     }
     return 0u;
+}
+
+// Single rays (psao_scene::AoBackend::cast_rays): per invocation, ray
+// jobs[j].y of point jobs[j].x, its score written to ao[j] (1 for a point
+// with nothing to trace from). `params.count` counts the jobs.
+@group(0) @binding(8) var<storage, read> jobs: array<vec2<u32>>;
+
+@compute @workgroup_size(64)
+fn cast_rays(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let j = gid.x + gid.y * params.row;
+    if (j >= params.count) {
+        return;
+    }
+    let job = jobs[j];
+    let f = frame(job.x);
+    if (f.state != 0u) {
+        ao[j] = 1.0;
+    } else {
+        ao[j] = score(f, job.y);
+    }
 }

@@ -91,7 +91,7 @@ impl Pipeline {
         let rays = ao.rays;
         // Without skipping every point is traced in full (the baseline).
         let reuse = self.config.ray_reuse && self.config.skip;
-        let cache = reuse && self.backend.is_none();
+        let cache = reuse && self.keeps_ray_scores();
         let (waiting_list, ray_cache) = (&self.waiting, &self.ray_cache);
         let (envelope_rays, masks) = (&self.envelope_rays, &self.envelope_masks);
         let rested = &self.early_rested;
