@@ -30,8 +30,12 @@ const SPREAD_BLOCK: usize = 64;
 /// device's storage binding limit, and short enough for a watchdog).
 const CHUNK: usize = 1 << 18;
 
+/// Single-ray jobs per invocation (the shader's `JOBS_PER`): a point's
+/// frame is worked out once for its run of them.
+const JOBS_PER: usize = 4;
+
 /// Most single rays cast in one dispatch ([`GpuAo::cast_rays`]): 8 MiB of
-/// jobs, and as many rays as [`CHUNK`] points of 4 rays.
+/// jobs, within every device's storage binding limit.
 pub const JOB_CHUNK: usize = 1 << 20;
 
 /// The shader's `Params`.
@@ -580,14 +584,27 @@ impl GpuAo {
             // Nothing to hit (or nothing asked): every ray misses.
             return Ok(vec![1.0; jobs.len()]);
         };
-        // Each point's place in Morton order (blocks spread, as the AO
-        // pass orders them), and the jobs in that order.
-        let mut place = vec![0u32; n];
-        for (at, &i) in spread_blocks(&morton_order(points)).iter().enumerate() {
-            place[i] = at as u32;
+        // The jobs by their points in Morton order (blocks spread, as the
+        // AO pass orders them), each point's in their order: a counting
+        // sort by point.
+        let mut start = vec![0usize; n + 1];
+        for job in jobs {
+            start[job.point as usize + 1] += 1;
         }
-        let mut order: Vec<usize> = (0..jobs.len()).collect();
-        order.sort_unstable_by_key(|&j| (place[jobs[j].point as usize], jobs[j].ray, j));
+        for i in 0..n {
+            start[i + 1] += start[i];
+        }
+        let mut by_point = vec![0usize; jobs.len()];
+        let mut fill = start.clone();
+        for (j, job) in jobs.iter().enumerate() {
+            let at = &mut fill[job.point as usize];
+            by_point[*at] = j;
+            *at += 1;
+        }
+        let order: Vec<usize> = spread_blocks(&morton_order(points))
+            .into_iter()
+            .flat_map(|i| by_point[start[i]..start[i + 1]].iter().copied())
+            .collect();
         let mut scores = vec![1.0f32; jobs.len()];
         for chunk in order.chunks(JOB_CHUNK) {
             // The points this chunk names, each once, in order.
@@ -606,7 +623,8 @@ impl GpuAo {
             }
             let s = wgpu::BufferUsages::STORAGE;
             let readback = ctx.checked("single-ray pass", || {
-                let grid = ctx.grid(chunk.len(), WORKGROUP);
+                let runs = chunk.len().div_ceil(LANES as usize * JOBS_PER);
+                let grid = ctx.grid(runs * LANES as usize, WORKGROUP);
                 let params = Params::new(p, chunk.len(), grid.0 * WORKGROUP);
                 let uniform = ctx.uniform("psao-gpu cast params", &params);
                 let pb = ctx.buffer_with("psao-gpu cast points", bytemuck::cast_slice(&pts), s);
@@ -709,6 +727,7 @@ mod tests {
         let src = include_str!("../shaders/ao.wgsl");
         for decl in [
             format!("const LANES: u32 = {LANES}u;"),
+            format!("const JOBS_PER: u32 = {JOBS_PER}u;"),
             format!("var<workgroup> partial: array<f32, {WORKGROUP}>;"),
         ] {
             assert_eq!(src.matches(&decl).count(), 1, "ao.wgsl lacks `{decl}`");

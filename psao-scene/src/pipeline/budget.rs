@@ -50,18 +50,20 @@
 //! planning, as a point waiting for a full trace is; where the rays it
 //! then needs no longer fit the budget, it waits on (unless overdue).
 //!
-//! A point costs the rays it traces. On the CPU backend with ray reuse
-//! that is only the rays motion reached (the others' scores are kept),
+//! A point costs the rays it traces. With ray reuse that is only the
+//! rays motion reached (the others' scores are kept, on the CPU tracer or
+//! a backend that casts single rays, as psao-gpu's does),
 //! and with early decisions a moving point that may stop early costs what
 //! such points cast on average in the last step. (A point chosen in full
 //! may then turn out to be open without a ray,
 //! [`PipelineConfig::skip_open`]: it casts none, but was chosen at the
 //! cost of its rays, so the choices do not depend on it.) A backend
-//! without kept scores (psao-gpu's) traces every ray of a point it
-//! traces, so the same budget takes fewer points there. With the same
-//! costs (ray reuse and early decisions off) the backends take the same
-//! decisions and send the same frames, byte for byte (psao-gpu's tests
-//! check it).
+//! that casts no single rays keeps no scores and traces every ray of a
+//! point it traces, so the same budget takes fewer points there. With
+//! the same costs the backends take the same decisions and send the same
+//! frames, byte for byte, wherever their rays score alike (psao-gpu's
+//! tests check it on the default scene and a morphing cube, with kept
+//! scores and early decisions and without).
 //!
 //! [`PipelineConfig::max_wait`]: super::config::PipelineConfig::max_wait
 //! [`PipelineConfig::max_wait_limit`]: super::config::PipelineConfig::max_wait_limit

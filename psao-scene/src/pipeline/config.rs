@@ -117,9 +117,11 @@ pub struct PipelineConfig {
     pub bind_space: bool,
     /// A static point that motion may reach re-traces only the rays that
     /// enter what moved (the boxes of the moving instances before and
-    /// after the step), and is not traced at all when none does; with the
-    /// CPU tracer, its other rays' scores are kept from its last trace
-    /// (the pipeline's `ray_cache`, up to
+    /// after the step), and is not traced at all when none does; its
+    /// other rays' scores are kept from its last trace (with the CPU
+    /// tracer, or a backend that casts single rays,
+    /// [`AoBackend::casts_rays`](crate::AoBackend::casts_rays), as
+    /// psao-gpu's does; the pipeline's `ray_cache`, up to
     /// [`ray_cache_bytes`](Self::ray_cache_bytes)). Frames are the same,
     /// byte for byte, as with every reached point traced in full (true);
     /// or every point within reach of motion is traced in full (false:
@@ -134,20 +136,24 @@ pub struct PipelineConfig {
     /// at the cost of its rays, and decides as its rays would); the step
     /// takes less time, which an automatic budget measures. Only with the
     /// CPU tracer and
-    /// [`skip`](Self::skip): a backend (psao-gpu's) casts them.
+    /// [`skip`](Self::skip): a backend (psao-gpu's) casts them, so the
+    /// rays it reports cast may be more than the CPU's for the same
+    /// frames.
     pub skip_open: bool,
     /// Most bytes the kept ray scores take (64 MiB: about 94,000 points
     /// of 32 rays, at 712 bytes each with their rays' directions);
     /// beyond it, points are traced in full.
     pub ray_cache_bytes: u64,
     /// How many rays a step may trace ([`RayBudget::Unlimited`]: every
-    /// point motion reached, in its step). A backend
-    /// ([`AoBackend`](crate::AoBackend), such as psao-gpu's) keeps no ray
-    /// scores, so each point it traces costs all its rays: under a budget
-    /// it may put off other points than the CPU tracer would, and its
-    /// frames then differ from the CPU's; unbudgeted, they are the same.
-    /// Under a budget a backend reads every traced point's AO back (not
-    /// only the changed ones), for the points' trends that rank them.
+    /// point motion reached, in its step). A backend that casts single
+    /// rays ([`AoBackend::casts_rays`](crate::AoBackend::casts_rays), as
+    /// psao-gpu's does) keeps ray scores as the CPU tracer does, so the
+    /// same points cost the same rays on both and both take the same
+    /// decisions. One that does not keeps none, so each point it traces
+    /// costs all its rays: with ray reuse or early decisions on, it may
+    /// then put off other points than the CPU tracer would. Under a
+    /// budget a backend reads every traced point's AO back (not only the
+    /// changed ones), for the points' trends that rank them.
     pub budget: RayBudget,
     /// Under a budget, the most steps a point waits while the budget
     /// affords it (8): one that waited its due, this long less a few
@@ -217,10 +223,11 @@ pub struct PipelineConfig {
     /// they hold less than open, to come out short of open (the
     /// pipeline's `early` module says how, and what error it can add).
     /// A point that goes on casts every ray and sends the full trace's
-    /// AO. CPU tracer only: a backend ([`AoBackend`](crate::AoBackend))
-    /// traces every ray, so with this set its frames may differ from the
-    /// CPU's where a decision was wrong; with it off (`None`, the
-    /// default) they are the same. Off too while
+    /// AO. With the CPU tracer, or a backend that casts single rays
+    /// ([`AoBackend::casts_rays`](crate::AoBackend::casts_rays), as
+    /// psao-gpu's does: it casts each point's rays a run at a time, all
+    /// points' runs together, and the same rules decide on its scores);
+    /// off on any other backend, which traces every ray. Off too while
     /// [`settle_steps`](Self::settle_steps) is set (settling needs every
     /// trace whole), without [`skip`](Self::skip) (the baseline), and
     /// below 8 rays a point.

@@ -465,11 +465,13 @@ impl Pipeline {
     /// traces each point that stopped early again, in full, in the scene
     /// as it is now (as that step left it), and compares it with what
     /// clients hold, as the thresholds would. A measurement for
-    /// benchmarks and tests: it costs a full trace of those points. Call
-    /// it right after [`step`](Self::step).
+    /// benchmarks and tests: it costs a full trace of those points, on
+    /// the CPU tracer whatever the backend. Call it right after
+    /// [`step`](Self::step).
     pub fn early_audit(&mut self) -> Result<super::early::EarlyAudit, SceneError> {
         if self.last_early.is_empty() {
-            // Nothing stopped early (always so with a backend).
+            // Nothing stopped early (always so on a backend that casts no
+            // single rays).
             return Ok(super::early::EarlyAudit::default());
         }
         let mut which: Vec<Vec<u32>> = vec![Vec::new(); self.instances.len()];
@@ -499,7 +501,7 @@ impl Pipeline {
 
     /// The early decisions this pipeline makes: its
     /// [`PipelineConfig::early`](super::config::PipelineConfig::early)
-    /// where they apply (the CPU tracer, skipping on, settling off, at
+    /// where they apply (ray scores kept, skipping on, settling off, at
     /// least 8 rays a point).
     pub(super) fn early_decisions(&self) -> Option<super::early::EarlyDecisions> {
         let c = &self.config;

@@ -56,9 +56,11 @@
 //! last step's early stops in full and counts the wrong ones; BENCHMARKS.md
 //! measures them and their cost in PSNR.
 //!
-//! Only the CPU tracer decides early, and only for points of instances
-//! that moved or deformed this step (a static point re-traces only the
-//! rays motion reached, the others' scores kept: see `reach`).
+//! The CPU tracer decides early, and so does a backend that casts single
+//! rays (psao-gpu's), on its own scores by the same [`EarlyRun`]; only
+//! for points of instances that moved or deformed this step (a static
+//! point re-traces only the rays motion reached, the others' scores
+//! kept: see `reach`).
 
 use psao_codec::wire::point::quantize_ao;
 use rustc_hash::FxHashMap;

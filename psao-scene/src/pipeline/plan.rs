@@ -81,7 +81,8 @@ impl Pipeline {
     /// How each point of `batch` is traced this step: in full for a moving
     /// instance (or without ray reuse); for a static one only the rays
     /// motion reaches (and those it reached while the point waited), with
-    /// the other rays' scores kept where the CPU tracer keeps them, in
+    /// the other rays' scores kept where they are kept (the CPU tracer, or
+    /// a backend that casts single rays), in
     /// full where it has none; not at all when none is reached and the
     /// point does not wait. Only a point's rays that reach the envelope
     /// are tested, once they are known; with each plan, what was learnt
