@@ -2,14 +2,16 @@
 //! stepped at 60 Hz on the CPU backend and on the GPU backend (wgpu ray
 //! queries), same scene, same settings, same run; mean milliseconds per
 //! tick of each stage of `psao_scene::FrameReport`, for three ways of
-//! keeping ray scores: none (every point traced traces all its rays: the
-//! GPU backend's only way before it cast single rays), ray reuse (a
-//! static point re-casts only the rays motion reached), and ray reuse
-//! with early decisions. On the GPU backend the trace stage holds placing
-//! the acceleration structures (skinned BLAS rebuild, TLAS), the AO or
+//! keeping ray scores: none (every point within reach of motion traces
+//! all its rays), ray reuse (a static point re-casts only the rays motion
+//! reached), and ray reuse with early decisions; the GPU backend tracing
+//! whole points (its default: no scores kept, every ray of a point it
+//! traces) and casting single rays (`GpuBackend::with_single_rays`: the
+//! CPU's rules). On the GPU backend the trace stage holds placing the
+//! acceleration structures (skinned BLAS rebuild, TLAS), the AO or
 //! single-ray passes and reading back what they give. Each row prints a
 //! digest of its frames: the same scores kept on both backends send the
-//! same frames.
+//! same frames wherever the backends' rays score alike.
 //!
 //! `cargo run --release -p psao-gpu --example gpu_pipeline [-- --density 128 --frames 120 --ray-budget 0]`
 //! (`--ray-budget 0`: none)
@@ -39,6 +41,7 @@ fn main() {
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     let early = Some(EarlyDecisions::default());
+    // Per configuration, per backend: (ms per tick, frames digest).
     let mut totals = Vec::new();
     for (scores, ray_reuse, early) in [
         ("none", false, None),
@@ -53,12 +56,26 @@ fn main() {
             ..PipelineConfig::default()
         };
         let mut row = Vec::new();
-        for gpu in [false, true] {
-            let mut p = if gpu {
-                let backend = GpuBackend::new(&scene).expect("GPU backend");
-                Pipeline::with_backend(scene.clone(), config.clone(), Box::new(backend))
-            } else {
-                Pipeline::new(scene.clone(), config.clone())
+        // The CPU; the GPU tracing whole points; the GPU casting single
+        // rays (the same as whole points where no scores are kept).
+        let backends: &[(&str, Option<bool>)] = if ray_reuse {
+            &[
+                ("CPU", None),
+                ("GPU, whole points", Some(false)),
+                ("GPU, single rays", Some(true)),
+            ]
+        } else {
+            &[("CPU", None), ("GPU, whole points", Some(false))]
+        };
+        for &(name, gpu) in backends {
+            let mut p = match gpu {
+                Some(single) => {
+                    let backend = GpuBackend::new(&scene)
+                        .expect("GPU backend")
+                        .with_single_rays(single);
+                    Pipeline::with_backend(scene.clone(), config.clone(), Box::new(backend))
+                }
+                None => Pipeline::new(scene.clone(), config.clone()),
             }
             .expect("the default scene builds");
             let mut digest = DefaultHasher::new();
@@ -76,8 +93,7 @@ fn main() {
             let per = |n: u64| n as f64 / frames as f64;
             let digest = digest.finish();
             println!(
-                "| {scores} | {} | {:.0} | {:.0} | {:.0} | {:.2} | {:.2} | {:.2} | {:.2} ({:.2}, {:.2}, {:.2}) | {:.2} | {:.2} | {digest:016x} |",
-                if gpu { "GPU" } else { "CPU" },
+                "| {scores} | {name} | {:.0} | {:.0} | {:.0} | {:.2} | {:.2} | {:.2} | {:.2} ({:.2}, {:.2}, {:.2}) | {:.2} | {:.2} | {digest:016x} |",
                 per(sum.traced),
                 per(sum.rays),
                 per(sum.early),
@@ -91,25 +107,22 @@ fn main() {
                 ms(sum.t_encode),
                 ms(sum.total_time())
             );
-            row.push((ms(sum.total_time()), digest));
+            row.push((name, ms(sum.total_time()), digest));
         }
         totals.push((scores, row));
     }
     for (scores, row) in &totals {
-        println!(
-            "scores kept: {scores}: GPU / CPU per tick {:.2}x; frames {}",
-            row[1].0 / row[0].0,
-            if row[0].1 == row[1].1 {
-                "the same on both"
-            } else {
-                "differ"
-            }
-        );
+        let (_, cpu, cpu_digest) = row[0];
+        for &(name, ms, digest) in &row[1..] {
+            println!(
+                "scores kept: {scores}: {name} / CPU per tick {:.2}x; frames {}",
+                ms / cpu,
+                if digest == cpu_digest {
+                    "the same as the CPU's"
+                } else {
+                    "differ from the CPU's"
+                }
+            );
+        }
     }
-    let gpu = |k: usize| totals[k].1[1].0;
-    println!(
-        "GPU per tick against no scores kept: ray reuse {:.2}x, with early decisions {:.2}x",
-        gpu(1) / gpu(0),
-        gpu(2) / gpu(0)
-    );
 }

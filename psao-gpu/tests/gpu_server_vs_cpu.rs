@@ -377,7 +377,8 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
     // make its points cheaper under a budget), so they take the same
     // budget decisions and must send the same frames.
     // With kept ray scores too (ray reuse and early decisions): the GPU
-    // casts the rays each point asks for (`AoBackend::cast_rays`), so
+    // backend with single rays casts the rays each point asks for
+    // (`AoBackend::cast_rays`), so
     // both take the same decisions from the same scores, cast the same
     // rays and send the same frames.
     let budget = RayBudget::Rays(800);
@@ -443,7 +444,7 @@ fn a_pipeline_on_the_gpu_streams_the_same_frames_as_on_the_cpu() {
             ..PipelineConfig::default()
         };
         let mut cpu = Pipeline::new(scene.clone(), config.clone()).unwrap();
-        let backend = GpuBackend::new(&scene).unwrap();
+        let backend = GpuBackend::new(&scene).unwrap().with_single_rays(scores);
         let mut gpu = Pipeline::with_backend(scene, config, Box::new(backend)).unwrap();
         assert!(
             gpu.backend_name().starts_with("gpu"),

@@ -162,8 +162,9 @@ pub struct Settings {
     /// ([`PipelineConfig::early`](psao_scene::PipelineConfig::early), the
     /// defaults).
     pub early: bool,
-    /// PSAO servers on the CPU backend keep the scores of the rays motion
-    /// did not reach and re-trace only the reached ones
+    /// PSAO servers keep the scores of the rays motion did not reach and
+    /// re-trace only the reached ones (on the CPU backend, and on the GPU
+    /// backend, which casts single rays)
     /// ([`PipelineConfig::ray_reuse`](psao_scene::PipelineConfig::ray_reuse)),
     /// or (false: the baseline) every ray of a point they trace.
     pub ray_reuse: bool,
@@ -172,6 +173,11 @@ pub struct Settings {
     /// ([`PipelineConfig::skip_open`](psao_scene::PipelineConfig::skip_open)),
     /// or (false: the baseline) trace it.
     pub skip_open: bool,
+    /// On the GPU backend, PSAO servers cast single rays (psao-gpu's
+    /// `GpuBackend::with_single_rays`): ray scores kept as on the CPU,
+    /// with ray reuse and early decisions; or (false, the default) trace
+    /// whole points.
+    pub gpu_single_rays: bool,
     /// The PSAO client also leaves out candidate points its view shows
     /// hidden behind another surface that faces the pixel
     /// (spec/wire-format.md 7.3.1, [`psao_eval::psao_image_seen`]; true,
@@ -285,6 +291,7 @@ impl Settings {
             early: false,
             ray_reuse: true,
             skip_open: true,
+            gpu_single_rays: false,
             hidden_test: true,
             image_frames: ImageFrames::List(vec![0]),
         }
@@ -337,6 +344,9 @@ impl Settings {
         }
         if !(self.radius.is_finite() && self.radius > 0.0) {
             anyhow::bail!("--radius {} is not a positive number", self.radius);
+        }
+        if self.gpu_single_rays && self.backend != Backend::Gpu {
+            anyhow::bail!("--gpu-single-rays needs --backend gpu");
         }
         if self.backend == Backend::Gpu && !cfg!(feature = "gpu") {
             anyhow::bail!(
@@ -794,7 +804,7 @@ fn measure_psao(
     say("setup");
     let backend = match s.backend {
         Backend::Cpu => None,
-        Backend::Gpu => Some(gpu_backend(scene)?),
+        Backend::Gpu => Some(gpu_backend(scene, s.gpu_single_rays)?),
     };
     let mut pipeline =
         Pipeline::with_progress(scene.clone(), config, backend, &|p| say(&setup_message(p)))?;
@@ -942,14 +952,16 @@ fn measure_psao(
 
 /// A backend tracing with wgpu ray queries.
 #[cfg(feature = "gpu")]
-fn gpu_backend(scene: &Scene) -> anyhow::Result<Box<dyn AoBackend>> {
-    Ok(Box::new(psao_gpu::GpuBackend::new(scene)?))
+fn gpu_backend(scene: &Scene, single_rays: bool) -> anyhow::Result<Box<dyn AoBackend>> {
+    Ok(Box::new(
+        psao_gpu::GpuBackend::new(scene)?.with_single_rays(single_rays),
+    ))
 }
 
 /// Without the `gpu` feature there is no GPU backend (`Settings::validate`
 /// says so first).
 #[cfg(not(feature = "gpu"))]
-fn gpu_backend(_scene: &Scene) -> anyhow::Result<Box<dyn AoBackend>> {
+fn gpu_backend(_scene: &Scene, _single_rays: bool) -> anyhow::Result<Box<dyn AoBackend>> {
     Err(anyhow::anyhow!(
         "this psao was built without GPU support (--features gpu)"
     ))
@@ -996,6 +1008,20 @@ mod tests {
         assert!(s.validate().is_ok());
         s.image_frames = ImageFrames::All;
         assert!(s.validate().is_ok());
+    }
+
+    #[test]
+    fn single_rays_need_the_gpu_backend() {
+        let mut s = Settings::quick();
+        s.gpu_single_rays = true;
+        let e = s
+            .validate()
+            .expect_err("single rays on the CPU")
+            .to_string();
+        assert!(e.contains("--gpu-single-rays needs --backend gpu"), "{e}");
+        s.backend = Backend::Gpu;
+        // Accepted where psao-gpu is built in.
+        assert_eq!(s.validate().is_ok(), cfg!(feature = "gpu"));
     }
 
     #[test]

@@ -174,6 +174,12 @@ pub struct BenchArgs {
     /// choices).
     #[arg(long)]
     no_skip_open: bool,
+    /// With --backend gpu, servers cast single rays, keeping ray scores as
+    /// on the CPU (ray reuse and early decisions follow the CPU's rules),
+    /// instead of tracing every ray of each point they trace (the
+    /// default: on lavapipe it held more PSNR under an automatic budget).
+    #[arg(long)]
+    gpu_single_rays: bool,
     /// The PSAO client weighs every candidate point by eq. 2-3 alone
     /// (spec/wire-format.md 7.3, the paper's reconstruction), instead of
     /// also leaving out the points its view shows hidden behind another
@@ -250,6 +256,7 @@ impl BenchArgs {
         settings.max_wait_limit = self.max_wait_limit;
         settings.ray_reuse = !self.no_ray_reuse;
         settings.skip_open = !self.no_skip_open;
+        settings.gpu_single_rays = self.gpu_single_rays;
         settings.hidden_test = !self.no_hidden_test;
         settings.movers_every_step = self.movers_every_frame;
         settings.movers_whole = self.movers_whole;

@@ -90,9 +90,10 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
         s.reference_rays,
         s.radius,
         s.point_rays,
-        match s.backend {
-            super::Backend::Cpu => "CPU",
-            super::Backend::Gpu => "GPU",
+        match (s.backend, s.gpu_single_rays) {
+            (super::Backend::Cpu, _) => "CPU",
+            (super::Backend::Gpu, false) => "GPU (whole points)",
+            (super::Backend::Gpu, true) => "GPU (single rays)",
         },
         if s.fill_buried {
             "buried points take their visible neighbours' AO"

@@ -12,12 +12,25 @@ use crate::server::accel::GpuScene;
 use crate::server::ao::GpuAo;
 
 /// Ray-query AO for a server pipeline ([`psao_scene::Pipeline::with_backend`]).
+///
+/// It traces whole points by default: every ray of each point the
+/// pipeline traces, in the AO pass, compared with what clients hold on
+/// the GPU (motion's reach still leaves out the points none of whose rays
+/// it can reach). With [`with_single_rays`](Self::with_single_rays) it
+/// casts the rays the pipeline asks for instead
+/// ([`AoBackend::cast_rays`]), so that ray scores are kept as on the CPU
+/// tracer: ray reuse and early decisions then follow the CPU's rules, and
+/// the budget prices points alike on both. On lavapipe the rays that
+/// remain to cast cost about twice as much each, so whole points held
+/// more PSNR under an automatic budget there (BENCHMARKS.md, "The ray
+/// budget on the GPU backend").
 #[derive(Debug)]
 pub struct GpuBackend {
     ctx: GpuContext,
     scene: Scene,
     accel: GpuScene,
     ao: GpuAo,
+    single_rays: bool,
 }
 
 impl GpuBackend {
@@ -31,7 +44,16 @@ impl GpuBackend {
             scene: scene.clone(),
             accel,
             ao,
+            single_rays: false,
         })
+    }
+
+    /// Casts single rays (`true`: ray scores kept as on the CPU, with ray
+    /// reuse and early decisions where the pipeline's configuration asks
+    /// for them) or traces whole points (`false`, the default).
+    pub fn with_single_rays(mut self, on: bool) -> GpuBackend {
+        self.single_rays = on;
+        self
     }
 
     fn fail(&self, e: GpuError) -> SceneError {
@@ -69,9 +91,11 @@ impl AoBackend for GpuBackend {
             .map_err(|e| self.fail(e))
     }
 
-    /// It does: the pipeline keeps ray scores on the GPU as on the CPU.
+    /// Where [`with_single_rays`](GpuBackend::with_single_rays) asked
+    /// for it: the pipeline then keeps ray scores on the GPU as on the
+    /// CPU.
     fn casts_rays(&self) -> bool {
-        true
+        self.single_rays
     }
 
     /// Casts them on the GPU ([`GpuAo::cast_rays`]).
