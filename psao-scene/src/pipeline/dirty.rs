@@ -558,6 +558,9 @@ impl Pipeline {
             tolerance: th.ao_steps as f32 / 255.0,
             th: &th,
         });
+        // Every ray, in order: what a full trace casts.
+        let all: Vec<u32> = (0..rays).collect();
+        let all = all.as_slice();
         // What point `b` casts.
         let work_of = |b: usize, kept: Option<Kept>| -> PointWork {
             let (i, k) = batch.owner[b];
@@ -568,19 +571,19 @@ impl Pipeline {
             if let (Some(how), true) = (&moving, dynamic && changed[i]) {
                 let has_rays = PointRays::new(id, p, n, &ao).is_some();
                 let sent = &batch.sent[b];
-                return PointWork::moving(b, kept, sent, n, (rays, has_rays, open), how);
+                return PointWork::moving(b, kept, sent, n, (all, has_rays, open), how);
             }
             if !keep || dynamic {
                 // Nothing kept (a moving instance's point).
-                return PointWork::plain(b, rays, open);
+                return PointWork::plain(b, all, open);
             }
             let ones = || vec![1.0f32; rays as usize];
             match (plans[b], cache.get(key(i, k))) {
                 (Plan::Rays { need, .. }, Some(e)) if !open => {
-                    PointWork::kept(b, e.scores.to_vec(), Some(need), false)
+                    PointWork::kept(b, e.scores.to_vec(), (all, Some(need)), false)
                 }
                 // A full trace (or, were its scores gone, a partial one).
-                _ => PointWork::kept(b, ones(), None, open),
+                _ => PointWork::kept(b, ones(), (all, None), open),
             }
         };
         let mut done: Vec<Traced> = match tracer {
@@ -825,18 +828,15 @@ fn cast_on_cpu(
     }
     let b = w.b;
     let rays = tracer.point_rays(batch.ids[b], batch.points[b], batch.normals[b], ao);
-    let mut scores = Vec::with_capacity(ao.rays as usize);
     while !w.wants().is_empty() {
-        scores.clear();
-        scores.extend(w.wants().iter().map(|&k| match &rays {
+        w.take_each(|k| match &rays {
             // Nothing to trace from, or nothing to hit.
             None => 1.0,
             Some(r) => match kept_rays.and_then(|e| e.get(k as usize)) {
                 Some(d) => r.score_along(tracer, Vec3A::from(d.truncate()), d.w),
                 None => r.score(tracer, k),
             },
-        }));
-        w.take(&scores);
+        });
     }
     w.finish()
 }

@@ -268,11 +268,8 @@ pub(super) fn trace_early(
     mut score: impl FnMut(u32) -> f32,
 ) -> Outcome {
     let mut run = EarlyRun::new(order, rot, kept, held, tolerance, test);
-    let mut scores = Vec::with_capacity(kept.scores.len());
     while !run.wants().is_empty() {
-        scores.clear();
-        scores.extend(run.wants().iter().map(|&k| score(k)));
-        run.take(kept, &scores);
+        run.take_each(kept, &mut score);
     }
     run.finish(kept)
 }
@@ -298,9 +295,11 @@ pub(super) struct EarlyRun {
     /// How many of `rays` are enumerated.
     enumerated: usize,
     /// Where each run ends in `rays` (the last at `rays.len()`, the
-    /// others at a check).
-    ends: Vec<usize>,
-    /// The run to cast next (`ends.len()`: done).
+    /// others at a check): the first `runs` of them.
+    ends: [usize; 4],
+    /// How many runs there are.
+    runs: usize,
+    /// The run to cast next (`runs`: done).
     next: usize,
     /// How many of `rays` were cast.
     at: usize,
@@ -346,17 +345,20 @@ impl EarlyRun {
                 .filter(|&k| !(enumerate && kept.changed.has(k))),
         );
         let rest = n - enumerated;
-        let mut ends: Vec<usize> = [rest / 4, rest / 2, 3 * rest / 4]
-            .into_iter()
-            .filter(|&m| m >= 4 && m < rest)
-            .map(|m| enumerated + m)
-            .collect();
-        ends.dedup();
-        ends.push(n);
+        let (mut ends, mut runs) = ([n; 4], 0);
+        for m in [rest / 4, rest / 2, 3 * rest / 4] {
+            if m >= 4 && m < rest && (runs == 0 || ends[runs - 1] != enumerated + m) {
+                ends[runs] = enumerated + m;
+                runs += 1;
+            }
+        }
+        // The last run, to the end.
+        runs += 1;
         EarlyRun {
             rays: list,
             enumerated,
             ends,
+            runs,
             next: 0,
             at: 0,
             c,
@@ -373,21 +375,25 @@ impl EarlyRun {
 
     /// The rays to cast next, in order (none once decided).
     pub fn wants(&self) -> &[u32] {
-        match self.ends.get(self.next) {
+        match self.ends[..self.runs].get(self.next) {
             Some(&end) if !self.stopped => &self.rays[self.at..end],
             _ => &[],
         }
     }
 
-    /// Takes the scores of the rays [`wants`](Self::wants) gave, in its
-    /// order, into `kept`, and tests whether the point may stop.
-    pub fn take(&mut self, kept: &mut Kept, scores: &[f32]) {
-        let Some(&end) = self.ends.get(self.next).filter(|_| !self.stopped) else {
+    /// Takes the scores of the rays [`wants`](Self::wants) gave into
+    /// `kept`, `score(k)` giving ray `k`'s (called for each in that
+    /// order), and tests whether the point may stop.
+    pub fn take_each(&mut self, kept: &mut Kept, mut score: impl FnMut(u32) -> f32) {
+        let Some(&end) = self.ends[..self.runs]
+            .get(self.next)
+            .filter(|_| !self.stopped)
+        else {
             return;
         };
-        debug_assert_eq!(scores.len(), end - self.at);
-        for (j, &s) in (self.at..end).zip(scores) {
+        for j in self.at..end {
             let k = self.rays[j];
+            let s = score(k);
             let d = (s - kept.scores[k as usize]) as f64;
             kept.scores[k as usize] = s;
             if d.abs() > CHANGED {
@@ -402,7 +408,7 @@ impl EarlyRun {
         }
         self.at = end;
         self.next += 1;
-        if self.next < self.ends.len() {
+        if self.next < self.runs {
             self.stopped = self.may_stop();
         }
     }

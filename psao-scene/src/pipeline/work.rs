@@ -8,6 +8,8 @@
 //! [`Pipeline::trace_planned`]: super::Pipeline
 //! [`AoBackend::cast_rays`]: super::backend::AoBackend::cast_rays
 
+use std::borrow::Cow;
+
 use glam::Vec3;
 use psao_codec::SentPoint;
 use psao_codec::Thresholds;
@@ -49,15 +51,16 @@ enum How {
     Plain,
 }
 
-/// One chosen point's rays: which to cast next, and what came of them.
-pub(super) struct PointWork {
+/// One chosen point's rays: which to cast next, and what came of them
+/// (`'a`: the list of every ray, shared).
+pub(super) struct PointWork<'a> {
     /// Its index in the batch.
     pub b: usize,
     how: How,
     /// Every ray's score (not early): kept ones, cast ones written over.
     scores: Vec<f32>,
     /// The rays to cast (not early), in ray order; empty once cast.
-    rays: Vec<u32>,
+    rays: Cow<'a, [u32]>,
     /// Its rays are known to score 1 ([`Plan::Open`](super::plan::Plan)):
     /// they are taken as such, none cast.
     open: bool,
@@ -84,22 +87,22 @@ pub(super) struct Traced {
     pub priced: u64,
 }
 
-impl PointWork {
+impl<'a> PointWork<'a> {
     /// A moving instance's point `b` with early decisions (`how`): over
     /// its `kept` scores when it has them, has rays (`has_rays`), has not
     /// stopped [`max_stops`](EarlyDecisions::max_stops) times in a row,
     /// and could go unsent (clients hold a word for it, `sent`, that its
     /// position and normal alone would not send again); in full
     /// otherwise, keeping the scores for the next time. `normal`: its
-    /// world normal now.
+    /// world normal now; `all`: every ray, in order.
     pub fn moving(
         b: usize,
         kept: Option<Kept>,
         sent: &SentPoint,
         normal: Vec3,
-        (rays, has_rays, open): (u32, bool, bool),
+        (all, has_rays, open): (&'a [u32], bool, bool),
         how: &Moving,
-    ) -> PointWork {
+    ) -> PointWork<'a> {
         let held = dequantize_ao(sent.word.fields().ao);
         let could_stay = sent.word.is_allocated() && !sent.changed(held, how.th);
         let kind = match kept {
@@ -117,52 +120,53 @@ impl PointWork {
             }
             old => How::Moving { old, normal },
         };
-        let full = !matches!(kind, How::Early { .. });
-        PointWork::new(
-            b,
-            kind,
-            vec![1.0; if full { rays as usize } else { 0 }],
-            full,
-            open,
-        )
+        match kind {
+            How::Early { .. } => PointWork::new(b, kind, Vec::new(), &[], open),
+            _ => PointWork::new(b, kind, vec![1.0; all.len()], all, open),
+        }
     }
 
     /// A static point `b` whose scores are kept: `scores` those kept,
-    /// with the rays `need` to cast over them (every ray with nothing
-    /// kept: `scores` then all 1).
-    pub fn kept(b: usize, scores: Vec<f32>, need: Option<&RayMask>, open: bool) -> PointWork {
-        let rays = scores.len() as u32;
-        let mut w = PointWork::new(b, How::Kept, scores, need.is_none(), open);
-        if let Some(need) = need {
-            w.rays = (0..rays).filter(|&k| need.has(k)).collect();
+    /// with the rays `need` to cast over them (every ray, `all`, with
+    /// nothing kept: `scores` then all 1).
+    pub fn kept(
+        b: usize,
+        scores: Vec<f32>,
+        (all, need): (&'a [u32], Option<&RayMask>),
+        open: bool,
+    ) -> PointWork<'a> {
+        match need {
+            Some(need) => {
+                let rays: Vec<u32> = all.iter().copied().filter(|&k| need.has(k)).collect();
+                PointWork::new(b, How::Kept, scores, rays, open)
+            }
+            None => PointWork::new(b, How::Kept, scores, all, open),
         }
-        w
     }
 
-    /// A point `b` traced in full with nothing kept.
-    pub fn plain(b: usize, rays: u32, open: bool) -> PointWork {
-        PointWork::new(b, How::Plain, vec![1.0; rays as usize], true, open)
+    /// A point `b` traced in full (`all`: every ray) with nothing kept.
+    pub fn plain(b: usize, all: &'a [u32], open: bool) -> PointWork<'a> {
+        PointWork::new(b, How::Plain, vec![1.0; all.len()], all, open)
     }
 
-    fn new(b: usize, how: How, scores: Vec<f32>, every: bool, open: bool) -> PointWork {
-        let rays = if every {
-            (0..scores.len() as u32).collect()
-        } else {
-            Vec::new()
-        };
+    fn new(
+        b: usize,
+        how: How,
+        scores: Vec<f32>,
+        rays: impl Into<Cow<'a, [u32]>>,
+        open: bool,
+    ) -> PointWork<'a> {
         let mut w = PointWork {
             b,
             how,
             scores,
-            rays,
+            rays: rays.into(),
             open,
             taken: 0,
         };
         // A point known open decides as its rays would: each scores 1.
-        let mut ones = Vec::new();
         while open && !w.wants().is_empty() {
-            ones.resize(w.wants().len(), 1.0);
-            w.take(&ones);
+            w.take_each(|_| 1.0);
         }
         w
     }
@@ -184,14 +188,21 @@ impl PointWork {
     /// Takes the scores of the rays [`wants`](Self::wants) gave, in its
     /// order.
     pub fn take(&mut self, scores: &[f32]) {
-        self.taken += scores.len() as u64;
+        let mut scores = scores.iter();
+        self.take_each(|_| scores.next().copied().unwrap_or(1.0));
+    }
+
+    /// As [`take`](Self::take), with `score(k)` giving ray `k`'s score,
+    /// called for each ray [`wants`](Self::wants) gave, in its order.
+    pub fn take_each(&mut self, mut score: impl FnMut(u32) -> f32) {
+        self.taken += self.wants().len() as u64;
         match &mut self.how {
-            How::Early { run, kept, .. } => run.take(kept, scores),
+            How::Early { run, kept, .. } => run.take_each(kept, score),
             _ => {
-                for (&k, &s) in self.rays.iter().zip(scores) {
-                    self.scores[k as usize] = s;
+                for &k in self.rays.iter() {
+                    self.scores[k as usize] = score(k);
                 }
-                self.rays.clear();
+                self.rays = Cow::Borrowed(&[]);
             }
         }
     }
