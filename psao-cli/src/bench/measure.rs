@@ -164,7 +164,7 @@ pub struct Settings {
     pub early: bool,
     /// PSAO servers keep the scores of the rays motion did not reach and
     /// re-trace only the reached ones (on the CPU backend, and on the GPU
-    /// backend, which casts single rays)
+    /// backend with [`gpu_single_rays`](Self::gpu_single_rays))
     /// ([`PipelineConfig::ray_reuse`](psao_scene::PipelineConfig::ray_reuse)),
     /// or (false: the baseline) every ray of a point they trace.
     pub ray_reuse: bool,

@@ -601,9 +601,15 @@ impl GpuAo {
             by_point[*at] = j;
             *at += 1;
         }
-        let order: Vec<usize> = spread_blocks(&morton_order(points))
+        // Only the points named (a round of early decisions names few).
+        let named: Vec<usize> = (0..n).filter(|&i| start[i + 1] > start[i]).collect();
+        let named_pts: Vec<glam::Vec3> = named.iter().map(|&i| points[i]).collect();
+        let order: Vec<usize> = spread_blocks(&morton_order(&named_pts))
             .into_iter()
-            .flat_map(|i| by_point[start[i]..start[i + 1]].iter().copied())
+            .flat_map(|at| {
+                let i = named[at];
+                by_point[start[i]..start[i + 1]].iter().copied()
+            })
             .collect();
         let mut scores = vec![1.0f32; jobs.len()];
         for chunk in order.chunks(JOB_CHUNK) {
@@ -623,8 +629,7 @@ impl GpuAo {
             }
             let s = wgpu::BufferUsages::STORAGE;
             let readback = ctx.checked("single-ray pass", || {
-                let runs = chunk.len().div_ceil(LANES as usize * JOBS_PER);
-                let grid = ctx.grid(runs * LANES as usize, WORKGROUP);
+                let grid = ctx.grid(chunk.len().div_ceil(JOBS_PER), WORKGROUP);
                 let params = Params::new(p, chunk.len(), grid.0 * WORKGROUP);
                 let uniform = ctx.uniform("psao-gpu cast params", &params);
                 let pb = ctx.buffer_with("psao-gpu cast points", bytemuck::cast_slice(&pts), s);

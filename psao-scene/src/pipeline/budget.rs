@@ -52,7 +52,8 @@
 //!
 //! A point costs the rays it traces. With ray reuse that is only the
 //! rays motion reached (the others' scores are kept, on the CPU tracer or
-//! a backend that casts single rays, as psao-gpu's does),
+//! a backend that casts single rays, as psao-gpu's does with
+//! `GpuBackend::with_single_rays(true)`),
 //! and with early decisions a moving point that may stop early costs what
 //! such points cast on average in the last step. (A point chosen in full
 //! may then turn out to be open without a ray,

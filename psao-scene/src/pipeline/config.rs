@@ -121,7 +121,8 @@ pub struct PipelineConfig {
     /// other rays' scores are kept from its last trace (with the CPU
     /// tracer, or a backend that casts single rays,
     /// [`AoBackend::casts_rays`](crate::AoBackend::casts_rays), as
-    /// psao-gpu's does; the pipeline's `ray_cache`, up to
+    /// psao-gpu's does with `GpuBackend::with_single_rays(true)`; the
+    /// pipeline's `ray_cache`, up to
     /// [`ray_cache_bytes`](Self::ray_cache_bytes)). Frames are the same,
     /// byte for byte, as with every reached point traced in full (true);
     /// or every point within reach of motion is traced in full (false:
@@ -144,16 +145,16 @@ pub struct PipelineConfig {
     /// of 32 rays, at 712 bytes each with their rays' directions);
     /// beyond it, points are traced in full.
     pub ray_cache_bytes: u64,
-    /// How many rays a step may trace ([`RayBudget::Unlimited`]: every
-    /// point motion reached, in its step). A backend that casts single
-    /// rays ([`AoBackend::casts_rays`](crate::AoBackend::casts_rays), as
-    /// psao-gpu's does) keeps ray scores as the CPU tracer does, so the
-    /// same points cost the same rays on both and both take the same
-    /// decisions. One that does not keeps none, so each point it traces
-    /// costs all its rays: with ray reuse or early decisions on, it may
-    /// then put off other points than the CPU tracer would. Under a
-    /// budget a backend reads every traced point's AO back (not only the
-    /// changed ones), for the points' trends that rank them.
+    /// How many rays a step may trace ([`RayBudget::Unlimited`]: every point
+    /// motion reached, in its step). A backend that casts single rays
+    /// ([`AoBackend::casts_rays`](crate::AoBackend::casts_rays), as psao-gpu's
+    /// does with `GpuBackend::with_single_rays(true)`) keeps ray scores as the
+    /// CPU tracer does, so the same points cost the same rays on both and both
+    /// take the same decisions. One that does not keeps none, so each point it
+    /// traces costs all its rays: with ray reuse or early decisions on, it may
+    /// then put off other points than the CPU tracer would. Under a budget a
+    /// backend reads every traced point's AO back (not only the changed ones),
+    /// for the points' trends that rank them.
     pub budget: RayBudget,
     /// Under a budget, the most steps a point waits while the budget
     /// affords it (8): one that waited its due, this long less a few
@@ -216,24 +217,22 @@ pub struct PipelineConfig {
     /// on the default scene (three pairs of runs lost 0.9 dB more than
     /// without it on average, three others tied): off by default.
     pub plan_late: bool,
-    /// Early decisions (`Some`): a moving or deforming instance's point
-    /// casts its rays in a spread order over the scores its last trace
-    /// kept and stops once its AO is known, to the stated confidence, to
-    /// stay within the send threshold of what clients hold and, where
-    /// they hold less than open, to come out short of open (the
-    /// pipeline's `early` module says how, and what error it can add).
-    /// A point that goes on casts every ray and sends the full trace's
-    /// AO. With the CPU tracer, or a backend that casts single rays
-    /// ([`AoBackend::casts_rays`](crate::AoBackend::casts_rays), as
-    /// psao-gpu's does: it casts each point's rays a run at a time, all
-    /// points' runs together, and the same rules decide on its scores);
-    /// off on any other backend, which traces every ray. Off too while
-    /// [`settle_steps`](Self::settle_steps) is set (settling needs every
-    /// trace whole), without [`skip`](Self::skip) (the baseline), and
-    /// below 8 rays a point.
-    /// Moving points' scores take up to
-    /// [`ray_cache_bytes`](Self::ray_cache_bytes) besides the static
-    /// points' kept scores.
+    /// Early decisions (`Some`): a moving or deforming instance's point casts
+    /// its rays in a spread order over the scores its last trace kept and stops
+    /// once its AO is known, to the stated confidence, to stay within the send
+    /// threshold of what clients hold and, where they hold less than open, to
+    /// come out short of open (the pipeline's `early` module says how, and what
+    /// error it can add). A point that goes on casts every ray and sends the
+    /// full trace's AO. With the CPU tracer, or a backend that casts single
+    /// rays ([`AoBackend::casts_rays`](crate::AoBackend::casts_rays), as
+    /// psao-gpu's does with `GpuBackend::with_single_rays(true)`: it casts each
+    /// point's rays a run at a time, all points' runs together, and the same
+    /// rules decide on its scores); off on any other backend, which traces
+    /// every ray. Off too while [`settle_steps`](Self::settle_steps) is set
+    /// (settling needs every trace whole), without [`skip`](Self::skip) (the
+    /// baseline), and below 8 rays a point. Moving points' scores take up to
+    /// [`ray_cache_bytes`](Self::ray_cache_bytes) besides the static points'
+    /// kept scores.
     pub early: Option<EarlyDecisions>,
     /// Seconds the scene is posed ahead of the pipeline's clock: a step
     /// to time `t` traces and sends the scene's animation (and its camera

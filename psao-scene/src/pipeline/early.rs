@@ -57,7 +57,8 @@
 //! measures them and their cost in PSNR.
 //!
 //! The CPU tracer decides early, and so does a backend that casts single
-//! rays (psao-gpu's), on its own scores by the same [`EarlyRun`]; only
+//! rays (psao-gpu's with `GpuBackend::with_single_rays(true)`), on its own
+//! scores by the same [`EarlyRun`]; only
 //! for points of instances that moved or deformed this step (a static
 //! point re-traces only the rays motion reached, the others' scores
 //! kept: see `reach`).
@@ -242,7 +243,7 @@ const CHANGED: f64 = 1e-3;
 /// The least AO that quantizes to fully open (255).
 const OPEN_FROM: f64 = 254.5 / 255.0;
 
-/// What [`trace_early`] did.
+/// What an [`EarlyRun`] came to ([`EarlyRun::finish`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct Outcome {
     /// The AO of the full trace, `None` when the point stopped early
