@@ -22,7 +22,11 @@
 //!   (`psao_scene::Pipeline::with_backend`); it also compares the new AO
 //!   with what clients hold on the GPU (`GpuAo::trace_changed`: the paper's
 //!   thresholds, with the changed points and cells compacted with atomics),
-//!   so only the points worth sending are read back.
+//!   so only the points worth sending are read back. With
+//!   `GpuBackend::with_single_rays` it casts the single rays the pipeline
+//!   asks for instead (`GpuAo::cast_rays`), so that ray scores are kept as
+//!   on the CPU: ray reuse, early decisions and the ray budget's prices
+//!   then follow the CPU's rules.
 //! - **Baseline** (feature `baseline`, on by default): SAO on the same
 //!   device (`GpuSao`, the passes of `psao_eval::sao`, no ray queries), so
 //!   that the reconstruction can be timed against it.
