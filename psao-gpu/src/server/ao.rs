@@ -166,60 +166,35 @@ impl GpuAo {
     pub fn new(ctx: &GpuContext) -> Result<GpuAo, GpuError> {
         ctx.require_ray_queries()?;
         ctx.checked("AO shader compilation", || {
-            let layout = ctx
-                .device
-                .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                    label: Some("psao-gpu ao layout"),
-                    entries: &[
-                        wgpu::BindGroupLayoutEntry {
-                            binding: 0,
-                            visibility: wgpu::ShaderStages::COMPUTE,
-                            ty: wgpu::BindingType::AccelerationStructure {
-                                vertex_return: false,
-                            },
-                            count: None,
-                        },
-                        uniform_layout(1),
-                        storage_layout(2, true),
-                        storage_layout(3, true),
-                        storage_layout(4, true),
-                        storage_layout(5, false),
-                        storage_layout(6, true),
-                        storage_layout(7, true),
-                    ],
-                });
-            let pipeline = ctx.compute_pipeline(
-                "psao-gpu ao.wgsl",
-                include_str!("../shaders/ao.wgsl"),
-                &[&layout],
-            );
-            // The single-ray pass: the AO pass's bindings and the jobs.
-            let cast_layout =
+            // The AO pass's bindings; the single-ray pass's add its jobs.
+            let entries: Vec<wgpu::BindGroupLayoutEntry> = [wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::AccelerationStructure {
+                    vertex_return: false,
+                },
+                count: None,
+            }]
+            .into_iter()
+            .chain([uniform_layout(1)])
+            .chain([2, 3, 4].map(|b| storage_layout(b, true)))
+            .chain([storage_layout(5, false)])
+            .chain([6, 7, 8].map(|b| storage_layout(b, true)))
+            .collect();
+            let layout_of = |label, entries| {
                 ctx.device
                     .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                        label: Some("psao-gpu cast layout"),
-                        entries: &[
-                            wgpu::BindGroupLayoutEntry {
-                                binding: 0,
-                                visibility: wgpu::ShaderStages::COMPUTE,
-                                ty: wgpu::BindingType::AccelerationStructure {
-                                    vertex_return: false,
-                                },
-                                count: None,
-                            },
-                            uniform_layout(1),
-                            storage_layout(2, true),
-                            storage_layout(3, true),
-                            storage_layout(4, true),
-                            storage_layout(5, false),
-                            storage_layout(6, true),
-                            storage_layout(7, true),
-                            storage_layout(8, true),
-                        ],
-                    });
+                        label: Some(label),
+                        entries,
+                    })
+            };
+            let layout = layout_of("psao-gpu ao layout", &entries[..8]);
+            let cast_layout = layout_of("psao-gpu cast layout", &entries);
+            let source = include_str!("../shaders/ao.wgsl");
+            let pipeline = ctx.compute_pipeline("psao-gpu ao.wgsl", source, &[&layout]);
             let cast = ctx.compute_pipeline_at(
                 "psao-gpu ao.wgsl cast",
-                include_str!("../shaders/ao.wgsl"),
+                source,
                 "cast_rays",
                 &[&cast_layout],
             );
@@ -627,34 +602,12 @@ impl GpuAo {
                 }
                 list.push([pid.len() as u32 - 1, jobs[j].ray]);
             }
-            let s = wgpu::BufferUsages::STORAGE;
             let readback = ctx.checked("single-ray pass", || {
                 let grid = ctx.grid(chunk.len().div_ceil(JOBS_PER), WORKGROUP);
                 let params = Params::new(p, chunk.len(), grid.0 * WORKGROUP);
-                let uniform = ctx.uniform("psao-gpu cast params", &params);
-                let pb = ctx.buffer_with("psao-gpu cast points", bytemuck::cast_slice(&pts), s);
-                let nb = ctx.buffer_with("psao-gpu cast normals", bytemuck::cast_slice(&nrm), s);
-                let ib = ctx.buffer_with("psao-gpu cast ids", bytemuck::cast_slice(&pid), s);
-                let jb = ctx.buffer_with("psao-gpu cast jobs", bytemuck::cast_slice(&list), s);
                 let out = ctx.storage_out("psao-gpu cast out", (chunk.len() * 4) as u64);
-                let entries: Vec<wgpu::BindGroupEntry<'_>> = [
-                    (0, tlas.as_binding()),
-                    (1, uniform.as_entire_binding()),
-                    (2, pb.as_entire_binding()),
-                    (3, nb.as_entire_binding()),
-                    (4, ib.as_entire_binding()),
-                    (5, out.as_entire_binding()),
-                    (8, jb.as_entire_binding()),
-                ]
-                .into_iter()
-                .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource })
-                .chain(scene.alpha().bind_entries())
-                .collect();
-                let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("psao-gpu cast bind"),
-                    layout: &self.cast_layout,
-                    entries: &entries,
-                });
+                let points = (&pts[..], &nrm[..], &pid[..]);
+                let bind = self.bind(ctx, (scene, tlas), &params, points, &out, Some(&list));
                 let mut enc = ctx.encoder("psao-gpu cast");
                 GpuContext::record_pass(&mut enc, "psao-gpu cast", &self.cast, &[&bind], grid);
                 let readback = ctx.readback("psao-gpu cast readback", out.size());
@@ -668,6 +621,50 @@ impl GpuAo {
             }
         }
         Ok(scores)
+    }
+
+    /// The bind group of the AO pass (`jobs` `None`) or of the single-ray
+    /// pass (its jobs): the scene's TLAS and alpha masks, `params`, the
+    /// points, normals and ids, and `out`. Call inside
+    /// [`GpuContext::checked`].
+    fn bind(
+        &self,
+        ctx: &GpuContext,
+        (scene, tlas): (&GpuScene, &wgpu::Tlas),
+        params: &Params,
+        (pts, nrm, ids): (&[[f32; 4]], &[[f32; 4]], &[u32]),
+        out: &wgpu::Buffer,
+        jobs: Option<&[[u32; 2]]>,
+    ) -> wgpu::BindGroup {
+        let s = wgpu::BufferUsages::STORAGE;
+        let uniform = ctx.uniform("psao-gpu ao params", params);
+        let pb = ctx.buffer_with("psao-gpu points", bytemuck::cast_slice(pts), s);
+        let nb = ctx.buffer_with("psao-gpu normals", bytemuck::cast_slice(nrm), s);
+        let ib = ctx.buffer_with("psao-gpu ids", bytemuck::cast_slice(ids), s);
+        let jb = jobs.map(|j| ctx.buffer_with("psao-gpu ray jobs", bytemuck::cast_slice(j), s));
+        let entries: Vec<wgpu::BindGroupEntry<'_>> = [
+            (0, tlas.as_binding()),
+            (1, uniform.as_entire_binding()),
+            (2, pb.as_entire_binding()),
+            (3, nb.as_entire_binding()),
+            (4, ib.as_entire_binding()),
+            (5, out.as_entire_binding()),
+        ]
+        .into_iter()
+        .chain(jb.as_ref().map(|b| (8, b.as_entire_binding())))
+        .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource })
+        .chain(scene.alpha().bind_entries())
+        .collect();
+        let layout = if jobs.is_some() {
+            &self.cast_layout
+        } else {
+            &self.layout
+        };
+        ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("psao-gpu ao bind"),
+            layout,
+            entries: &entries,
+        })
     }
 
     /// Records the AO pass over `range` of a sorted batch into `enc` and
@@ -687,37 +684,13 @@ impl GpuAo {
         let n = range.len();
         let grid = ctx.grid(n * LANES as usize, WORKGROUP);
         let params = Params::new(p, n, grid.0 * WORKGROUP);
-        let s = wgpu::BufferUsages::STORAGE;
-        let uniform = ctx.uniform("psao-gpu ao params", &params);
-        let pb = ctx.buffer_with(
-            "psao-gpu points",
-            bytemuck::cast_slice(&batch.pts[range.clone()]),
-            s,
-        );
-        let nb = ctx.buffer_with(
-            "psao-gpu normals",
-            bytemuck::cast_slice(&batch.nrm[range.clone()]),
-            s,
-        );
-        let ib = ctx.buffer_with("psao-gpu ids", bytemuck::cast_slice(&batch.ids[range]), s);
         let out = ctx.storage_out("psao-gpu ao out", (n.max(4) * 4) as u64);
-        let entries: Vec<wgpu::BindGroupEntry<'_>> = [
-            (0, tlas.as_binding()),
-            (1, uniform.as_entire_binding()),
-            (2, pb.as_entire_binding()),
-            (3, nb.as_entire_binding()),
-            (4, ib.as_entire_binding()),
-            (5, out.as_entire_binding()),
-        ]
-        .into_iter()
-        .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource })
-        .chain(scene.alpha().bind_entries())
-        .collect();
-        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("psao-gpu ao bind"),
-            layout: &self.layout,
-            entries: &entries,
-        });
+        let points = (
+            &batch.pts[range.clone()],
+            &batch.nrm[range.clone()],
+            &batch.ids[range],
+        );
+        let bind = self.bind(ctx, (scene, tlas), &params, points, &out, None);
         GpuContext::record_pass(enc, "psao-gpu ao", &self.pipeline, &[&bind], grid);
         out
     }
