@@ -612,7 +612,14 @@ impl Pipeline {
                 let mut works: Vec<PointWork> = (0..batch.ids.len())
                     .map(|b| work_of(b, taken.get_mut(b).and_then(Option::take)))
                     .collect();
-                let backend = self.backend.as_mut().expect("a backend");
+                // Neither a tracer nor a backend: nothing to cast with (the
+                // step passes one or the other).
+                let Some(backend) = self.backend.as_mut() else {
+                    return Err(SceneError::Backend {
+                        backend: "cpu".into(),
+                        reason: "no tracer and no backend to cast rays with".into(),
+                    });
+                };
                 cast_on_backend(backend.as_mut(), batch, &mut works, &ao)?;
                 works.into_iter().map(PointWork::finish).collect()
             }
