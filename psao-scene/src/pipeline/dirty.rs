@@ -760,16 +760,9 @@ impl Pipeline {
     ) -> Result<ChangedPoints, SceneError> {
         let (ids, pts, nrm, sent) = (&batch.ids, &batch.points, &batch.normals, &batch.sent);
         let (ao, th) = (self.config.ao, *th);
+        self.place_backend()?;
         Ok(match (&mut self.backend, tracer) {
             (Some(backend), _) => {
-                let transforms: Vec<Affine3A> =
-                    self.instances.iter().map(|s| s.transform).collect();
-                let vertices: Vec<Option<&[Vec3]>> = self
-                    .instances
-                    .iter()
-                    .map(|s| (!s.vertices.is_empty()).then_some(s.vertices.as_slice()))
-                    .collect();
-                backend.place(&transforms, &vertices)?;
                 if force {
                     // Everything is sent: nothing to compare.
                     let r = backend.trace_ids(ids, pts, nrm, &ao)?;

@@ -256,10 +256,7 @@ impl AoTracer {
     /// AO at one point; `id` selects its random numbers. `p` must be
     /// valid ([`AoParams::validate`]).
     pub(crate) fn point_ao(&self, id: u32, point: Vec3, normal: Vec3, p: &AoParams) -> f32 {
-        if self.top.is_empty() {
-            return 1.0;
-        }
-        let Some(rays) = PointRays::new(id, point, normal, p) else {
+        let Some(rays) = self.point_rays(id, point, normal, p) else {
             return 1.0;
         };
         let mut sums = [0.0f32; RAY_SUM_LANES as usize];
@@ -282,33 +279,6 @@ impl AoTracer {
         PointRays::new(id, point, normal, p).filter(|_| !self.top.is_empty())
     }
 
-    /// As [`trace_point_rays`](Self::trace_point_rays) for rays whose
-    /// directions and lengths (`w`) are kept in `rays` (as
-    /// [`PointRays::ray`] gives them), traced where `trace(k)`.
-    #[allow(clippy::too_many_arguments)]
-    pub fn trace_kept_rays(
-        &self,
-        id: u32,
-        point: Vec3,
-        normal: Vec3,
-        p: &AoParams,
-        rays: &[glam::Vec4],
-        scores: &mut [f32],
-        trace: impl Fn(u32) -> bool,
-    ) -> u64 {
-        let from = PointRays::new(id, point, normal, p).filter(|_| !self.top.is_empty());
-        let mut traced = 0;
-        for ((k, s), r) in (0..p.rays).zip(scores.iter_mut()).zip(rays) {
-            if trace(k) {
-                *s = from
-                    .as_ref()
-                    .map_or(1.0, |f| f.score_along(self, Vec3A::from(r.truncate()), r.w));
-                traced += 1;
-            }
-        }
-        traced
-    }
-
     /// Each ray's score at one point (`scores[k]` for ray `k`, the terms
     /// [`ao_of_scores`] adds up to the point's AO), traced only for the
     /// rays `k` with `trace(k)`; the others are left as they are. Returns
@@ -325,7 +295,7 @@ impl AoTracer {
         scores: &mut [f32],
         trace: impl Fn(u32) -> bool,
     ) -> u64 {
-        let rays = PointRays::new(id, point, normal, p).filter(|_| !self.top.is_empty());
+        let rays = self.point_rays(id, point, normal, p);
         let mut traced = 0;
         for (k, s) in (0..p.rays).zip(scores.iter_mut()) {
             if trace(k) {
