@@ -561,15 +561,19 @@ impl Pipeline {
         // Every ray, in order: what a full trace casts.
         let all: Vec<u32> = (0..rays).collect();
         let all = all.as_slice();
-        // What point `b` casts.
-        let work_of = |b: usize, kept: Option<Kept>| -> PointWork {
+        // What point `b` casts (`drawn`: its rays, where the caller drew
+        // them).
+        let work_of = |b: usize, kept: Option<Kept>, drawn: Option<&Option<PointRays>>| {
             let (i, k) = batch.owner[b];
             let (id, p, n) = (batch.ids[b], batch.points[b], batch.normals[b]);
             let dynamic = instances[i].dynamic;
             // Every ray scores 1, known without casting one.
             let open = matches!(plans[b], Plan::Open);
             if let (Some(how), true) = (&moving, dynamic && changed[i]) {
-                let has_rays = PointRays::new(id, p, n, &ao).is_some();
+                let has_rays = match drawn {
+                    Some(r) => r.is_some(),
+                    None => PointRays::new(id, p, n, &ao).is_some(),
+                };
                 let sent = &batch.sent[b];
                 return PointWork::moving(b, kept, sent, n, (all, has_rays, open), how);
             }
@@ -595,14 +599,18 @@ impl Pipeline {
                 let mut done: Vec<Traced> = work
                     .into_par_iter()
                     .map(|(b, kept)| {
-                        let w = work_of(b, kept);
+                        let (id, p, n) = (batch.ids[b], batch.points[b], batch.normals[b]);
+                        let rays = PointRays::new(id, p, n, &ao);
+                        let w = work_of(b, kept, Some(&rays));
                         let (i, k) = batch.owner[b];
                         let entry = if w.over_kept() {
                             cache.get(key(i, k))
                         } else {
                             None
                         };
-                        cast_on_cpu(tracer, batch, w, entry.map(|e| &e.rays[..]), &ao)
+                        // Nothing to hit: every ray scores 1.
+                        let rays = rays.filter(|_| tracer.can_hit());
+                        cast_on_cpu(tracer, w, rays, entry.map(|e| &e.rays[..]))
                     })
                     .collect();
                 done.sort_unstable_by_key(|d| d.b);
@@ -610,7 +618,7 @@ impl Pipeline {
             }
             None => {
                 let mut works: Vec<PointWork> = (0..batch.ids.len())
-                    .map(|b| work_of(b, taken.get_mut(b).and_then(Option::take)))
+                    .map(|b| work_of(b, taken.get_mut(b).and_then(Option::take), None))
                     .collect();
                 // Neither a tracer nor a backend: nothing to cast with (the
                 // step passes one or the other).
@@ -814,20 +822,16 @@ impl Pipeline {
 }
 
 /// Casts point `w`'s rays on the CPU, a run at a time as it asks for
-/// them (`kept_rays`: the ray cache's kept directions and lengths, for a
-/// point casting some of its rays over kept scores).
+/// them: `rays` its rays against `tracer` (`None`: each scores 1, as
+/// there is nothing to trace from or nothing to hit), `kept_rays` the ray
+/// cache's kept directions and lengths, for a point casting some of its
+/// rays over kept scores.
 fn cast_on_cpu(
     tracer: &AoTracer,
-    batch: &Batch,
     mut w: PointWork,
+    rays: Option<PointRays>,
     kept_rays: Option<&[glam::Vec4]>,
-    ao: &AoParams,
 ) -> Traced {
-    if w.wants().is_empty() {
-        return w.finish();
-    }
-    let b = w.b;
-    let rays = tracer.point_rays(batch.ids[b], batch.points[b], batch.normals[b], ao);
     while !w.wants().is_empty() {
         w.take_each(|k| match &rays {
             // Nothing to trace from, or nothing to hit.

@@ -276,7 +276,12 @@ impl AoTracer {
         normal: Vec3,
         p: &AoParams,
     ) -> Option<PointRays> {
-        PointRays::new(id, point, normal, p).filter(|_| !self.top.is_empty())
+        PointRays::new(id, point, normal, p).filter(|_| self.can_hit())
+    }
+
+    /// Whether it holds anything a ray can hit.
+    pub(crate) fn can_hit(&self) -> bool {
+        !self.top.is_empty()
     }
 
     /// Each ray's score at one point (`scores[k]` for ray `k`, the terms
