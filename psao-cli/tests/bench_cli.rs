@@ -105,6 +105,8 @@ fn bench_writes_its_table_charts_and_images() {
     // Setup and keyframe size in the table, for every PSAO row.
     assert!(md.contains("| setup s | keyframe kB |"), "{md}");
     assert!(md.contains("(radius 0.6)"), "{md}");
+    // The backend, as .ci/run looks for it in the GPU bench's report.
+    assert!(md.contains("traced on the CPU backend ("), "{md}");
     let _ = std::fs::remove_dir_all(&out);
 }
 

@@ -83,7 +83,7 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} backend ({}; {}; {}; {}; {}; {}; {}); client times are the AO work per frame on {} threads, the median of {} runs back to back.\n",
+        "Settings: {}x{} pixels, {} frames over each camera path, reference {} closest-hit rays per pixel (radius {}), PSAO {} rays per point traced on the {} ({}; {}; {}; {}; {}; {}; {}); client times are the AO work per frame on {} threads, the median of {} runs back to back.\n",
         s.width,
         s.height,
         s.frames,
@@ -91,9 +91,9 @@ pub fn markdown(s: &Settings, results: &[SceneResult]) -> String {
         s.radius,
         s.point_rays,
         match (s.backend, s.gpu_single_rays) {
-            (super::Backend::Cpu, _) => "CPU",
-            (super::Backend::Gpu, false) => "GPU (whole points)",
-            (super::Backend::Gpu, true) => "GPU (single rays)",
+            (super::Backend::Cpu, _) => "CPU backend",
+            (super::Backend::Gpu, false) => "GPU backend, whole points at a time",
+            (super::Backend::Gpu, true) => "GPU backend, single rays at a time",
         },
         if s.fill_buried {
             "buried points take their visible neighbours' AO"
