@@ -483,12 +483,56 @@ fn movers_traced_every_step_hold_their_ao_under_any_budget() {
     );
 }
 
+/// What clients hold of box `b`'s points (ids after `base`) against a
+/// full trace of `scene` with the box placed at `held`, the transform
+/// clients hold: the largest AO difference.
+fn held_error_at(
+    p: &Pipeline,
+    (scene, c): (&Scene, &PipelineConfig),
+    b: usize,
+    base: u32,
+    held: Affine3A,
+) -> f32 {
+    let mut there = Pipeline::new(scene.clone(), c.clone()).unwrap();
+    there.place_instance(b, held).unwrap();
+    there.step(0.0).unwrap();
+    assert_eq!(there.transform(b), Some(held));
+    let tracer = there.current_tracer();
+    let (pos, nrm) = p.current_points(b).unwrap();
+    let world: Vec<Vec3> = pos.iter().map(|&q| held.transform_point3(q)).collect();
+    let ids: Vec<u32> = (0..pos.len() as u32).map(|k| base + k).collect();
+    let fresh = tracer.trace_ids(&ids, &world, nrm, &c.ao).unwrap();
+    let table = p.table(b).unwrap();
+    (0..pos.len())
+        .filter_map(|k| match table.placement(k as u32) {
+            psao_codec::Placement::Stored { cell, slot } => {
+                Some((PointWord(table.cell(cell)[slot as usize]).ao() - fresh.ao[k]).abs())
+            }
+            _ => None,
+        })
+        .fold(0.0, f32::max)
+}
+
+/// One step of [`whole_box_run`].
+struct WholeBoxStep {
+    /// Whether the transform clients hold moved.
+    moved: bool,
+    /// What clients hold of the box against a full trace with the box
+    /// where they hold it (the largest AO difference).
+    error: f32,
+    /// Steps from where clients hold the box to where it is: positive
+    /// where they hold a pose it had, negative where one it is to have.
+    lag: i32,
+    /// Points traced, rays cast, and the budget.
+    traced: u64,
+    rays: u64,
+    budget: u64,
+}
+
 /// A box sliding by a wall under a budget its points exceed by half, traced
-/// whole or held ([`PipelineConfig::movers_whole`]): per step, whether the
-/// transform clients hold moved, and what they hold of the box against a
-/// full trace then (the largest AO difference), with the box's points and
-/// the points traced.
-fn whole_box_run(movers_whole: bool) -> (Vec<(bool, f32)>, usize, Vec<u64>) {
+/// whole or held ([`PipelineConfig::movers_whole`]): each step, with the
+/// box's points.
+fn whole_box_run(movers_whole: bool) -> (Vec<WholeBoxStep>, usize) {
     let (scene, b) = box_by_a_wall();
     let mut c = PipelineConfig {
         max_wait: 6,
@@ -503,33 +547,44 @@ fn whole_box_run(movers_whole: bool) -> (Vec<(bool, f32)>, usize, Vec<u64>) {
         .unwrap()
         .len() as u64;
     c.budget = RayBudget::Rays(n * u64::from(c.ao.rays) * 2 / 3);
-    let ao = c.ao;
-    let mut p = Pipeline::new(scene, c).unwrap();
+    let mut p = Pipeline::new(scene.clone(), c.clone()).unwrap();
     let floor = p.points(0).unwrap().len() as u32;
     let id = p.table(b).unwrap().id();
     let mut client = psao_codec::Decoder::new(psao_codec::Limits::default());
     client.receive(&p.keyframe().unwrap().bytes).unwrap();
     let held = |c: &psao_codec::Decoder| c.mirror().instance(id).unwrap().transform().cloned();
-    let (mut steps, mut traced) = (Vec::new(), Vec::new());
-    // The slide takes 20 steps; 10 more once it rests (more than the
-    // bound of 6 a part is held for).
+    let mut steps = Vec::new();
+    // The slide takes 20 steps (and the animation starts over); 10 more
+    // (more than the bound of 6 a part is held for).
     for _ in 0..30 {
         let before = held(&client);
         let (f, r) = p.step(1.0 / 30.0).unwrap();
         if let Some(f) = f {
             client.receive(&f.bytes).unwrap();
         }
-        let moved = held(&client) != before;
-        steps.push((moved, worst_held_error(&mut p, b, floor, &ao)));
-        traced.push(r.traced);
+        let now = Affine3A::from_cols_array(&held(&client).expect("a transform").matrix);
+        // The box's pose j steps from this one, as the scene poses it.
+        let at = |j: i32| scene.pose(p.posed_time() + j as f32 / 30.0).instances[b];
+        let lag = (-8..=8)
+            .filter(|&j| at(-j).abs_diff_eq(now, 1e-4))
+            .min_by_key(|j: &i32| j.abs())
+            .expect("a pose of the box within 8 steps");
+        steps.push(WholeBoxStep {
+            moved: held(&client) != before,
+            error: held_error_at(&p, (&scene, &c), b, floor, now),
+            lag,
+            traced: r.traced,
+            rays: r.rays,
+            budget: r.budget.unwrap(),
+        });
     }
-    (steps, p.points(b).unwrap().len(), traced)
+    (steps, p.points(b).unwrap().len())
 }
 
 #[test]
 fn a_rigid_mover_held_whole_keeps_its_transform_with_its_points() {
-    let (whole, n, traced) = whole_box_run(true);
-    let sent: Vec<usize> = (0..whole.len()).filter(|&t| whole[t].0).collect();
+    let (whole, n) = whole_box_run(true);
+    let sent: Vec<usize> = (0..whole.len()).filter(|&t| whole[t].moved).collect();
     // The budget cannot trace the box every step: it is held in some, and
     // traced whole (its transform sent) in others.
     assert!(
@@ -537,26 +592,55 @@ fn a_rigid_mover_held_whole_keeps_its_transform_with_its_points() {
         "transform sent in steps {sent:?}"
     );
     for &t in &sent {
-        // Sent only with every point of the box traced at that pose, so
-        // what clients hold of it is a full trace there, to the send
-        // threshold (8 steps of 1/255).
+        // Sent only with every point of the box traced at one pose.
         assert!(
-            traced[t] >= n as u64,
+            whole[t].traced >= n as u64,
             "step {t}: {} traced of {n}",
-            traced[t]
-        );
-        assert!(
-            whole[t].1 <= 8.5 / 255.0,
-            "step {t}: box AO off by {} steps",
-            whole[t].1 * 255.0
+            whole[t].traced
         );
     }
-    // Once it rests and has been traced, clients hold its last pose.
-    assert!(whole.last().unwrap().1 <= 8.5 / 255.0);
+    for (t, w) in whole.iter().enumerate() {
+        // What clients hold of the box is a full trace where they hold
+        // it, to the send threshold (8 steps of 1/255): the pose a stage
+        // traced it in.
+        assert!(
+            w.error <= 8.5 / 255.0,
+            "step {t}: box AO off by {} steps",
+            w.error * 255.0
+        );
+        assert!(
+            w.lag.abs() <= 6,
+            "step {t}: clients hold the box {} steps off",
+            w.lag
+        );
+        // Traced over several steps, the box costs no step more than its
+        // budget.
+        assert!(
+            w.rays <= w.budget,
+            "step {t}: {} rays of {}",
+            w.rays,
+            w.budget
+        );
+    }
+    // A stage traces the box over several steps at the pose it will have
+    // when the stage ends: clients get its points with the pose the box
+    // is in then (the animation is known ahead), not an older one.
+    for &t in &sent {
+        assert_eq!(whole[t].lag, 0, "step {t}");
+    }
+    // Between sends they hold it a few steps behind.
+    assert!(
+        whole.iter().any(|w| w.lag >= 2),
+        "the box was traced every step"
+    );
     // Without it the transform goes out every step of the slide, while
     // the box's points wait their turn.
-    let (apart, _, _) = whole_box_run(false);
-    assert!(apart[..20].iter().all(|s| s.0), "{apart:?}");
+    let (apart, _) = whole_box_run(false);
+    assert!(
+        apart[..20].iter().all(|s| s.moved),
+        "{:?}",
+        apart.iter().map(|s| s.moved).collect::<Vec<_>>()
+    );
 }
 
 #[test]

@@ -197,8 +197,10 @@ pub struct BenchArgs {
     /// it moves, whatever the budget (no AO lagging its transform).
     #[arg(long)]
     movers_every_frame: bool,
-    /// Under --ray-budget, trace a rigid moving part whole or not at all,
-    /// its transform held back with its points while they wait.
+    /// Under --ray-budget, trace a rigid moving part whole at one pose
+    /// (over several ticks against a snapshot of the scene where it does
+    /// not fit a tick's budget), its transform held back with its points
+    /// while they wait.
     #[arg(long)]
     movers_whole: bool,
     /// Under --ray-budget, once demand has raised the bound on waiting,

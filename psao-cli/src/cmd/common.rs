@@ -210,10 +210,11 @@ pub struct BudgetArgs {
     /// of frames over the budget where movers alone exceed it.
     #[arg(long)]
     pub movers_every_frame: bool,
-    /// Under a budget, trace a rigid moving part whole or not at all in a
-    /// frame, and hold the transform clients hold back with its points
-    /// while they wait (occlusion stays where it was traced, as from a
-    /// slower server, instead of sliding with the part).
+    /// Under a budget, trace a rigid moving part whole at one pose (over
+    /// several frames against a snapshot of the scene where it does not
+    /// fit a frame's budget), and hold the transform clients hold back
+    /// with its points while they wait (occlusion stays where it was
+    /// traced, as from a slower server, instead of sliding with the part).
     #[arg(long)]
     pub movers_whole: bool,
     /// Early decisions: a moving instance's point stops casting rays once

@@ -14,6 +14,7 @@ use super::dirty::{Batch, PAR_MIN, StepMotion};
 use super::plan::Plan;
 use super::ray_cache::key;
 use super::reach::{MotionBoxes, ReachQuery, reached_rays};
+use super::stage::{Stage, stage_rays};
 use super::{InstanceState, Pipeline};
 use crate::trace::ao::{AoTracer, PointRays};
 
@@ -96,6 +97,9 @@ struct Ranking<'a> {
     config: &'a PipelineConfig,
     /// The step's number (wrapping).
     frame: u32,
+    /// Per instance, the part traced over several steps, if any
+    /// ([`Stage`]).
+    stages: &'a [Option<Stage>],
 }
 
 impl Ranking<'_> {
@@ -106,7 +110,8 @@ impl Ranking<'_> {
     /// a part held whole (`Some(false)`) as one that fits no budget and is
     /// not due (a held point's cost fits no budget below `u32::MAX` rays;
     /// a part that cost as much would fit such a budget whole); any other
-    /// as it waited.
+    /// as it waited. A point of a part traced whole whose stage traced it
+    /// already costs nothing more.
     fn age_and_cost(
         &self,
         key: u64,
@@ -115,7 +120,15 @@ impl Ranking<'_> {
         cost: u32,
         bound: u32,
     ) -> (u32, u32) {
+        let staged = || {
+            let stage = self
+                .stages
+                .get((key >> 32) as usize)
+                .and_then(Option::as_ref);
+            stage.is_some_and(|s| s.traced(key as u32).is_some())
+        };
         match (every_step, whole) {
+            (false, Some(true)) if staged() => (bound, 0),
             (true, _) | (false, Some(true)) => (bound, cost),
             (false, Some(false)) => (0, u32::MAX),
             (false, None) => (self.waiting.get(key).map_or(0, |w| w.0), cost),
@@ -353,6 +366,7 @@ impl Pipeline {
             waiting: &self.waiting,
             config: &self.config,
             frame: self.frame as u32,
+            stages: &self.stages,
         };
         // A moving point that may stop early costs what such points cast
         // on average.
@@ -488,7 +502,10 @@ impl Pipeline {
     /// them has waited its due under `bound`, when the part has been held
     /// for [`max_wait`](super::config::PipelineConfig::max_wait) steps (not
     /// the bound demand may have raised: a part held longer would lag its
-    /// motion by as much), or when it was placed this step; else held.
+    /// motion by as much), or when it was placed this step; else held. A
+    /// part traced over several steps ([`Stage`]) is traced whole (the
+    /// stage ends) in the step whose share pays for the rest of it, or as
+    /// the rules above say.
     fn whole_movers(
         &self,
         batch: &Batch,
@@ -540,8 +557,14 @@ impl Pipeline {
                     && (s.held_steps > 0
                         || cost[i] <= budget.saturating_mul(u64::from(self.config.max_wait)));
                 held_whole.then(|| {
+                    let fits = match self.stages.get(i).and_then(Option::as_ref) {
+                        // A stage ends in the step whose share pays for
+                        // what is left of it.
+                        Some(stage) => stage.left(rays) <= stage_rays(stage, budget),
+                        None => cost[i] <= budget,
+                    };
                     due_now[i]
-                        || cost[i] <= budget
+                        || fits
                         || s.held_steps.saturating_add(1) >= self.config.max_wait
                         || motion.placed.get(i).copied().unwrap_or(false)
                 })

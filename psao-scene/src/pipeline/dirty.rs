@@ -11,15 +11,17 @@ use rayon::prelude::*;
 
 use super::Pipeline;
 use super::backend::{AoBackend, RayJob};
-use super::budget::{next_bound, select};
+use super::budget::{due, next_bound, select};
 use super::early::Kept;
 use super::plan::{Learnt, Plan};
 use super::ray_cache::key;
 use super::reach::MotionBoxes;
 use super::report::TracePhases;
+use super::stage::{Stage, stage_rays};
 use super::work::{Moving, PointWork, Traced};
 use crate::error::SceneError;
 use crate::model::pose::normal_matrix;
+use crate::model::scene::check_transform;
 use crate::morton::morton_order;
 use crate::trace::ao::{AoParams, AoResult, AoTracer, ChangedPoints, PointRays};
 use psao_codec::wire::point::{dequantize_ao, quantize_ao};
@@ -67,7 +69,14 @@ pub(super) struct StepTrace {
     /// points wait together, its transform held back with them: see
     /// [`PipelineConfig::movers_whole`](super::config::PipelineConfig::movers_whole)).
     pub held: Vec<bool>,
+    /// The instances whose stage ended this step ([`Stage`]), with the
+    /// transform and sequence clients get in place of the current ones.
+    pub posed: Vec<(usize, Affine3A, u32)>,
 }
+
+/// A step's stages ([`Pipeline::stages_of_step`]): the slices to trace,
+/// (instance, rays), and the stages that end, (instance, stage).
+type StagesOfStep = (Vec<(usize, u64)>, Vec<(usize, Stage)>);
 
 /// What [`Pipeline::settle_left`] did.
 pub(super) struct Settled {
@@ -181,8 +190,14 @@ impl Pipeline {
                 None => {}
             }
         }
-        let (mut chosen, spent) = select(&cands.all, budget, bound);
-        let late = self.plan_late(&apart, &cands, &mut chosen, (budget, spent, bound));
+        // Parts traced whole over several steps: their slices are paid
+        // for first.
+        let (slices, mut finishing) =
+            self.stages_of_step(tracer, (&batch, &apart), &cands, motion, (budget, bound));
+        let staged_rays: u64 = slices.iter().map(|s| s.1).sum();
+        let rest = budget.map(|b| b.saturating_sub(staged_rays));
+        let (mut chosen, spent) = select(&cands.all, rest, bound);
+        let late = self.plan_late(&apart, &cands, &mut chosen, (rest, spent, bound));
         // Overdue points, and the rays of those that really waited: what
         // moves the bound.
         let (overdue, forced) = cands
@@ -214,6 +229,7 @@ impl Pipeline {
         }
         self.look_up_held(&mut sub);
         let casting = std::time::Instant::now();
+        let mut rays_staged = self.trace_slices(&slices);
         let th = self.config.thresholds;
         let settling = self.config.settle_steps > 0;
         // Under a budget every value comes back for the points' trends.
@@ -232,11 +248,22 @@ impl Pipeline {
             } else {
                 let owned = tracer.is_none().then(|| self.tracer(false));
                 let tracer = tracer.or(owned.as_ref()).expect("a tracer");
-                self.trace_planned(Some(tracer), &sub, &sub_plans, &motion.changed)?
+                if finishing.is_empty() {
+                    self.trace_planned(Some(tracer), &sub, &sub_plans, &motion.changed)?
+                } else {
+                    let (values, staged) = self.trace_finishing(
+                        tracer,
+                        (&sub, &sub_plans),
+                        &motion.changed,
+                        &mut finishing,
+                    )?;
+                    rays_staged += staged;
+                    values
+                }
             };
             self.compare_remembered(&values, &sub)?
         };
-        let (traced, rays_cast) = (sub.ids.len() as u64, result.rays);
+        let (traced, rays_cast) = (sub.ids.len() as u64, result.rays + rays_staged);
         let t_after = std::time::Instant::now();
         let mut phases = TracePhases {
             plan: budgeted.duration_since(started),
@@ -281,7 +308,203 @@ impl Pipeline {
             open,
             phases,
             held,
+            posed: finishing
+                .into_iter()
+                .map(|(i, stage)| (i, stage.transform, stage.seq))
+                .collect(),
         })
+    }
+
+    /// The stages of a step ([`Stage`], under
+    /// [`PipelineConfig::movers_whole`](super::config::PipelineConfig::movers_whole)
+    /// on the CPU): a part held (`cands.whole` `Some(false)`) begins one,
+    /// against `tracer` (the scene now), of its candidates; a held part's
+    /// stage traces its next slice (returned as (instance, rays)); a part
+    /// traced whole ends its stage (returned, taken out); a part placed,
+    /// or with nothing to trace, drops it. A stage is to end before the
+    /// first of its points comes due under `bound` (else that step traces
+    /// the rest at once), and within `max_wait` steps.
+    fn stages_of_step(
+        &mut self,
+        tracer: Option<&AoTracer>,
+        (batch, apart): (&Batch, &super::choose::Apart),
+        cands: &super::choose::Candidates,
+        motion: &StepMotion,
+        (budget, bound): (Option<u64>, u32),
+    ) -> StagesOfStep {
+        let (mut slices, mut finishing) = (Vec::new(), Vec::new());
+        let staging = self.config.movers_whole && self.backend.is_none();
+        let rays = self.config.ao.rays;
+        for i in 0..self.instances.len() {
+            let whole = cands.whole.get(i).copied().flatten();
+            if whole.is_none() || motion.placed.get(i).copied().unwrap_or(false) || !staging {
+                self.stages[i] = None;
+            }
+            match whole {
+                Some(true) => finishing.extend(self.stages[i].take().map(|s| (i, s))),
+                Some(false) => {
+                    if self.stages[i].is_none()
+                        && let Some(tracer) = tracer.filter(|_| staging)
+                    {
+                        // Its candidates, ascending (merged in key order).
+                        let todo: Vec<u32> = (cands.merged.iter())
+                            .map(|&(a, j)| {
+                                if a {
+                                    apart.keys[j]
+                                } else {
+                                    let (i, k) = batch.owner[cands.at[j]];
+                                    key(i, k)
+                                }
+                            })
+                            .filter(|&k| (k >> 32) as usize == i)
+                            .map(|k| k as u32)
+                            .collect();
+                        // Steps until the first of them comes due.
+                        let steps = (todo.iter())
+                            .map(|&k| {
+                                let age = self.waiting.get(key(i, k)).map_or(0, |w| w.0);
+                                due(key(i, k), bound).saturating_sub(age).saturating_sub(1)
+                            })
+                            .min()
+                            .unwrap_or(1)
+                            .clamp(1, self.config.max_wait.max(1));
+                        // The steps it takes at its first slice, and the
+                        // pose the part has in the last of them.
+                        let points = todo.len() as u64;
+                        let per_step = points.div_ceil(u64::from(steps)) * u64::from(rays);
+                        let slice = per_step.max(budget.unwrap_or(0) / 2).max(1);
+                        let takes = (points * u64::from(rays)).div_ceil(slice).max(1);
+                        let seq = self.instances[i].transform_seq;
+                        let (tracer, transform) =
+                            match self.posed_ahead(i, takes - 1, motion.period) {
+                                Some(there) => there,
+                                None => (tracer.clone(), self.instances[i].transform),
+                            };
+                        self.stages[i] =
+                            Some(Stage::new(tracer, (transform, seq), todo, rays, steps));
+                    }
+                    if let Some(stage) = &self.stages[i] {
+                        let share = stage_rays(stage, budget.unwrap_or(0));
+                        slices.push((i, share.min(stage.left(rays))));
+                    }
+                }
+                None => {}
+            }
+        }
+        (slices, finishing)
+    }
+
+    /// The scene as a stage of rigid mover `i` traces it, posed `steps`
+    /// steps of `period` seconds after this one (the scene time those
+    /// steps will pose, added up as they add it): the part where its
+    /// animation (or its placement) takes it by then, the rest as now;
+    /// with that transform.
+    /// `None` where it is where it is now, where the BVH is not split
+    /// (one BVH over the world), or where that pose is unsound (then the
+    /// stage traces the scene now).
+    fn posed_ahead(&mut self, i: usize, steps: u64, period: f64) -> Option<(AoTracer, Affine3A)> {
+        if steps == 0 || !self.config.split_bvh {
+            return None;
+        }
+        let s = self.instances.get(i)?;
+        let there = match self.overrides.get(i).copied().flatten() {
+            Some(t) => t,
+            None => {
+                let mut time = self.time;
+                for _ in 0..steps.min(1 << 16) {
+                    time += period as f32 as f64;
+                }
+                let mut pose = self.pose.clone();
+                self.scene
+                    .pose_into((time + self.config.lead as f64) as f32, &mut pose);
+                *pose.instances.get(i)?
+            }
+        };
+        if there == s.transform || check_transform(i, &there, Some(s.bounds)).is_err() {
+            return None;
+        }
+        let now = std::mem::replace(&mut self.instances[i].transform, there);
+        let tracer = self.tracer(false);
+        self.instances[i].transform = now;
+        Some((tracer, there))
+    }
+
+    /// The id of each instance's point 0 (its points numbered after those
+    /// of the instances before it).
+    fn id_bases(&self) -> Vec<u32> {
+        let mut next = 0u32;
+        (self.instances.iter())
+            .map(|s| {
+                let base = next;
+                next = next.saturating_add(s.points.len() as u32);
+                base
+            })
+            .collect()
+    }
+
+    /// Traces each stage's slice of `slices` ((instance, rays)); returns
+    /// the rays cast.
+    fn trace_slices(&mut self, slices: &[(usize, u64)]) -> u64 {
+        if slices.is_empty() {
+            return 0;
+        }
+        let bases = self.id_bases();
+        let ao = self.config.ao;
+        let mut cast = 0;
+        for &(i, rays) in slices {
+            if let (Some(stage), Some(s)) = (self.stages[i].as_mut(), self.instances.get(i)) {
+                cast += stage.trace_next(rays, s.now(), bases[i], &ao);
+            }
+        }
+        cast
+    }
+
+    /// Traces `sub` (with its plans) as [`trace_planned`](Self::trace_planned)
+    /// does, but for the points of the parts whose stage ends (`finishing`):
+    /// those take the AO their stage traced at its pose (what is left of
+    /// it traced now, and a point that joined the part's candidates since
+    /// it began traced against its snapshot). Returns the values and the
+    /// rays the stages cast.
+    fn trace_finishing(
+        &mut self,
+        tracer: &AoTracer,
+        (sub, plans): (&Batch, &[&Plan]),
+        changed: &[bool],
+        finishing: &mut [(usize, Stage)],
+    ) -> Result<(AoResult, u64), SceneError> {
+        let bases = self.id_bases();
+        let ao = self.config.ao;
+        let mut cast = 0;
+        for (i, stage) in finishing.iter_mut() {
+            cast += stage.trace_rest(self.instances[*i].now(), bases[*i], &ao);
+        }
+        let staged: Vec<Option<f32>> = (sub.owner.iter())
+            .map(|&(i, k)| {
+                let (_, stage) = finishing.iter().find(|f| f.0 == i)?;
+                // Scores kept from an earlier trace (early decisions) are
+                // not this trace's: forgotten.
+                drop(self.kept_scores.take(key(i, k)));
+                Some(stage.traced(k).unwrap_or_else(|| {
+                    cast += u64::from(ao.rays);
+                    stage.trace_one(k, self.instances[i].now(), bases[i], &ao)
+                }))
+            })
+            .collect();
+        let at: Vec<usize> = (0..staged.len()).filter(|&b| staged[b].is_none()).collect();
+        let rest_plans: Vec<&Plan> = at.iter().map(|&b| plans[b]).collect();
+        let values = self.trace_planned(Some(tracer), &sub.select(&at), &rest_plans, changed)?;
+        let mut rest = values.ao.into_iter();
+        let ao = staged
+            .iter()
+            .map(|v| v.unwrap_or_else(|| rest.next().unwrap_or(1.0)))
+            .collect();
+        Ok((
+            AoResult {
+                ao,
+                rays: values.rays,
+            },
+            cast,
+        ))
     }
 
     /// Compares the AO `values` traced for `batch` with what clients hold,

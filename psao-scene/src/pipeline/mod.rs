@@ -43,6 +43,7 @@ mod ray_cache;
 mod reach;
 pub(crate) mod report;
 mod slots;
+mod stage;
 mod step;
 mod trend;
 mod work;
@@ -314,6 +315,9 @@ pub struct Pipeline {
     envelope_rays: slots::PointSlots,
     /// The masks `envelope_rays` points to, with the rays' directions.
     envelope_masks: Vec<plan::EnvelopeRays>,
+    /// Per instance, a rigid mover traced whole over several steps at one
+    /// pose ([`stage::Stage`]), if any.
+    stages: Vec<Option<stage::Stage>>,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -663,7 +667,9 @@ impl Pipeline {
             envelope: reach::Envelope::default(),
             envelope_rays: Default::default(),
             envelope_masks: Vec::new(),
+            stages: Vec::new(),
         };
+        pipeline.stages = (0..pipeline.instances.len()).map(|_| None).collect();
         if pipeline.config.fill_buried {
             pipeline.find_buried(progress)?;
         }

@@ -99,6 +99,9 @@ impl Pipeline {
         let t3 = Instant::now();
         // Rigid movers held whole this step (their transform held back).
         let mut held = Vec::new();
+        // Rigid movers whose stage ended: the pose their points were traced
+        // in, for clients.
+        let mut posed = Vec::new();
         // The envelope of what moves: points whose rays miss it need no
         // test while it holds. Taken every step, so that motion in a step
         // that traces nothing still counts.
@@ -140,6 +143,7 @@ impl Pipeline {
             report.open = done.open;
             report.trace_phases = done.phases;
             held = done.held;
+            posed = done.posed;
         } else if !self.last_traced.is_empty() {
             // Nothing to trace: the points the last step traced settle.
             let settle = self.settle_left(&[])?;
@@ -157,9 +161,20 @@ impl Pipeline {
 
         let t4 = Instant::now();
         // What clients are sent of each transform: the current one, but
-        // for a rigid mover held whole this step.
+        // for a rigid mover held whole this step, or the pose of a stage
+        // that ended.
         // (A transform that changed, or a placement, has a newer sequence.)
         let mut send = vec![false; self.instances.len()];
+        for (i, transform, seq) in posed {
+            let s = &mut self.instances[i];
+            if s.sent_seq != seq {
+                (s.sent_transform, s.sent_seq) = (transform, seq);
+                send[i] = true;
+            }
+            // The stage's pose, not the current one.
+            held.resize(held.len().max(i + 1), false);
+            held[i] = true;
+        }
         for (i, s) in self.instances.iter_mut().enumerate() {
             if !held.get(i).copied().unwrap_or(false) && s.sent_seq != s.transform_seq {
                 s.sent_transform = s.transform;
