@@ -198,8 +198,8 @@ pub struct BenchArgs {
     #[arg(long)]
     movers_every_frame: bool,
     /// Under --ray-budget, trace a rigid moving part whole at one pose
-    /// (over several ticks against a snapshot of the scene where it does
-    /// not fit a tick's budget), its transform held back with its points
+    /// (on the CPU, over several ticks against a snapshot of the scene
+    /// where it does not fit a tick's budget), its transform held back with its points
     /// while they wait.
     #[arg(long)]
     movers_whole: bool,

@@ -211,8 +211,8 @@ pub struct BudgetArgs {
     #[arg(long)]
     pub movers_every_frame: bool,
     /// Under a budget, trace a rigid moving part whole at one pose (over
-    /// several frames against a snapshot of the scene where it does not
-    /// fit a frame's budget), and hold the transform clients hold back
+    /// several frames against a snapshot of the scene on the CPU where it
+    /// does not fit a frame's budget), and hold the transform clients hold back
     /// with its points while they wait (occlusion stays where it was
     /// traced, as from a slower server, instead of sliding with the part).
     #[arg(long)]

@@ -14,7 +14,7 @@ use super::dirty::{Batch, PAR_MIN, StepMotion};
 use super::plan::Plan;
 use super::ray_cache::key;
 use super::reach::{MotionBoxes, ReachQuery, reached_rays};
-use super::stage::{Stage, stage_rays};
+use super::stage::Stage;
 use super::{InstanceState, Pipeline};
 use crate::trace::ao::{AoTracer, PointRays};
 
@@ -100,6 +100,11 @@ struct Ranking<'a> {
     /// Per instance, the part traced over several steps, if any
     /// ([`Stage`]).
     stages: &'a [Option<Stage>],
+    /// Per instance, whether it was placed this step (a placed part's
+    /// stage is dropped).
+    placed: &'a [bool],
+    /// The step's number (not wrapping).
+    step: u64,
 }
 
 impl Ranking<'_> {
@@ -120,12 +125,16 @@ impl Ranking<'_> {
         cost: u32,
         bound: u32,
     ) -> (u32, u32) {
+        // Traced by a stage that ends now as planned (one placed, or
+        // made to end early at another pose, is dropped: traced now).
         let staged = || {
-            let stage = self
-                .stages
-                .get((key >> 32) as usize)
-                .and_then(Option::as_ref);
-            stage.is_some_and(|s| s.traced(key as u32).is_some())
+            let i = (key >> 32) as usize;
+            let (Some(Some(stage)), Some(s)) = (self.stages.get(i), self.instances.get(i)) else {
+                return false;
+            };
+            !self.placed.get(i).copied().unwrap_or(false)
+                && stage.ends_as_planned(self.step, &s.transform)
+                && stage.traced(key as u32).is_some()
         };
         match (every_step, whole) {
             (false, Some(true)) if staged() => (bound, 0),
@@ -367,6 +376,8 @@ impl Pipeline {
             config: &self.config,
             frame: self.frame as u32,
             stages: &self.stages,
+            placed: &motion.placed,
+            step: self.frame,
         };
         // A moving point that may stop early costs what such points cast
         // on average.
@@ -504,8 +515,8 @@ impl Pipeline {
     /// the bound demand may have raised: a part held longer would lag its
     /// motion by as much), or when it was placed this step; else held. A
     /// part traced over several steps ([`Stage`]) is traced whole (the
-    /// stage ends) in the step whose share pays for the rest of it, or as
-    /// the rules above say.
+    /// stage ends) in the step it was planned to end in, or as the rules
+    /// above say.
     fn whole_movers(
         &self,
         batch: &Batch,
@@ -558,9 +569,8 @@ impl Pipeline {
                         || cost[i] <= budget.saturating_mul(u64::from(self.config.max_wait)));
                 held_whole.then(|| {
                     let fits = match self.stages.get(i).and_then(Option::as_ref) {
-                        // A stage ends in the step whose share pays for
-                        // what is left of it.
-                        Some(stage) => stage.left(rays) <= stage_rays(stage, budget),
+                        // A stage ends in the step it was planned to.
+                        Some(stage) => self.frame >= stage.ends_at,
                         None => cost[i] <= budget,
                     };
                     due_now[i]

@@ -200,16 +200,19 @@ pub struct PipelineConfig {
     /// step). So it costs at most a budget a step on average, a part whose
     /// points cost more than `max_wait` budgets waits point by point, as
     /// without it. On the CPU a part that does not fit is traced over
-    /// several steps at one pose (a *stage*): the step that holds it keeps
-    /// the scene as it is then, each step traces a slice of the part's
-    /// points against that snapshot (its share of them, or half the
-    /// budget where that is more, before the budget goes to the other
-    /// points), and the step that takes the last slice sets them all and
-    /// sends the snapshot's transform with them. A stage ends before the
-    /// first of its points comes due under the bound on waiting, so no
-    /// step runs past its budget for the part, and clients hold the part
-    /// some steps late but consistent. On a backend (no snapshot there) a
-    /// part held is traced whole in one step, which can take up to
+    /// several steps at one pose (a *stage*): the step that holds it plans
+    /// how many of its points each step traces (enough to end before the
+    /// first of them comes due, and at least half the budget's worth; the
+    /// budget pays for them before the other points) and so the step it
+    /// ends in, and keeps the scene with the part where its animation
+    /// takes it by that step. Each step traces a slice against that
+    /// snapshot, and the last sets them all and sends the snapshot's
+    /// transform with them: the part's AO arrives whole, consistent, and
+    /// with the pose the part has then. A stage made to end early (a point
+    /// come due under a lowered bound) while the part is elsewhere, or one
+    /// of a part placed, is dropped and the part traced whole in that
+    /// step. On a backend (no snapshot there) a part held is traced whole
+    /// in one step, which can take up to
     /// `max_wait` periods (the reference server makes such a step up:
     /// spec/session.md section 6). Ignored with
     /// [`movers_every_step`](Self::movers_every_step).

@@ -17,7 +17,7 @@ use super::plan::{Learnt, Plan};
 use super::ray_cache::key;
 use super::reach::MotionBoxes;
 use super::report::TracePhases;
-use super::stage::{Stage, stage_rays};
+use super::stage::Stage;
 use super::work::{Moving, PointWork, Traced};
 use crate::error::SceneError;
 use crate::model::pose::normal_matrix;
@@ -70,8 +70,8 @@ pub(super) struct StepTrace {
     /// [`PipelineConfig::movers_whole`](super::config::PipelineConfig::movers_whole)).
     pub held: Vec<bool>,
     /// The instances whose stage ended this step ([`Stage`]), with the
-    /// transform and sequence clients get in place of the current ones.
-    pub posed: Vec<(usize, Affine3A, u32)>,
+    /// transform clients get in place of the current one.
+    pub posed: Vec<(usize, Affine3A)>,
 }
 
 /// A step's stages ([`Pipeline::stages_of_step`]): the slices to trace,
@@ -310,20 +310,20 @@ impl Pipeline {
             held,
             posed: finishing
                 .into_iter()
-                .map(|(i, stage)| (i, stage.transform, stage.seq))
+                .map(|(i, stage)| (i, stage.transform))
                 .collect(),
         })
     }
 
     /// The stages of a step ([`Stage`], under
     /// [`PipelineConfig::movers_whole`](super::config::PipelineConfig::movers_whole)
-    /// on the CPU): a part held (`cands.whole` `Some(false)`) begins one,
-    /// against `tracer` (the scene now), of its candidates; a held part's
-    /// stage traces its next slice (returned as (instance, rays)); a part
-    /// traced whole ends its stage (returned, taken out); a part placed,
-    /// or with nothing to trace, drops it. A stage is to end before the
-    /// first of its points comes due under `bound` (else that step traces
-    /// the rest at once), and within `max_wait` steps.
+    /// on the CPU): a part held (`cands.whole` `Some(false)`) begins one of
+    /// its candidates, planned ([`Self::plan_stage`]); a held part's stage
+    /// traces its next slice (returned as (instance, rays), within what is
+    /// left of `budget`); a part traced whole ends its stage (returned,
+    /// taken out) where it ends as planned ([`Stage::ends_as_planned`]);
+    /// a part placed, made to end early at another pose, or with nothing
+    /// to trace, drops it (its points are then traced as without stages).
     fn stages_of_step(
         &mut self,
         tracer: Option<&AoTracer>,
@@ -335,13 +335,21 @@ impl Pipeline {
         let (mut slices, mut finishing) = (Vec::new(), Vec::new());
         let staging = self.config.movers_whole && self.backend.is_none();
         let rays = self.config.ao.rays;
+        let mut left = budget.unwrap_or(0);
         for i in 0..self.instances.len() {
             let whole = cands.whole.get(i).copied().flatten();
             if whole.is_none() || motion.placed.get(i).copied().unwrap_or(false) || !staging {
                 self.stages[i] = None;
             }
             match whole {
-                Some(true) => finishing.extend(self.stages[i].take().map(|s| (i, s))),
+                Some(true) => {
+                    let now = self.instances[i].transform;
+                    if let Some(stage) = self.stages[i].take()
+                        && stage.ends_as_planned(self.frame, &now)
+                    {
+                        finishing.push((i, stage));
+                    }
+                }
                 Some(false) => {
                     if self.stages[i].is_none()
                         && let Some(tracer) = tracer.filter(|_| staging)
@@ -359,39 +367,61 @@ impl Pipeline {
                             .filter(|&k| (k >> 32) as usize == i)
                             .map(|k| k as u32)
                             .collect();
-                        // Steps until the first of them comes due.
-                        let steps = (todo.iter())
-                            .map(|&k| {
-                                let age = self.waiting.get(key(i, k)).map_or(0, |w| w.0);
-                                due(key(i, k), bound).saturating_sub(age).saturating_sub(1)
-                            })
-                            .min()
-                            .unwrap_or(1)
-                            .clamp(1, self.config.max_wait.max(1));
-                        // The steps it takes at its first slice, and the
-                        // pose the part has in the last of them.
-                        let points = todo.len() as u64;
-                        let per_step = points.div_ceil(u64::from(steps)) * u64::from(rays);
-                        let slice = per_step.max(budget.unwrap_or(0) / 2).max(1);
-                        let takes = (points * u64::from(rays)).div_ceil(slice).max(1);
-                        let seq = self.instances[i].transform_seq;
-                        let (tracer, transform) =
-                            match self.posed_ahead(i, takes - 1, motion.period) {
-                                Some(there) => there,
-                                None => (tracer.clone(), self.instances[i].transform),
-                            };
-                        self.stages[i] =
-                            Some(Stage::new(tracer, (transform, seq), todo, rays, steps));
+                        let stage =
+                            self.plan_stage(i, todo, tracer, motion.period, (budget, bound));
+                        self.stages[i] = Some(stage);
                     }
                     if let Some(stage) = &self.stages[i] {
-                        let share = stage_rays(stage, budget.unwrap_or(0));
-                        slices.push((i, share.min(stage.left(rays))));
+                        let slice = (stage.slice as u64 * u64::from(rays))
+                            .min(stage.left(rays))
+                            .min(left);
+                        left -= slice;
+                        slices.push((i, slice));
                     }
                 }
                 None => {}
             }
         }
         (slices, finishing)
+    }
+
+    /// Plans the stage of rigid mover `i`'s points `todo` (ascending), held
+    /// this step under `budget` and `bound`: the points a step traces,
+    /// enough to end before the first of them comes due (and before the
+    /// part has been held `max_wait` steps), and at least half a budget's
+    /// worth; so the step it ends in; and the scene with the part posed
+    /// for that step ([`Self::posed_ahead`]; the scene now, `tracer`,
+    /// where that pose is not known).
+    fn plan_stage(
+        &mut self,
+        i: usize,
+        todo: Vec<u32>,
+        tracer: &AoTracer,
+        period: f64,
+        (budget, bound): (Option<u64>, u32),
+    ) -> Stage {
+        let rays = self.config.ao.rays.max(1);
+        let held = self.instances[i].held_steps;
+        let steps = (todo.iter())
+            .map(|&k| {
+                let age = self.waiting.get(key(i, k)).map_or(0, |w| w.0);
+                due(key(i, k), bound).saturating_sub(age).saturating_sub(1)
+            })
+            .min()
+            .unwrap_or(1)
+            .clamp(1, self.config.max_wait.saturating_sub(held).max(1));
+        let points = todo.len() as u64;
+        let half = budget.unwrap_or(0) / 2 / u64::from(rays);
+        let slice = points.div_ceil(u64::from(steps)).max(half).max(1);
+        // Its first slice this step, its last (the rest) `takes - 1` steps
+        // on.
+        let takes = points.div_ceil(slice).max(2);
+        let (tracer, transform) = match self.posed_ahead(i, takes - 1, period) {
+            Some(there) => there,
+            None => (tracer.clone(), self.instances[i].transform),
+        };
+        let slice = usize::try_from(slice).unwrap_or(usize::MAX);
+        Stage::new((tracer, transform), todo, slice, self.frame + takes - 1)
     }
 
     /// The scene as a stage of rigid mover `i` traces it, posed `steps`
@@ -485,8 +515,9 @@ impl Pipeline {
                 // not this trace's: forgotten.
                 drop(self.kept_scores.take(key(i, k)));
                 Some(stage.traced(k).unwrap_or_else(|| {
-                    cast += u64::from(ao.rays);
-                    stage.trace_one(k, self.instances[i].now(), bases[i], &ao)
+                    let (value, rays) = stage.trace_one(k, self.instances[i].now(), bases[i], &ao);
+                    cast += rays;
+                    value
                 }))
             })
             .collect();

@@ -6,14 +6,16 @@
 //! cost more than a step's budget was held until it fit, or for
 //! [`max_wait`](super::config::PipelineConfig::max_wait) steps and then
 //! traced in one step several periods long. On the CPU a held part is
-//! now traced in slices instead: the step that holds it keeps the scene
-//! as it is then (its [`AoTracer`], whose layers are shared, and the
-//! part's transform), and each step traces a slice of the part's points
-//! against that snapshot, at the pose of the snapshot. The step that
-//! takes the last slice sets them all, and clients get the snapshot's
-//! transform with them: the part's AO arrives whole and consistent, some
-//! steps late, as from a slower server, and no step runs past its budget
-//! for it.
+//! now traced in slices instead. The step that holds it plans the stage:
+//! how many of the part's points each step traces (enough to end before
+//! the first of them comes due, and at least half a budget's worth), so
+//! in which step it ends, and the scene with the part where its
+//! animation takes it by that step (an [`AoTracer`] whose layers are
+//! shared with the step's). Each step traces a slice against that
+//! snapshot; the step the stage ends in sets them all, and clients get
+//! the snapshot's transform with them. The part's AO arrives whole and
+//! consistent, and where the animation is known ahead, with the pose the
+//! part has when it arrives.
 
 use glam::{Affine3A, Vec3};
 use rayon::prelude::*;
@@ -21,45 +23,51 @@ use rayon::prelude::*;
 use crate::model::pose::normal_matrix;
 use crate::trace::ao::{AoParams, AoTracer};
 
-/// One part's stage: the scene as it was posed when it began, and the
-/// points traced so far.
+/// One part's stage: the scene posed for it, and the points traced so
+/// far.
 pub(super) struct Stage {
-    /// The scene posed at the stage's first step (layers shared).
+    /// The scene with the part posed where it is to be in the stage's
+    /// last step (layers shared).
     tracer: AoTracer,
-    /// The part's transform then, and its sequence: what clients get
-    /// with the points.
+    /// The part's transform in that scene: what clients get with the
+    /// points.
     pub transform: Affine3A,
-    pub seq: u32,
     /// The points to trace, ascending.
     todo: Vec<u32>,
     /// How many of `todo` are traced; their AO, in `todo`'s order.
     ao: Vec<f32>,
-    /// Rays each step spends on it at least: its points' rays over the
-    /// steps it is to end within.
-    pub share: u64,
+    /// Points a step traces.
+    pub slice: usize,
+    /// The step (the pipeline's frame number) the stage ends in.
+    pub ends_at: u64,
 }
 
 impl Stage {
     /// A stage of `todo` (ascending, deduplicated) against `tracer`, the
-    /// part at `transform` (sequence `seq`); each point costs `rays`, and
-    /// the stage is to end within `steps` steps.
+    /// part at `transform` there; `slice` points a step, ending in step
+    /// `ends_at`.
     pub fn new(
-        tracer: AoTracer,
-        (transform, seq): (Affine3A, u32),
+        (tracer, transform): (AoTracer, Affine3A),
         todo: Vec<u32>,
-        rays: u32,
-        steps: u32,
+        slice: usize,
+        ends_at: u64,
     ) -> Stage {
-        // Whole points a step.
-        let per_step = (todo.len() as u64).div_ceil(u64::from(steps.max(1)));
         Stage {
             tracer,
             transform,
-            seq,
             ao: Vec::with_capacity(todo.len()),
             todo,
-            share: per_step * u64::from(rays),
+            slice: slice.max(1),
+            ends_at,
         }
+    }
+
+    /// Whether, ending in step `step` with the part at `now`, it ends as
+    /// planned: in its step, or earlier (made to) with the part already
+    /// where the stage traced it. Else its AO is of a pose the part has
+    /// not reached yet, and the part is traced now instead.
+    pub fn ends_as_planned(&self, step: u64, now: &Affine3A) -> bool {
+        step >= self.ends_at || self.transform == *now
     }
 
     /// Rays its untraced points cost, at `rays` each.
@@ -74,9 +82,9 @@ impl Stage {
     }
 
     /// Traces the next untraced points, as many as `rays` rays pay for
-    /// (at least one while any is left), at the snapshot's pose: `local`
-    /// and `normals` are the part's points in its own space, `base` the
-    /// id of its point 0. Returns the rays cast.
+    /// (whole points), at the snapshot's pose: `local` and `normals` are
+    /// the part's points in its own space, `base` the id of its point 0.
+    /// Returns the rays cast.
     pub fn trace_next(
         &mut self,
         rays: u64,
@@ -85,7 +93,7 @@ impl Stage {
         ao: &AoParams,
     ) -> u64 {
         let per = u64::from(ao.rays.max(1));
-        let n = usize::try_from(rays / per).unwrap_or(usize::MAX).max(1);
+        let n = usize::try_from(rays / per).unwrap_or(usize::MAX);
         let from = self.ao.len();
         let to = self.todo.len().min(from.saturating_add(n));
         self.trace_range(from..to, (local, normals), base, ao)
@@ -98,22 +106,25 @@ impl Stage {
     }
 
     /// The AO of point `k` traced now against the snapshot (a point of the
-    /// part that joined after the stage began).
+    /// part that joined after the stage began), and the rays cast.
     pub fn trace_one(
         &self,
         k: u32,
         (local, normals): (&[Vec3], &[Vec3]),
         base: u32,
         ao: &AoParams,
-    ) -> f32 {
+    ) -> (f32, u64) {
         let nm = normal_matrix(&self.transform);
         let (p, n) = (local[k as usize], normals[k as usize]);
-        self.tracer.point_ao(
-            base + k,
+        let (p, n) = (
             self.transform.transform_point3(p),
             (nm * n).normalize_or_zero(),
-            ao,
-        )
+        );
+        let cast = self
+            .tracer
+            .point_rays(base + k, p, n, ao)
+            .map_or(0, |_| ao.rays);
+        (self.tracer.point_ao(base + k, p, n, ao), u64::from(cast))
     }
 
     fn trace_range(
@@ -123,29 +134,15 @@ impl Stage {
         base: u32,
         ao: &AoParams,
     ) -> u64 {
-        let nm = normal_matrix(&self.transform);
-        let (tracer, transform) = (&self.tracer, self.transform);
-        let mut values: Vec<(f32, bool)> = self.todo[range]
+        let mut values: Vec<(f32, u64)> = self.todo[range]
             .par_iter()
             .with_min_len(64)
-            .map(|&k| {
-                let (p, n) = (local[k as usize], normals[k as usize]);
-                let (p, n) = (transform.transform_point3(p), (nm * n).normalize_or_zero());
-                let cast = tracer.point_rays(base + k, p, n, ao).is_some();
-                (tracer.point_ao(base + k, p, n, ao), cast)
-            })
+            .map(|&k| self.trace_one(k, (local, normals), base, ao))
             .collect();
-        let cast = values.iter().filter(|v| v.1).count() as u64 * u64::from(ao.rays);
+        let cast = values.iter().map(|v| v.1).sum();
         self.ao.extend(values.drain(..).map(|v| v.0));
         cast
     }
-}
-
-/// The rays a step spends on `stage` under a budget of `budget` rays:
-/// its share, or half the budget where that is more (the other half for
-/// the rest of the step's points).
-pub(super) fn stage_rays(stage: &Stage, budget: u64) -> u64 {
-    stage.share.max(budget / 2)
 }
 
 #[cfg(test)]
@@ -178,17 +175,18 @@ mod tests {
         let normals = vec![Vec3::Y; local.len()];
         let transform = Affine3A::from_translation(Vec3::new(0.02, 0.0, 0.1));
         let todo: Vec<u32> = (0..40).filter(|k| k % 3 != 1).collect();
-        let mut stage = Stage::new(tracer.clone(), (transform, 7), todo.clone(), ao.rays, 4);
-        // 27 points over 4 steps: 7 a step.
+        let mut stage = Stage::new((tracer.clone(), transform), todo.clone(), 7, 9);
         assert_eq!(todo.len(), 27);
-        assert_eq!(stage.share, 7 * 16);
         let mut slices = 0;
-        while stage.left(ao.rays) > stage.share {
+        while stage.left(ao.rays) > 7 * 16 {
             let before = stage.left(ao.rays);
-            let cast = stage.trace_next(stage.share, (&local, &normals), 100, &ao);
-            assert_eq!(before - stage.left(ao.rays), cast);
+            let cast = stage.trace_next(7 * 16 + 15, (&local, &normals), 100, &ao);
+            // Whole points only: 7 of them.
+            assert_eq!(before - stage.left(ao.rays), 7 * 16);
+            assert_eq!(cast, 7 * 16);
             slices += 1;
         }
+        assert_eq!(stage.trace_next(15, (&local, &normals), 100, &ao), 0);
         stage.trace_rest((&local, &normals), 100, &ao);
         assert_eq!(stage.left(ao.rays), 0);
         assert_eq!(slices, 3);
@@ -208,7 +206,7 @@ mod tests {
                 Some(whole.ao[j].to_bits())
             );
             assert_eq!(
-                stage.trace_one(k, (&local, &normals), 100, &ao).to_bits(),
+                stage.trace_one(k, (&local, &normals), 100, &ao).0.to_bits(),
                 whole.ao[j].to_bits()
             );
         }

@@ -165,13 +165,18 @@ impl Pipeline {
         // that ended.
         // (A transform that changed, or a placement, has a newer sequence.)
         let mut send = vec![false; self.instances.len()];
-        for (i, transform, seq) in posed {
+        for (i, transform) in posed {
             let s = &mut self.instances[i];
-            if s.sent_seq != seq {
-                (s.sent_transform, s.sent_seq) = (transform, seq);
-                send[i] = true;
+            // The stage's pose, under a sequence newer than any clients
+            // hold; where the part is elsewhere by now (the stage ended
+            // early, or its pose was not known ahead), the pose it is in
+            // is newer still, so that it is at stake again.
+            s.transform_seq = s.transform_seq.wrapping_add(1);
+            (s.sent_transform, s.sent_seq) = (transform, s.transform_seq);
+            if transform != s.transform {
+                s.transform_seq = s.transform_seq.wrapping_add(1);
             }
-            // The stage's pose, not the current one.
+            send[i] = true;
             held.resize(held.len().max(i + 1), false);
             held[i] = true;
         }
