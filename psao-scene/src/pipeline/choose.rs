@@ -95,15 +95,13 @@ struct Ranking<'a> {
     waiting: &'a Waiting,
     /// The pipeline's configuration.
     config: &'a PipelineConfig,
-    /// The step's number (wrapping).
-    frame: u32,
     /// Per instance, the part traced over several steps, if any
     /// ([`Stage`]).
     stages: &'a [Option<Stage>],
     /// Per instance, whether it was placed this step (a placed part's
     /// stage is dropped).
     placed: &'a [bool],
-    /// The step's number (not wrapping).
+    /// The step's number.
     step: u64,
 }
 
@@ -184,7 +182,7 @@ impl Ranking<'_> {
             .points
             .positions
             .get(k as usize)
-            .map_or(0.0, |&p| s.heat.pace(p, self.frame));
+            .map_or(0.0, |&p| s.heat.pace(p, self.step as u32));
         own.max(near * (age as f32 + 1.0) / threshold)
     }
 }
@@ -374,7 +372,6 @@ impl Pipeline {
             instances: &self.instances,
             waiting: &self.waiting,
             config: &self.config,
-            frame: self.frame as u32,
             stages: &self.stages,
             placed: &motion.placed,
             step: self.frame,

@@ -110,21 +110,32 @@ impl Stage {
     pub fn trace_one(
         &self,
         k: u32,
-        (local, normals): (&[Vec3], &[Vec3]),
+        points: (&[Vec3], &[Vec3]),
         base: u32,
         ao: &AoParams,
     ) -> (f32, u64) {
-        let nm = normal_matrix(&self.transform);
+        self.trace_at(k, points, base, &normal_matrix(&self.transform), ao)
+    }
+
+    /// [`trace_one`](Self::trace_one) with the snapshot's normal matrix
+    /// `nm` given (made once for a slice).
+    fn trace_at(
+        &self,
+        k: u32,
+        (local, normals): (&[Vec3], &[Vec3]),
+        base: u32,
+        nm: &glam::Mat3A,
+        ao: &AoParams,
+    ) -> (f32, u64) {
         let (p, n) = (local[k as usize], normals[k as usize]);
         let (p, n) = (
             self.transform.transform_point3(p),
-            (nm * n).normalize_or_zero(),
+            (*nm * n).normalize_or_zero(),
         );
-        let cast = self
-            .tracer
-            .point_rays(base + k, p, n, ao)
-            .map_or(0, |_| ao.rays);
-        (self.tracer.point_ao(base + k, p, n, ao), u64::from(cast))
+        // Its rays drawn once: for the AO and for the count.
+        let rays = self.tracer.point_rays(base + k, p, n, ao);
+        let cast = rays.as_ref().map_or(0, |_| u64::from(ao.rays));
+        (self.tracer.ao_of_rays(rays.as_ref(), ao), cast)
     }
 
     fn trace_range(
@@ -134,10 +145,11 @@ impl Stage {
         base: u32,
         ao: &AoParams,
     ) -> u64 {
+        let nm = normal_matrix(&self.transform);
         let mut values: Vec<(f32, u64)> = self.todo[range]
             .par_iter()
             .with_min_len(64)
-            .map(|&k| self.trace_one(k, (local, normals), base, ao))
+            .map(|&k| self.trace_at(k, (local, normals), base, &nm, ao))
             .collect();
         let cast = values.iter().map(|v| v.1).sum();
         self.ao.extend(values.drain(..).map(|v| v.0));

@@ -256,7 +256,14 @@ impl AoTracer {
     /// AO at one point; `id` selects its random numbers. `p` must be
     /// valid ([`AoParams::validate`]).
     pub(crate) fn point_ao(&self, id: u32, point: Vec3, normal: Vec3, p: &AoParams) -> f32 {
-        let Some(rays) = self.point_rays(id, point, normal, p) else {
+        self.ao_of_rays(self.point_rays(id, point, normal, p).as_ref(), p)
+    }
+
+    /// AO at a point from its rays as [`point_rays`](Self::point_rays)
+    /// gives them (`None`: open), as [`point_ao`](Self::point_ao) adds
+    /// them up.
+    pub(crate) fn ao_of_rays(&self, rays: Option<&PointRays>, p: &AoParams) -> f32 {
+        let Some(rays) = rays else {
             return 1.0;
         };
         let mut sums = [0.0f32; RAY_SUM_LANES as usize];
