@@ -684,6 +684,16 @@ fn vectors() -> Vec<Vector> {
         "The keyframe of 02 as an LZ4 block whose one match starts fewer than 12 bytes before the end: it decodes to the right bytes, but breaks the end-of-block rules, so `decompress` (section 3.2: MUST reject).",
         vec![with_wire(1, lz4_late_match(&payload))],
     ));
+    // A raw block not marked last, then a last Compressed_Block of
+    // Block_Size 0 (block header 0x000005).
+    let mut empty_last = zstd_raw_frame(0x50, &payload);
+    empty_last[6] &= !1;
+    empty_last.extend([0x05, 0x00, 0x00]);
+    list.push(v(
+        "63-zstd-empty-compressed-block",
+        "The keyframe of 02 in one zstd frame (window 2^20, no content size) as a raw block, then a last block of type Compressed_Block and Block_Size 0. A compressed block holds at least a Literals_Section_Header and a Sequences_Section_Header (RFC 8878 3.1.1.3), so the frame is invalid: `decompress`, although libzstd's streaming decoder takes the empty block as an empty block and yields the keyframe.",
+        vec![with_wire(2, empty_last)],
+    ));
     assert_eq!(W1, word([1, 1, 3], 0x77, 200));
     assert_eq!(W2, word([0, 0, 0], 0x74, 64));
     list

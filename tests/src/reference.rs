@@ -7,7 +7,10 @@
 //! Its LZ4 decoder is its own, enforcing the end-of-block rules while it
 //! decodes (the codec walks the block first, then lets lz4_flex decode);
 //! its zstd path is libzstd's streaming decoder with a 2^27 window limit
-//! (the codec checks frame headers itself, then decodes in one pass).
+//! (the codec checks frame headers itself, then decodes in one pass),
+//! after its own walk of the block headers for the one rule libzstd's
+//! streaming decoder does not enforce (a compressed block of under 2
+//! bytes, spec 3.2).
 
 use psao_codec::Limits;
 
@@ -175,12 +178,69 @@ fn zstd_payload(src: &[u8], n: usize) -> Option<Vec<u8>> {
             return None;
         }
     }
+    if short_compressed_block(src) {
+        return None;
+    }
     let mut d = zstd::stream::read::Decoder::with_buffer(src).ok()?;
     d.window_log_max(27).ok()?;
     let mut out = Vec::with_capacity(n);
     // Read one byte more than wanted: a longer output is an error.
     let got = d.take(n as u64 + 1).read_to_end(&mut out).ok()?;
     (got == n).then_some(out)
+}
+
+/// Whether a zstd frame of `src` holds a block of type `Compressed_Block`
+/// with a `Block_Size` under 2 (spec/wire-format.md 3.2, RFC 8878
+/// 3.1.1.3), which libzstd's streaming decoder takes as an empty block. A
+/// walk of frame and block headers only; what it cannot walk (cut short,
+/// unknown magic) it leaves to libzstd, which rejects it.
+fn short_compressed_block(src: &[u8]) -> bool {
+    let byte = |i: usize| src.get(i).copied();
+    let mut at = 0usize;
+    while let Some(magic) = src.get(at..at + 4) {
+        let magic = u32::from_le_bytes(magic.try_into().expect("4 bytes"));
+        if (0x184D_2A50..=0x184D_2A5F).contains(&magic) {
+            let Some(size) = src.get(at + 4..at + 8) else {
+                return false;
+            };
+            at += 8 + u32::from_le_bytes(size.try_into().expect("4 bytes")) as usize;
+            continue;
+        }
+        if magic != 0xFD2F_B528 {
+            return false;
+        }
+        let Some(fhd) = byte(at + 4) else {
+            return false;
+        };
+        let single_segment = fhd & 0x20 != 0;
+        let content_size_bytes = match (fhd >> 6, single_segment) {
+            (0, false) => 0,
+            (0, true) => 1,
+            (1, _) => 2,
+            (2, _) => 4,
+            _ => 8,
+        };
+        let dictionary_bytes = [0, 1, 2, 4][usize::from(fhd & 3)];
+        at += 5 + usize::from(!single_segment) + dictionary_bytes + content_size_bytes;
+        loop {
+            let (Some(b0), Some(b1), Some(b2)) = (byte(at), byte(at + 1), byte(at + 2)) else {
+                return false;
+            };
+            let header = u32::from(b0) | u32::from(b1) << 8 | u32::from(b2) << 16;
+            let (last, kind, size) = (header & 1 == 1, (header >> 1) & 3, header as usize >> 3);
+            if kind == 2 && size < 2 {
+                return true;
+            }
+            at += 3 + if kind == 1 { 1 } else { size };
+            if last {
+                break;
+            }
+        }
+        if fhd & 0x04 != 0 {
+            at += 4;
+        }
+    }
+    false
 }
 
 /// Compares psao-codec's `decode_frame` with [`frame_layer`] on one frame:

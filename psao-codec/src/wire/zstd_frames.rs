@@ -2,7 +2,9 @@
 //! headers (RFC 8878 section 3.1) before anything is decompressed: one or
 //! more frames, each a zstd frame or a skippable frame, at least one of
 //! them a zstd frame; no dictionary; no reserved bit; a `Window_Size` of at
-//! most 2^27 bytes; nothing after the last frame. libzstd's one-pass
+//! most 2^27 bytes; no compressed block under 2 bytes (found on the block
+//! headers, walked to find each frame's end); nothing after the last
+//! frame. libzstd's one-pass
 //! decompression (used after this; ruzstd's with feature `zstd-pure`)
 //! does not check the window.
 
@@ -62,24 +64,13 @@ fn window_of(frame: &[u8], offset: u32) -> Result<u64, DecompressFault> {
 
 /// The bytes of the zstd frame at the start of `frame`, from its header and
 /// block headers (RFC 8878 3.1.1: header, blocks up to the one marked
-/// last, the checksum if the header says so); a reserved block type or a
-/// frame cut short is corrupt. With the C library, its own walk.
-#[cfg(feature = "zstd")]
+/// last, the checksum if the header says so). Corrupt: a frame cut short,
+/// a reserved block type, or a compressed block of under 2 bytes (3.1.1.3:
+/// it starts with a literals and a sequences section header), which
+/// libzstd's streaming decoder would take as an empty block (spec 3.2,
+/// vector 63). The same walk with and without the C library; the tests
+/// check it against the C library's own on the frames it writes.
 fn frame_size(frame: &[u8]) -> Result<usize, DecompressFault> {
-    zstd::zstd_safe::find_frame_compressed_size(frame).map_err(|_| DecompressFault::Corrupt)
-}
-
-/// The bytes of the zstd frame at the start of `frame` (see above), walked
-/// here where there is no C library (feature `zstd-pure`).
-#[cfg(not(feature = "zstd"))]
-fn frame_size(frame: &[u8]) -> Result<usize, DecompressFault> {
-    frame_size_walked(frame)
-}
-
-/// The frame walk of RFC 8878 3.1.1, checked against the C library's in
-/// the tests.
-#[cfg_attr(feature = "zstd", allow(dead_code))]
-fn frame_size_walked(frame: &[u8]) -> Result<usize, DecompressFault> {
     let cut = DecompressFault::Corrupt;
     let descriptor = *frame.get(4).ok_or(cut)?;
     let single_segment = descriptor & 0x20 != 0;
@@ -94,8 +85,9 @@ fn frame_size_walked(frame: &[u8]) -> Result<usize, DecompressFault> {
         at += 3;
         let size = (header >> 3) as usize;
         at += match (header >> 1) & 3 {
-            0 | 2 => size,
+            0 => size,
             1 => 1,
+            2 if size >= 2 => size,
             _ => return Err(cut),
         };
         if at > frame.len() {
@@ -162,18 +154,10 @@ mod tests {
                 let mut frame = c.compress(&src).unwrap();
                 frame.extend([1, 2, 3]); // what follows the frame
                 let whole = zstd::zstd_safe::find_frame_compressed_size(&frame).unwrap();
-                assert_eq!(
-                    frame_size_walked(&frame),
-                    Ok(whole),
-                    "size {size} level {level}"
-                );
+                assert_eq!(frame_size(&frame), Ok(whole), "size {size} level {level}");
                 for cut in [whole - 1, whole / 2, 6] {
                     let c_says = zstd::zstd_safe::find_frame_compressed_size(&frame[..cut]).ok();
-                    assert_eq!(
-                        frame_size_walked(&frame[..cut]).ok(),
-                        c_says,
-                        "cut at {cut}"
-                    );
+                    assert_eq!(frame_size(&frame[..cut]).ok(), c_says, "cut at {cut}");
                 }
                 // A reserved block type in the first block header (the
                 // writer puts no dictionary id: window, then content size).
@@ -185,7 +169,7 @@ mod tests {
                 };
                 bad[5 + usize::from(!single) + fcs_len] |= 0b110;
                 assert_eq!(
-                    frame_size_walked(&bad).ok(),
+                    frame_size(&bad).ok(),
                     zstd::zstd_safe::find_frame_compressed_size(&bad).ok()
                 );
             }
@@ -236,6 +220,31 @@ mod tests {
         let mut both = skippable(5);
         both.extend(raw_frame(0, b"x"));
         assert_eq!(check_zstd_frames(&both), Ok(()));
+    }
+
+    /// Vector 63: a compressed block of `Block_Size` 0 or 1 is corrupt,
+    /// also after a good raw block, where libzstd's streaming decoder
+    /// would yield the raw block's bytes; 2 bytes pass the walk (whether
+    /// they decompress is the decompressor's to say).
+    #[test]
+    fn compressed_blocks_under_two_bytes_are_corrupt() {
+        let with_last = |size: u32| {
+            let mut f = ZSTD_MAGIC.to_le_bytes().to_vec();
+            f.extend([0x00, 0x50]);
+            f.extend(&(3u32 << 3).to_le_bytes()[..3]); // raw, not last
+            f.extend(b"abc");
+            f.extend(&(1 | 2 << 1 | size << 3).to_le_bytes()[..3]);
+            f.extend(std::iter::repeat_n(0u8, size as usize));
+            f
+        };
+        for size in [0, 1] {
+            assert_eq!(
+                check_zstd_frames(&with_last(size)),
+                Err(DecompressFault::Corrupt),
+                "Block_Size {size}"
+            );
+        }
+        assert_eq!(check_zstd_frames(&with_last(2)), Ok(()));
     }
 
     #[test]
