@@ -16,6 +16,9 @@
 //!   80% of the frame period affords): points past it wait, at most
 //!   `--max-wait` frames (8); `--movers-every-step` traces a moving
 //!   instance's own points every frame whatever the budget;
+//!   `--movers-whole off|on|auto` holds none, every, or the pose-dependent
+//!   rigid moving parts whole (`PipelineConfig::movers_whole`; `auto`
+//!   by default);
 //!   `--plan-late` plans points that wait long once, when the budget
 //!   takes them (`PipelineConfig::plan_late`);
 //! - `--early`: early decisions (a moving instance's point stops casting
@@ -109,7 +112,15 @@ fn main() {
         max_wait: arg("--max-wait", 8),
         max_wait_limit: arg("--max-wait-limit", 60),
         movers_every_step: flag("--movers-every-step"),
-        movers_whole: flag("--movers-whole"),
+        movers_whole: match arg("--movers-whole", "auto".to_string()).as_str() {
+            "off" => MoversWhole::Off,
+            "on" => MoversWhole::On,
+            "auto" => MoversWhole::Auto,
+            _ => {
+                eprintln!("error: --movers-whole takes off, on or auto");
+                std::process::exit(2)
+            }
+        },
         early: flag("--early").then(|| EarlyDecisions {
             z: arg("--early-z", 3.0),
             sd_floor: arg("--early-floor", 0.02),

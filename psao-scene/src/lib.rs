@@ -86,7 +86,8 @@ pub use model::skin::{Skin, SkinWeights};
 pub use morton::morton_order;
 pub use pipeline::backend::{AoBackend, RayJob};
 pub use pipeline::config::{
-    DEFAULT_MAX_POINTS, EarlyDecisions, PipelineConfig, RayBudget, ViewerCull, Views,
+    DEFAULT_MAX_POINTS, EarlyDecisions, MoversWhole, POSE_DEPENDENT_SHARE, PipelineConfig,
+    RayBudget, ViewerCull, Views,
 };
 pub use pipeline::early::EarlyAudit;
 pub use pipeline::report::{FrameReport, TracePhases};

@@ -527,13 +527,16 @@ struct WholeBoxStep {
     traced: u64,
     rays: u64,
     budget: u64,
+    /// The longest any point has waited, and the bound in force.
+    oldest_wait: u32,
+    wait_bound: u32,
 }
 
-/// A box sliding by a wall under a budget its points exceed by half, traced
-/// whole or held ([`PipelineConfig::movers_whole`]): each step, with the
-/// box's points.
-fn whole_box_run(movers_whole: bool) -> (Vec<WholeBoxStep>, usize) {
-    let (scene, b) = box_by_a_wall();
+/// The box of `scene` (a [`sliding_box`], maybe by a wall) under a budget
+/// its points exceed by half, held whole as `movers_whole` says
+/// ([`PipelineConfig::movers_whole`]): each step, with the box's points.
+fn whole_box_run(scene: (Scene, usize), movers_whole: MoversWhole) -> (Vec<WholeBoxStep>, usize) {
+    let (scene, b) = scene;
     let mut c = PipelineConfig {
         max_wait: 6,
         movers_whole,
@@ -576,6 +579,8 @@ fn whole_box_run(movers_whole: bool) -> (Vec<WholeBoxStep>, usize) {
             traced: r.traced,
             rays: r.rays,
             budget: r.budget.unwrap(),
+            oldest_wait: r.oldest_wait,
+            wait_bound: r.wait_bound,
         });
     }
     (steps, p.points(b).unwrap().len())
@@ -583,7 +588,7 @@ fn whole_box_run(movers_whole: bool) -> (Vec<WholeBoxStep>, usize) {
 
 #[test]
 fn a_rigid_mover_held_whole_keeps_its_transform_with_its_points() {
-    let (whole, n) = whole_box_run(true);
+    let (whole, n) = whole_box_run(box_by_a_wall(), MoversWhole::On);
     let sent: Vec<usize> = (0..whole.len()).filter(|&t| whole[t].moved).collect();
     // The budget cannot trace the box every step: it is held in some, and
     // traced whole (its transform sent) in others.
@@ -635,12 +640,156 @@ fn a_rigid_mover_held_whole_keeps_its_transform_with_its_points() {
     );
     // Without it the transform goes out every step of the slide, while
     // the box's points wait their turn.
-    let (apart, _) = whole_box_run(false);
+    let (apart, _) = whole_box_run(box_by_a_wall(), MoversWhole::Off);
     assert!(
         apart[..20].iter().all(|s| s.moved),
         "{:?}",
         apart.iter().map(|s| s.moved).collect::<Vec<_>>()
     );
+}
+
+/// Steps of the slide (the first 20) in which the box moved but clients
+/// kept the transform they held: it was held whole.
+fn held_in_the_slide(steps: &[WholeBoxStep]) -> usize {
+    steps[..20].iter().filter(|s| !s.moved).count()
+}
+
+#[test]
+fn auto_holds_a_part_whose_ao_changes_as_it_moves_and_not_one_sliding_on_a_floor() {
+    // By the wall the box's own AO changes as it slides: once enough of
+    // its points were traced (64), `Auto` holds it whole as `On` does.
+    let (by_wall, _) = whole_box_run(box_by_a_wall(), MoversWhole::Auto);
+    let moved: Vec<bool> = by_wall.iter().map(|s| s.moved).collect();
+    assert!(held_in_the_slide(&by_wall) >= 3, "{moved:?}");
+    // Until then its AO slides with it, far from a full trace where
+    // clients place it; from the first send after it was first held on,
+    // clients hold a full trace where they place it, to the send
+    // threshold (8 steps of 1/255).
+    let first_held = moved.iter().position(|&m| !m).unwrap();
+    let whole_from = first_held + moved[first_held..].iter().position(|&m| m).unwrap();
+    assert!(
+        by_wall[..first_held].iter().any(|w| w.error > 16.0 / 255.0),
+        "the box's AO never slid off"
+    );
+    for (t, w) in by_wall.iter().enumerate() {
+        if t >= whole_from {
+            assert!(
+                w.error <= 8.5 / 255.0,
+                "step {t}: box AO off by {}",
+                w.error * 255.0
+            );
+        }
+        assert!(w.lag.abs() <= 6, "step {t}: {} steps off", w.lag);
+        // Its points waited in turns before it was held: a few steps after
+        // may trace points come due past the budget, as the bound says.
+        assert!(w.oldest_wait <= w.wait_bound, "step {t}");
+    }
+    let rays: u64 = by_wall.iter().map(|w| w.rays).sum();
+    let budget: u64 = by_wall.iter().map(|w| w.budget).sum();
+    assert!(rays <= budget, "{rays} rays against {budget}");
+    // On an even floor it keeps its AO as it goes: `Auto` sends its
+    // transform every step of the slide, as `Off` does, where `On` holds
+    // it.
+    let (floor, _) = whole_box_run(sliding_box(), MoversWhole::Auto);
+    assert_eq!(held_in_the_slide(&floor), 0);
+    let (on, _) = whole_box_run(sliding_box(), MoversWhole::On);
+    assert!(held_in_the_slide(&on) > 0);
+}
+
+/// `k` boxes sliding in x, 4 m apart in z, each by a
+/// wall of its own as [`box_by_a_wall`]'s: the boxes' instances.
+fn boxes_by_walls(k: usize) -> (Scene, Vec<usize>) {
+    let mut s = Scene::default();
+    s.add(
+        Mesh::quad(
+            Vec3::new(-3.0, 0.0, -3.0),
+            Vec3::Z * 4.0 * k as f32,
+            Vec3::X * 6.0,
+        )
+        .subdivided(3),
+        Affine3A::IDENTITY,
+    );
+    let mut boxes = Vec::new();
+    for j in 0..k {
+        let z = 4.0 * j as f32;
+        let node = s.add_node(&format!("box {j}"), None, Trs::default());
+        boxes.push(s.add_on_node(
+            Mesh::cuboid(Vec3::new(-0.3, 0.0, z - 0.3), Vec3::new(0.3, 0.6, z + 0.3)),
+            node,
+        ));
+        s.animations.push(Animation::translation(
+            &format!("slide {j}"),
+            node,
+            &[
+                (0.0, Vec3::new(-1.5, 0.0, 0.0)),
+                (2.0 / 3.0, Vec3::new(1.5, 0.0, 0.0)),
+            ],
+        ));
+        s.add(
+            Mesh::quad(Vec3::new(0.6, 0.0, z - 1.5), Vec3::Y * 1.5, Vec3::Z * 3.0).subdivided(2),
+            Affine3A::IDENTITY,
+        );
+    }
+    (s, boxes)
+}
+
+/// Per step, how many of `boxes` clients hold away from where the scene
+/// has them (held whole), over `steps` steps of 1/30 s under `c`.
+fn boxes_held(scene: &Scene, boxes: &[usize], c: &PipelineConfig, steps: u32) -> Vec<usize> {
+    let mut p = Pipeline::new(scene.clone(), c.clone()).unwrap();
+    let mut client = psao_codec::Decoder::new(psao_codec::Limits::default());
+    client.receive(&p.keyframe().unwrap().bytes).unwrap();
+    let ids: Vec<u32> = boxes.iter().map(|&b| p.table(b).unwrap().id()).collect();
+    (0..steps)
+        .map(|_| {
+            let (f, _) = p.step(1.0 / 30.0).unwrap();
+            if let Some(f) = f {
+                client.receive(&f.bytes).unwrap();
+            }
+            let pose = scene.pose(p.posed_time());
+            (boxes.iter().zip(&ids))
+                .filter(|&(&b, &id)| {
+                    let held = client.mirror().instance(id).unwrap().transform().unwrap();
+                    !Affine3A::from_cols_array(&held.matrix).abs_diff_eq(pose.instances[b], 1e-4)
+                })
+                .count()
+        })
+        .collect()
+}
+
+#[test]
+fn auto_holds_only_the_parts_half_the_budget_affords() {
+    let (scene, boxes) = boxes_by_walls(4);
+    let c = PipelineConfig {
+        max_wait: 6,
+        ..config(Estimator::ClosestHit)
+    };
+    // A box's rays spread over `max_wait` steps; a budget of 5 of those:
+    // half of it affords two boxes held at once, not three.
+    let n = Pipeline::new(scene.clone(), c.clone())
+        .unwrap()
+        .points(boxes[0])
+        .unwrap()
+        .len() as u64;
+    let per_step = (n * u64::from(c.ao.rays)).div_ceil(6);
+    let c = PipelineConfig {
+        budget: RayBudget::Rays(5 * per_step),
+        ..c
+    };
+    let auto = boxes_held(&scene, &boxes, &c, 60);
+    assert!(auto.iter().any(|&h| h > 0), "none held: {auto:?}");
+    assert!(auto.iter().all(|&h| h <= 2), "{auto:?}");
+    // `On` holds every one, whatever they cost together.
+    let on = boxes_held(
+        &scene,
+        &boxes,
+        &PipelineConfig {
+            movers_whole: MoversWhole::On,
+            ..c
+        },
+        60,
+    );
+    assert!(on.iter().any(|&h| h > 2), "{on:?}");
 }
 
 #[test]

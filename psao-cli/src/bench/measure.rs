@@ -154,7 +154,7 @@ pub struct Settings {
     /// Under the budget, rigid movers are traced whole, their transform
     /// held back while they wait
     /// ([`PipelineConfig::movers_whole`](psao_scene::PipelineConfig::movers_whole)).
-    pub movers_whole: bool,
+    pub movers_whole: psao_scene::MoversWhole,
     /// Under the budget, points that wait long are planned late
     /// ([`PipelineConfig::plan_late`](psao_scene::PipelineConfig::plan_late)).
     pub plan_late: bool,
@@ -286,7 +286,7 @@ impl Settings {
             max_wait: 8,
             max_wait_limit: PipelineConfig::default().max_wait_limit,
             movers_every_step: false,
-            movers_whole: false,
+            movers_whole: psao_scene::MoversWhole::Auto,
             plan_late: false,
             early: false,
             ray_reuse: true,

@@ -18,7 +18,7 @@ use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressStyle};
 use psao_scene::{AoParams, PipelineConfig, Scene, load_scene_file, stage};
 
-use crate::cmd::common::Embedded;
+use crate::cmd::common::{Embedded, MoversWholeArg};
 
 pub use measure::{ImageFrames, Settings};
 
@@ -200,9 +200,12 @@ pub struct BenchArgs {
     /// Under --ray-budget, trace a rigid moving part whole at one pose
     /// (on the CPU, over several ticks against a snapshot of the scene
     /// where it does not fit a tick's budget), its transform held back with its points
-    /// while they wait.
-    #[arg(long)]
-    movers_whole: bool,
+    /// while they wait: `auto` (the default) for those whose own AO
+    /// changes as they move, while together they cost at most half the
+    /// budget; `on` for every such part (`--movers-whole` alone); `off`
+    /// for none.
+    #[arg(long, value_enum, default_value_t = MoversWholeArg::Auto, num_args = 0..=1, default_missing_value = "on")]
+    movers_whole: MoversWholeArg,
     /// Under --ray-budget, once demand has raised the bound on waiting,
     /// plan a static point that waited a few ticks once, when the budget
     /// takes it, against what moved in every tick it waited, instead of
@@ -261,7 +264,7 @@ impl BenchArgs {
         settings.gpu_single_rays = self.gpu_single_rays;
         settings.hidden_test = !self.no_hidden_test;
         settings.movers_every_step = self.movers_every_frame;
-        settings.movers_whole = self.movers_whole;
+        settings.movers_whole = self.movers_whole.into();
         settings.plan_late = self.plan_late;
         settings.early = self.early_decisions;
         settings

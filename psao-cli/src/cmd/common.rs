@@ -214,9 +214,13 @@ pub struct BudgetArgs {
     /// several frames against a snapshot of the scene on the CPU where it
     /// does not fit a frame's budget), and hold the transform clients hold back
     /// with its points while they wait (occlusion stays where it was
-    /// traced, as from a slower server, instead of sliding with the part).
-    #[arg(long)]
-    pub movers_whole: bool,
+    /// traced, as from a slower server, instead of sliding with the part):
+    /// `auto` (the default) for those whose own AO changes as they move
+    /// (at least 10% of their traced points change enough to be sent),
+    /// while together they cost at most half the budget; `on` for every
+    /// such part (`--movers-whole` alone); `off` for none.
+    #[arg(long, value_enum, default_value_t = MoversWholeArg::Auto, num_args = 0..=1, default_missing_value = "on")]
+    pub movers_whole: MoversWholeArg,
     /// Early decisions: a moving instance's point stops casting rays once
     /// its AO is known, to 3 standard errors, to stay within the send
     /// threshold of what clients hold (nothing to send); a point that
@@ -233,7 +237,7 @@ impl BudgetArgs {
         config.max_wait = self.max_wait;
         config.max_wait_limit = self.max_wait_limit.max(self.max_wait);
         config.movers_every_step = self.movers_every_frame;
-        config.movers_whole = self.movers_whole;
+        config.movers_whole = self.movers_whole.into();
         config.early = self
             .early_decisions
             .then(psao_scene::EarlyDecisions::default);
@@ -337,6 +341,28 @@ pub fn pipeline_with_progress(scene: Scene, config: PipelineConfig) -> anyhow::R
     // Setup's scratch is freed; hand its pages back before serving.
     crate::memory::release_freed();
     Ok(pipeline?)
+}
+
+/// Which rigid moving parts a budget holds whole (`--movers-whole`;
+/// [`psao_scene::MoversWhole`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum MoversWholeArg {
+    /// None.
+    Off,
+    /// Every one.
+    On,
+    /// Those whose own AO changes as they move.
+    Auto,
+}
+
+impl From<MoversWholeArg> for psao_scene::MoversWhole {
+    fn from(a: MoversWholeArg) -> Self {
+        match a {
+            MoversWholeArg::Off => psao_scene::MoversWhole::Off,
+            MoversWholeArg::On => psao_scene::MoversWhole::On,
+            MoversWholeArg::Auto => psao_scene::MoversWhole::Auto,
+        }
+    }
 }
 
 /// The scenes the `psao` binary carries (`bench --scenes`, `serve

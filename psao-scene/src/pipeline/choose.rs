@@ -9,7 +9,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::budget::{Candidate, REPLAN_WAITS, RayBudget, Waiting, due};
-use super::config::PipelineConfig;
+use super::config::{MoversWhole, PipelineConfig};
 use super::dirty::{Batch, PAR_MIN, StepMotion};
 use super::plan::Plan;
 use super::ray_cache::key;
@@ -503,7 +503,9 @@ impl Pipeline {
 
     /// Which rigid movers a step traces whole and which it holds, under
     /// [`PipelineConfig::movers_whole`](super::config::PipelineConfig::movers_whole)
-    /// and a `budget` (see [`Candidates::whole`]). A part whose transform
+    /// and a `budget` (see [`Candidates::whole`]): every one with `On`,
+    /// with `Auto` those whose AO depends on their pose
+    /// ([`MoversWhole::Auto`]) and those held already. A part whose transform
     /// is at stake (it moved, or clients do not hold its transform yet),
     /// with points to trace that cost at most `max_wait` budgets (or held
     /// already), is traced whole when they fit in the budget, when one of
@@ -524,8 +526,9 @@ impl Pipeline {
         budget: Option<u64>,
     ) -> Vec<Option<bool>> {
         let n = self.instances.len();
+        let mode = self.config.movers_whole;
         let Some(budget) =
-            budget.filter(|_| self.config.movers_whole && !self.config.movers_every_step)
+            budget.filter(|_| mode != MoversWhole::Off && !self.config.movers_every_step)
         else {
             return vec![None; n];
         };
@@ -547,6 +550,7 @@ impl Pipeline {
                 due_now[i] |= overdue(k);
             }
         }
+        let auto = self.auto_held(&cost, &due_now, budget);
         self.instances
             .iter()
             .enumerate()
@@ -559,7 +563,9 @@ impl Pipeline {
                 let at_stake = motion.changed.get(i).copied().unwrap_or(false)
                     || s.sent_seq != s.transform_seq
                     || s.held_steps > 0;
+                let chosen = mode != MoversWhole::Auto || auto[i];
                 let held_whole = s.rigid_mover()
+                    && chosen
                     && at_stake
                     && cost[i] > 0
                     && (s.held_steps > 0
@@ -577,6 +583,36 @@ impl Pipeline {
                 })
             })
             .collect()
+    }
+
+    /// The parts [`MoversWhole::Auto`] holds whole this step, given each
+    /// one's `cost` in rays, whether one of its points is due now, and
+    /// the step's `budget`: those held already (until they are traced),
+    /// then, most dependent on their pose first, rigid movers whose AO
+    /// depends on their pose and none of whose points is due now (else it
+    /// would be traced whole at once, whatever the budget), as long as
+    /// the held ones together cost at most half a budget a step (each its
+    /// cost over `max_wait` steps): a scene of many moving parts holds
+    /// only those it can afford to trace whole.
+    fn auto_held(&self, cost: &[u64], due_now: &[bool], budget: u64) -> Vec<bool> {
+        let per_step = |i: usize| cost[i].div_ceil(u64::from(self.config.max_wait.max(1)));
+        let already = |i: usize| {
+            self.instances[i].held_steps > 0 || self.stages.get(i).is_some_and(Option::is_some)
+        };
+        let mut held: Vec<bool> = (0..self.instances.len()).map(already).collect();
+        let mut spent: u64 = (0..held.len()).filter(|&i| held[i]).map(per_step).sum();
+        let mut wanted: Vec<(f32, usize)> = (self.instances.iter().enumerate())
+            .filter(|&(i, s)| !held[i] && s.rigid_mover() && s.pose.depends() && !due_now[i])
+            .map(|(i, s)| (s.pose.share().unwrap_or(0.0), i))
+            .collect();
+        wanted.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        for (_, i) in wanted {
+            if spent + per_step(i) <= budget / 2 {
+                spent += per_step(i);
+                held[i] = true;
+            }
+        }
+        held
     }
 
     /// The batch of the chosen points, planned (`take`, indices into

@@ -62,6 +62,40 @@ pub enum Views {
 /// held by the pipeline.
 pub const DEFAULT_MAX_POINTS: u64 = 1 << 26;
 
+/// Which rigid parts that move a budget holds whole
+/// ([`PipelineConfig::movers_whole`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum MoversWhole {
+    /// None: a moving part's points wait their turn like the others, and
+    /// its transform goes out every step it moves.
+    Off,
+    /// Every rigid part that moves.
+    On,
+    /// A rigid part whose own AO depends on its pose: of its points traced
+    /// lately (in full, under a budget, at least 64 of them; counts halve
+    /// past 4,096, so the recent ones weigh most), at least
+    /// [`POSE_DEPENDENT_SHARE`] went out, their AO moved past the send
+    /// threshold. A part sliding over an even floor keeps its AO as it
+    /// goes (on the default scene 2% of its traced points went out),
+    /// so holding its transform back would only misplace it; a box turning
+    /// by another (BoxAnimated: 31%) or a wheel turning against the road
+    /// (the milk truck: 68%) changes its own AO as it moves, and sending its
+    /// transform with AO of another pose misplaces the occlusion instead.
+    /// A part starts unheld, starts to be held in a step where none of
+    /// its points is due (else it would be traced whole at once), and
+    /// stays held until it is traced. Parts are held, most dependent first, while together they cost at
+    /// most half the budget a step (each its cost spread over
+    /// [`max_wait`](PipelineConfig::max_wait) steps): a scene of many
+    /// moving parts holds those it can afford. The default.
+    #[default]
+    Auto,
+}
+
+/// The share of a rigid part's traced points that went out from which
+/// [`MoversWhole::Auto`] holds it whole: between the default scene's
+/// sliding box (2%) and BoxAnimated's box (31%).
+pub const POSE_DEPENDENT_SHARE: f32 = 0.1;
+
 /// Pipeline settings.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PipelineConfig {
@@ -188,10 +222,10 @@ pub struct PipelineConfig {
     /// where movers alone need more rays than it affords. Points traced so
     /// are counted in [`FrameReport::overdue`](crate::FrameReport::overdue).
     pub movers_every_step: bool,
-    /// Under a budget, a rigid part that moves (not a deforming one) is
+    /// Under a budget, which rigid parts that move (not deforming ones)
+    /// are *held whole* ([`MoversWhole`]; `Auto` by default): such a part is
     /// traced whole or not at all in a step, and while its points wait the
-    /// transform clients hold stays the one they were traced in (false,
-    /// the default). Clients then look its points up where it was traced:
+    /// transform clients hold stays the one they were traced in. Clients then look its points up where it was traced:
     /// occlusion from the scene around it stays where it was, as from a
     /// server at a lower rate, instead of sliding with the part. It is
     /// traced when its points fit in the budget, when it has been held
@@ -216,7 +250,7 @@ pub struct PipelineConfig {
     /// `max_wait` periods (the reference server makes such a step up:
     /// spec/session.md section 6). Ignored with
     /// [`movers_every_step`](Self::movers_every_step).
-    pub movers_whole: bool,
+    pub movers_whole: MoversWhole,
     /// Under a budget, once demand has raised the bound on waiting, a
     /// static point that has waited a few steps is planned *late* (true)
     /// instead of forgetting its kept scores and waiting for a full trace
@@ -309,7 +343,7 @@ impl Default for PipelineConfig {
             max_wait: 8,
             max_wait_limit: 60,
             movers_every_step: false,
-            movers_whole: false,
+            movers_whole: MoversWhole::Auto,
             plan_late: false,
             early: None,
             lead: 0.0,

@@ -12,6 +12,7 @@ use rayon::prelude::*;
 use super::Pipeline;
 use super::backend::{AoBackend, RayJob};
 use super::budget::{due, next_bound, select};
+use super::config::MoversWhole;
 use super::early::Kept;
 use super::plan::{Learnt, Plan};
 use super::ray_cache::key;
@@ -333,7 +334,7 @@ impl Pipeline {
         (budget, bound): (Option<u64>, u32),
     ) -> StagesOfStep {
         let (mut slices, mut finishing) = (Vec::new(), Vec::new());
-        let staging = self.config.movers_whole && self.backend.is_none();
+        let staging = self.config.movers_whole != MoversWhole::Off && self.backend.is_none();
         let rays = self.config.ao.rays;
         let mut left = budget.unwrap_or(0);
         for i in 0..self.instances.len() {
@@ -604,6 +605,8 @@ impl Pipeline {
                 *w = true;
             }
         }
+        // Per instance, points traced in full and of them those sent.
+        let mut counts = vec![(0u32, 0u32); self.instances.len()];
         for (b, (&(i, k), &ao)) in batch.owner.iter().zip(&values.ao).enumerate() {
             let went_out = went[b];
             if self.instances[i].trend.is_empty()
@@ -616,6 +619,8 @@ impl Pipeline {
                 .get(b)
                 .map(|s| s.word)
                 .filter(|w| w.is_allocated());
+            counts[i].0 += 1;
+            counts[i].1 += u32::from(went_out);
             let s = &mut self.instances[i];
             if let Some(t) = s.trend.get_mut(k as usize) {
                 let pace = t.note(quantize_ao(ao), held.map(|w| w.fields().ao), now, went_out);
@@ -623,6 +628,11 @@ impl Pipeline {
                     Some(&p) if s.keeps_heat() => s.heat.note(p, pace, now),
                     _ => {}
                 }
+            }
+        }
+        for (s, &(traced, sent)) in self.instances.iter_mut().zip(&counts) {
+            if traced > 0 && s.keeps_heat() {
+                s.pose.note(traced, sent);
             }
         }
         for s in &mut self.instances {

@@ -117,6 +117,9 @@ struct InstanceState {
     /// How fast its points' AO moved lately, by cell (with `trend`, and
     /// noted only for a rigid instance that can move).
     heat: trend::Heat,
+    /// How much its own AO depends on its pose (noted only for a rigid
+    /// instance that can move, under a budget).
+    pose: trend::PoseDependence,
     /// Its own BVH in local space (dynamic instances, split BVH): moved by
     /// its transform, refitted when it deforms.
     bvh: Option<Arc<TriangleBvh>>,
@@ -593,6 +596,7 @@ impl Pipeline {
                     _ => vec![trend::Trend::default(); points.len()],
                 },
                 heat: trend::Heat::new(config.ao.radius),
+                pose: trend::PoseDependence::default(),
                 points,
                 positions,
                 normals,

@@ -77,6 +77,48 @@ impl Trend {
     }
 }
 
+/// How much a rigid part's own AO depends on its pose, for
+/// [`MoversWhole::Auto`](super::config::MoversWhole::Auto): of its points
+/// traced in full lately, how many went out (their AO moved past the send
+/// threshold). Counts halve past [`PoseDependence::MEMORY`] traced points,
+/// so the recent ones weigh most.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(super) struct PoseDependence {
+    traced: f32,
+    sent: f32,
+}
+
+impl PoseDependence {
+    /// Traced points past which the counts halve.
+    const MEMORY: f32 = 4096.0;
+    /// Traced points below which nothing is known yet.
+    const LEAST: f32 = 64.0;
+
+    /// Notes a step's trace of `traced` of the part's points, `sent` of
+    /// which went out.
+    pub fn note(&mut self, traced: u32, sent: u32) {
+        self.traced += traced as f32;
+        self.sent += sent.min(traced) as f32;
+        while self.traced > Self::MEMORY {
+            self.traced *= 0.5;
+            self.sent *= 0.5;
+        }
+    }
+
+    /// The share of its traced points that went out (`None` before
+    /// [`PoseDependence::LEAST`] were traced).
+    pub fn share(&self) -> Option<f32> {
+        (self.traced >= Self::LEAST).then(|| self.sent / self.traced)
+    }
+
+    /// Whether its AO depends on its pose: a known share of at least
+    /// [`POSE_DEPENDENT_SHARE`](super::config::POSE_DEPENDENT_SHARE).
+    pub fn depends(&self) -> bool {
+        self.share()
+            .is_some_and(|s| s >= super::config::POSE_DEPENDENT_SHARE)
+    }
+}
+
 /// Steps a cell stays hot after a point in it moved at its pace.
 pub(super) const HEAT_STEPS: u32 = 8;
 
@@ -159,6 +201,28 @@ impl Heat {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pose_dependence_is_known_after_enough_points_and_follows_the_recent_ones() {
+        let mut d = PoseDependence::default();
+        d.note(40, 40);
+        assert_eq!((d.share(), d.depends()), (None, false), "40 points");
+        d.note(40, 0);
+        assert_eq!(d.share(), Some(0.5));
+        assert!(d.depends());
+        // A part sliding over an even floor: 2% went out, for long enough
+        // that the first steps weigh little.
+        for _ in 0..100 {
+            d.note(200, 4);
+        }
+        let share = d.share().unwrap();
+        assert!((0.02..0.03).contains(&share), "{share}");
+        assert!(!d.depends());
+        // More sent than traced counts as all of them.
+        let mut e = PoseDependence::default();
+        e.note(100, 500);
+        assert_eq!(e.share(), Some(1.0));
+    }
 
     #[test]
     fn a_point_is_urgent_by_its_gap_and_its_pace_over_the_steps_it_waited() {
