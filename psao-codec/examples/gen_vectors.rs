@@ -694,6 +694,22 @@ fn vectors() -> Vec<Vector> {
         "The keyframe of 02 in one zstd frame (window 2^20, no content size) as a raw block, then a last block of type Compressed_Block and Block_Size 0. A compressed block holds at least a Literals_Section_Header and a Sequences_Section_Header (RFC 8878 3.1.1.3), so the frame is invalid: `decompress`, although libzstd's streaming decoder takes the empty block as an empty block and yields the keyframe.",
         vec![with_wire(2, empty_last)],
     ));
+    // The keyframe of 02 padded with zeros to 2,000 bytes, one raw block
+    // in a frame whose window is 1 KiB (descriptor 0x00).
+    let mut padded = payload.clone();
+    padded.resize(2000, 0);
+    list.push(v(
+        "64-zstd-block-above-maximum",
+        "The keyframe of 02 padded with zero bytes to 2,000, as one raw block of a zstd frame whose Window_Descriptor 0x00 gives a 1 KiB window: a block holds at most Block_Maximum_Size, the smaller of Window_Size and 128 KiB (RFC 8878 3.1.1.2.4), so `decompress` (libzstd's one-pass decoder lets such a raw block through; its streaming decoder rejects it).",
+        vec![{
+            let mut f = base_keyframe();
+            f.count = Some(f.messages.len() as u32);
+            f.messages = vec![padded.clone()];
+            f.compression = 2;
+            f.wire = Some(zstd_raw_frame(0x00, &padded));
+            f.bytes()
+        }],
+    ));
     assert_eq!(W1, word([1, 1, 3], 0x77, 200));
     assert_eq!(W2, word([0, 0, 0], 0x74, 64));
     list

@@ -18,7 +18,7 @@
 //!   instance's own points every frame whatever the budget;
 //!   `--movers-whole off|on|auto` holds none, every, or the pose-dependent
 //!   rigid moving parts whole (`PipelineConfig::movers_whole`; `auto`
-//!   by default);
+//!   by default, `on` for `--movers-whole` alone);
 //!   `--plan-late` plans points that wait long once, when the budget
 //!   takes them (`PipelineConfig::plan_late`);
 //! - `--early`: early decisions (a moving instance's point stops casting
@@ -112,14 +112,13 @@ fn main() {
         max_wait: arg("--max-wait", 8),
         max_wait_limit: arg("--max-wait-limit", 60),
         movers_every_step: flag("--movers-every-step"),
-        movers_whole: match arg("--movers-whole", "auto".to_string()).as_str() {
+        // `--movers-whole` alone (as on `psao`) is `on`.
+        movers_whole: match arg("--movers-whole", String::new()).as_str() {
             "off" => MoversWhole::Off,
-            "on" => MoversWhole::On,
             "auto" => MoversWhole::Auto,
-            _ => {
-                eprintln!("error: --movers-whole takes off, on or auto");
-                std::process::exit(2)
-            }
+            "on" => MoversWhole::On,
+            _ if flag("--movers-whole") => MoversWhole::On,
+            _ => MoversWhole::Auto,
         },
         early: flag("--early").then(|| EarlyDecisions {
             z: arg("--early-z", 3.0),

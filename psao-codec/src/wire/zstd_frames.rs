@@ -2,9 +2,9 @@
 //! headers (RFC 8878 section 3.1) before anything is decompressed: one or
 //! more frames, each a zstd frame or a skippable frame, at least one of
 //! them a zstd frame; no dictionary; no reserved bit; a `Window_Size` of at
-//! most 2^27 bytes; no compressed block under 2 bytes (found on the block
-//! headers, walked to find each frame's end); nothing after the last
-//! frame. libzstd's one-pass
+//! most 2^27 bytes; no compressed block under 2 bytes and no block above
+//! the smaller of the window and 128 KiB (found on the block headers,
+//! walked to find each frame's end); nothing after the last frame. libzstd's one-pass
 //! decompression (used after this; ruzstd's with feature `zstd-pure`)
 //! does not check the window.
 
@@ -16,6 +16,8 @@ const ZSTD_MAGIC: u32 = 0xFD2F_B528;
 const SKIPPABLE_MAGIC: u32 = 0x184D_2A50;
 /// The largest `Window_Size` a frame may ask for.
 pub(crate) const MAX_WINDOW: u64 = 1 << 27;
+/// RFC 8878 3.1.1.2.4: no block holds or regenerates more than 128 KiB.
+const BLOCK_MAX: u64 = 128 << 10;
 
 /// Reads `n <= 8` little-endian bytes at `at`.
 fn le(src: &[u8], at: usize, n: usize) -> Option<u64> {
@@ -62,15 +64,19 @@ fn window_of(frame: &[u8], offset: u32) -> Result<u64, DecompressFault> {
     Ok(window)
 }
 
-/// The bytes of the zstd frame at the start of `frame`, from its header and
-/// block headers (RFC 8878 3.1.1: header, blocks up to the one marked
-/// last, the checksum if the header says so). Corrupt: a frame cut short,
-/// a reserved block type, or a compressed block of under 2 bytes (3.1.1.3:
-/// it starts with a literals and a sequences section header), which
-/// libzstd's streaming decoder would take as an empty block (spec 3.2,
-/// vector 63). The same walk with and without the C library; the tests
+/// The bytes of the zstd frame at the start of `frame`, whose
+/// `Window_Size` is `window`, from its header and block headers (RFC 8878
+/// 3.1.1: header, blocks up to the one marked last, the checksum if the
+/// header says so). Corrupt: a frame cut short, a reserved block type, a
+/// compressed block of under 2 bytes (3.1.1.3: it starts with a literals
+/// and a sequences section header), which libzstd's streaming decoder
+/// would take as an empty block (spec 3.2, vector 63), or a block above
+/// `Block_Maximum_Size`, the smaller of `window` and 128 KiB (3.1.1.2.4:
+/// a raw or compressed block's content, the bytes an RLE block repeats),
+/// which libzstd's one-pass decoder lets through for raw and RLE blocks
+/// (vector 64). The same walk with and without the C library; the tests
 /// check it against the C library's own on the frames it writes.
-fn frame_size(frame: &[u8]) -> Result<usize, DecompressFault> {
+fn frame_size(frame: &[u8], window: u64) -> Result<usize, DecompressFault> {
     let cut = DecompressFault::Corrupt;
     let descriptor = *frame.get(4).ok_or(cut)?;
     let single_segment = descriptor & 0x20 != 0;
@@ -84,6 +90,9 @@ fn frame_size(frame: &[u8]) -> Result<usize, DecompressFault> {
         let header = le(frame, at, 3).ok_or(cut)?;
         at += 3;
         let size = (header >> 3) as usize;
+        if size as u64 > window.min(BLOCK_MAX) {
+            return Err(cut);
+        }
         at += match (header >> 1) & 3 {
             0 => size,
             1 => 1,
@@ -122,9 +131,9 @@ pub(crate) fn check_zstd_frames(src: &[u8]) -> Result<(), DecompressFault> {
             }
             len as usize
         } else if magic == ZSTD_MAGIC {
-            window_of(rest, offset)?;
+            let window = window_of(rest, offset)?;
             zstd_frames += 1;
-            frame_size(rest)?
+            frame_size(rest, window)?
         } else {
             return Err(DecompressFault::NotAFrame { offset });
         };
@@ -154,10 +163,18 @@ mod tests {
                 let mut frame = c.compress(&src).unwrap();
                 frame.extend([1, 2, 3]); // what follows the frame
                 let whole = zstd::zstd_safe::find_frame_compressed_size(&frame).unwrap();
-                assert_eq!(frame_size(&frame), Ok(whole), "size {size} level {level}");
+                assert_eq!(
+                    frame_size(&frame, MAX_WINDOW),
+                    Ok(whole),
+                    "size {size} level {level}"
+                );
                 for cut in [whole - 1, whole / 2, 6] {
                     let c_says = zstd::zstd_safe::find_frame_compressed_size(&frame[..cut]).ok();
-                    assert_eq!(frame_size(&frame[..cut]).ok(), c_says, "cut at {cut}");
+                    assert_eq!(
+                        frame_size(&frame[..cut], MAX_WINDOW).ok(),
+                        c_says,
+                        "cut at {cut}"
+                    );
                 }
                 // A reserved block type in the first block header (the
                 // writer puts no dictionary id: window, then content size).
@@ -169,7 +186,7 @@ mod tests {
                 };
                 bad[5 + usize::from(!single) + fcs_len] |= 0b110;
                 assert_eq!(
-                    frame_size(&bad).ok(),
+                    frame_size(&bad, MAX_WINDOW).ok(),
                     zstd::zstd_safe::find_frame_compressed_size(&bad).ok()
                 );
             }
@@ -245,6 +262,37 @@ mod tests {
             );
         }
         assert_eq!(check_zstd_frames(&with_last(2)), Ok(()));
+    }
+
+    /// Vector 64: a block above `Block_Maximum_Size` (the smaller of the
+    /// window and 128 KiB) is corrupt, whether raw (its content) or RLE
+    /// (the bytes it repeats); at the limit it passes.
+    #[test]
+    fn blocks_above_the_block_maximum_are_corrupt() {
+        // A 1 KiB window (descriptor 0): raw blocks of 1024 and 1025 bytes.
+        assert_eq!(check_zstd_frames(&raw_frame(0, &[7; 1024])), Ok(()));
+        assert_eq!(
+            check_zstd_frames(&raw_frame(0, &[7; 1025])),
+            Err(DecompressFault::Corrupt)
+        );
+        let rle = |wd: u8, n: u32| {
+            let mut f = ZSTD_MAGIC.to_le_bytes().to_vec();
+            f.extend([0x00, wd]);
+            f.extend(&(1 | 1 << 1 | n << 3).to_le_bytes()[..3]);
+            f.push(0xAB);
+            f
+        };
+        assert_eq!(check_zstd_frames(&rle(0, 1024)), Ok(()));
+        assert_eq!(
+            check_zstd_frames(&rle(0, 1025)),
+            Err(DecompressFault::Corrupt)
+        );
+        // A window of 2^20 (descriptor 0x50): 128 KiB is the limit.
+        assert_eq!(check_zstd_frames(&rle(0x50, 128 << 10)), Ok(()));
+        assert_eq!(
+            check_zstd_frames(&rle(0x50, (128 << 10) + 1)),
+            Err(DecompressFault::Corrupt)
+        );
     }
 
     #[test]

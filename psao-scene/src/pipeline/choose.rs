@@ -503,9 +503,10 @@ impl Pipeline {
 
     /// Which rigid movers a step traces whole and which it holds, under
     /// [`PipelineConfig::movers_whole`](super::config::PipelineConfig::movers_whole)
-    /// and a `budget` (see [`Candidates::whole`]): every one with `On`,
-    /// with `Auto` those whose AO depends on their pose
-    /// ([`MoversWhole::Auto`]) and those held already. A part whose transform
+    /// and a `budget` (see [`Candidates::whole`]): every one with `On`;
+    /// with `Auto` those held already and, as half the budget affords,
+    /// those whose AO depends on their pose with no point due now
+    /// ([`Pipeline::auto_held`]). A part whose transform
     /// is at stake (it moved, or clients do not hold its transform yet),
     /// with points to trace that cost at most `max_wait` budgets (or held
     /// already), is traced whole when they fit in the budget, when one of
@@ -550,26 +551,32 @@ impl Pipeline {
                 due_now[i] |= overdue(k);
             }
         }
-        let auto = self.auto_held(&cost, &due_now, budget);
+        // Traced whole at least every `max_wait` steps, a part costs at
+        // most a budget a step on average if its points cost at most
+        // `max_wait` budgets; a bigger one waits point by point. A part
+        // held already stays held until it is traced whole, whatever this
+        // step's budget.
+        let candidate: Vec<bool> = (self.instances.iter().enumerate())
+            .map(|(i, s)| {
+                let at_stake = motion.changed.get(i).copied().unwrap_or(false)
+                    || s.sent_seq != s.transform_seq
+                    || s.held_steps > 0;
+                s.rigid_mover()
+                    && at_stake
+                    && cost[i] > 0
+                    && (s.held_steps > 0
+                        || cost[i] <= budget.saturating_mul(u64::from(self.config.max_wait)))
+            })
+            .collect();
+        let auto = match mode {
+            MoversWhole::Auto => self.auto_held(&candidate, &cost, &due_now, budget),
+            _ => candidate.clone(),
+        };
         self.instances
             .iter()
             .enumerate()
             .map(|(i, s)| {
-                // Traced whole at least every `max_wait` steps, a part
-                // costs at most a budget a step on average if its points
-                // cost at most `max_wait` budgets; a bigger one waits
-                // point by point. A part held already stays held until it
-                // is traced whole, whatever this step's budget.
-                let at_stake = motion.changed.get(i).copied().unwrap_or(false)
-                    || s.sent_seq != s.transform_seq
-                    || s.held_steps > 0;
-                let chosen = mode != MoversWhole::Auto || auto[i];
-                let held_whole = s.rigid_mover()
-                    && chosen
-                    && at_stake
-                    && cost[i] > 0
-                    && (s.held_steps > 0
-                        || cost[i] <= budget.saturating_mul(u64::from(self.config.max_wait)));
+                let held_whole = candidate[i] && auto[i];
                 held_whole.then(|| {
                     let fits = match self.stages.get(i).and_then(Option::as_ref) {
                         // A stage ends in the step it was planned to.
@@ -585,24 +592,33 @@ impl Pipeline {
             .collect()
     }
 
-    /// The parts [`MoversWhole::Auto`] holds whole this step, given each
-    /// one's `cost` in rays, whether one of its points is due now, and
-    /// the step's `budget`: those held already (until they are traced),
-    /// then, most dependent on their pose first, rigid movers whose AO
-    /// depends on their pose and none of whose points is due now (else it
-    /// would be traced whole at once, whatever the budget), as long as
-    /// the held ones together cost at most half a budget a step (each its
-    /// cost over `max_wait` steps): a scene of many moving parts holds
-    /// only those it can afford to trace whole.
-    fn auto_held(&self, cost: &[u64], due_now: &[bool], budget: u64) -> Vec<bool> {
+    /// Of the `candidate` parts (rigid movers at stake, with points to
+    /// trace, that a budget may hold whole), those [`MoversWhole::Auto`]
+    /// holds whole this step, given each one's `cost` in rays, whether
+    /// one of its points is due now, and the step's `budget`: those held
+    /// already (until they are traced), then, most dependent on their pose
+    /// first, those whose AO depends on their pose and none of whose points
+    /// is due now (else it would be traced whole at once, whatever the
+    /// budget), as long as the held ones together cost at most half a
+    /// budget a step (each its cost over `max_wait` steps): a scene of many
+    /// moving parts holds only those it can afford to trace whole.
+    fn auto_held(
+        &self,
+        candidate: &[bool],
+        cost: &[u64],
+        due_now: &[bool],
+        budget: u64,
+    ) -> Vec<bool> {
         let per_step = |i: usize| cost[i].div_ceil(u64::from(self.config.max_wait.max(1)));
         let already = |i: usize| {
-            self.instances[i].held_steps > 0 || self.stages.get(i).is_some_and(Option::is_some)
+            candidate[i]
+                && (self.instances[i].held_steps > 0
+                    || self.stages.get(i).is_some_and(Option::is_some))
         };
         let mut held: Vec<bool> = (0..self.instances.len()).map(already).collect();
         let mut spent: u64 = (0..held.len()).filter(|&i| held[i]).map(per_step).sum();
         let mut wanted: Vec<(f32, usize)> = (self.instances.iter().enumerate())
-            .filter(|&(i, s)| !held[i] && s.rigid_mover() && s.pose.depends() && !due_now[i])
+            .filter(|&(i, s)| candidate[i] && !held[i] && s.pose.depends() && !due_now[i])
             .map(|(i, s)| (s.pose.share().unwrap_or(0.0), i))
             .collect();
         wanted.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));

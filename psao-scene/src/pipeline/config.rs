@@ -72,10 +72,10 @@ pub enum MoversWhole {
     /// Every rigid part that moves.
     On,
     /// A rigid part whose own AO depends on its pose: of its points traced
-    /// lately (in full, under a budget, at least 64 of them; counts halve
-    /// past 4,096, so the recent ones weigh most), at least
-    /// [`POSE_DEPENDENT_SHARE`] went out, their AO moved past the send
-    /// threshold. A part sliding over an even floor keeps its AO as it
+    /// lately under a budget (not stopped early; at least 64 of them;
+    /// counts halve past 4,096, so the recent ones weigh most), at least
+    /// [`POSE_DEPENDENT_SHARE`] went out (their AO moved past the send
+    /// threshold, or settled). A part sliding over an even floor keeps its AO as it
     /// goes (on the default scene 2% of its traced points went out),
     /// so holding its transform back would only misplace it; a box turning
     /// by another (BoxAnimated: 31%) or a wheel turning against the road
@@ -83,8 +83,9 @@ pub enum MoversWhole {
     /// transform with AO of another pose misplaces the occlusion instead.
     /// A part starts unheld, starts to be held in a step where none of
     /// its points is due (else it would be traced whole at once), and
-    /// stays held until it is traced. Parts are held, most dependent first, while together they cost at
-    /// most half the budget a step (each its cost spread over
+    /// stays held until it is traced. Parts are held, most dependent
+    /// first, while together they cost at most half the budget a step
+    /// (each its cost spread over
     /// [`max_wait`](PipelineConfig::max_wait) steps): a scene of many
     /// moving parts holds those it can afford. The default.
     #[default]
@@ -225,9 +226,10 @@ pub struct PipelineConfig {
     /// Under a budget, which rigid parts that move (not deforming ones)
     /// are *held whole* ([`MoversWhole`]; `Auto` by default): such a part is
     /// traced whole or not at all in a step, and while its points wait the
-    /// transform clients hold stays the one they were traced in. Clients then look its points up where it was traced:
-    /// occlusion from the scene around it stays where it was, as from a
-    /// server at a lower rate, instead of sliding with the part. It is
+    /// transform clients hold stays the one they were traced in. Clients
+    /// then look its points up where it was traced: occlusion from the
+    /// scene around it stays where it was, as from a server at a lower
+    /// rate, instead of sliding with the part. It is
     /// traced when its points fit in the budget, when it has been held
     /// for [`max_wait`](Self::max_wait) steps, or when it was placed
     /// ([`place_instance`](crate::Pipeline::place_instance), sent in its

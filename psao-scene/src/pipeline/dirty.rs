@@ -186,9 +186,9 @@ impl Pipeline {
         let held: Vec<bool> = cands.whole.iter().map(|w| *w == Some(false)).collect();
         for (s, w) in self.instances.iter_mut().zip(&cands.whole) {
             match w {
-                Some(true) => s.held_steps = 0,
                 Some(false) => s.held_steps += 1,
-                None => {}
+                // Traced whole, or not held (its transform goes out).
+                Some(true) | None => s.held_steps = 0,
             }
         }
         // Parts traced whole over several steps: their slices are paid
@@ -605,7 +605,8 @@ impl Pipeline {
                 *w = true;
             }
         }
-        // Per instance, points traced in full and of them those sent.
+        // Per instance, points traced (not stopped early) and of them
+        // those that went out.
         let mut counts = vec![(0u32, 0u32); self.instances.len()];
         for (b, (&(i, k), &ao)) in batch.owner.iter().zip(&values.ao).enumerate() {
             let went_out = went[b];

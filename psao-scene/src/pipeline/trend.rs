@@ -79,9 +79,9 @@ impl Trend {
 
 /// How much a rigid part's own AO depends on its pose, for
 /// [`MoversWhole::Auto`](super::config::MoversWhole::Auto): of its points
-/// traced in full lately, how many went out (their AO moved past the send
-/// threshold). Counts halve past [`PoseDependence::MEMORY`] traced points,
-/// so the recent ones weigh most.
+/// traced lately (not stopped early), how many went out (their AO moved
+/// past the send threshold, or settled). Counts halve past
+/// [`PoseDependence::MEMORY`] traced points, so the recent ones weigh most.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub(super) struct PoseDependence {
     traced: f32,
