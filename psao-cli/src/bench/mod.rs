@@ -408,6 +408,27 @@ mod tests {
         }
     }
 
+    /// `--movers-whole` is `auto` by default, `on` alone (as before it
+    /// took a value), and takes `off`, `on` or `auto`.
+    #[test]
+    fn movers_whole_is_auto_by_default_and_on_alone() {
+        use psao_scene::MoversWhole;
+        assert_eq!(settings(&[]).movers_whole, MoversWhole::Auto);
+        assert_eq!(settings(&["--movers-whole"]).movers_whole, MoversWhole::On);
+        assert_eq!(
+            settings(&["--movers-whole", "--frames", "3"]).movers_whole,
+            MoversWhole::On
+        );
+        for (v, want) in [
+            ("off", MoversWhole::Off),
+            ("on", MoversWhole::On),
+            ("auto", MoversWhole::Auto),
+        ] {
+            assert_eq!(settings(&["--movers-whole", v]).movers_whole, want);
+        }
+        assert!(Cli::try_parse_from(["bench", "--movers-whole", "always"]).is_err());
+    }
+
     #[test]
     fn the_automatic_camera_excludes_a_given_one() {
         let parse = |args: &[&str]| {
