@@ -568,16 +568,16 @@ impl Pipeline {
                         || cost[i] <= budget.saturating_mul(u64::from(self.config.max_wait)))
             })
             .collect();
-        let auto = match mode {
+        // `On` holds every candidate; `Auto` some of them.
+        let held_whole = match mode {
             MoversWhole::Auto => self.auto_held(&candidate, &cost, &due_now, budget),
-            _ => candidate.clone(),
+            _ => candidate,
         };
         self.instances
             .iter()
             .enumerate()
             .map(|(i, s)| {
-                let held_whole = candidate[i] && auto[i];
-                held_whole.then(|| {
+                held_whole[i].then(|| {
                     let fits = match self.stages.get(i).and_then(Option::as_ref) {
                         // A stage ends in the step it was planned to.
                         Some(stage) => self.frame >= stage.ends_at,
