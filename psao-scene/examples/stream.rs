@@ -101,6 +101,7 @@ fn main() {
         ray_reuse: !flag("--no-ray-reuse"),
         skip_open: !flag("--no-skip-open"),
         plan_late: flag("--plan-late"),
+        loop_memory_bytes: arg::<u64>("--loop-memory-mib", 64) << 20,
         budget: match arg("--ray-budget", String::new()).as_str() {
             "" => RayBudget::Unlimited,
             "auto" => RayBudget::Auto { share: 0.8 },
@@ -270,6 +271,12 @@ fn main() {
         sum.rays_kept as f64 / n,
         server.kept_ray_points()
     );
+    if let Some((period, points, bytes)) = server.loop_memory() {
+        println!(
+            "  loop memory        the scene loops every {period:.3} s; {points} points remembered in {:.1} MB",
+            bytes as f64 / 1e6
+        );
+    }
     if let Some(b) = sum.budget {
         println!(
             "  ray budget         {:.0} rays per frame; {} points waiting at the end, the longest wait {} frames (bound up to {}); {:.1} points per frame traced past the budget (overdue)",

@@ -540,3 +540,36 @@ fn camera_paths_pass_through_their_keys_and_see_their_target() {
     bad.keys[0].eye = Vec3::ZERO;
     assert!(bad.validate().is_err());
 }
+
+#[test]
+fn a_scene_loops_when_every_animation_starts_again_together() {
+    let with = |durations: &[f32]| {
+        let mut s = Scene::default();
+        let node = s.add_node("n", None, Trs::default());
+        for (k, &d) in durations.iter().enumerate() {
+            s.animations.push(Animation::translation(
+                &format!("a{k}"),
+                node,
+                &[(0.0, Vec3::ZERO), (d, Vec3::X)],
+            ));
+        }
+        s
+    };
+    // Nothing moves: no loop.
+    assert_eq!(Scene::default().loop_period(20.0), None);
+    assert_eq!(with(&[0.0]).loop_period(20.0), None);
+    assert_eq!(with(&[2.0]).loop_period(20.0), Some(2.0));
+    // The longest duration times the least whole number the others divide.
+    assert_eq!(with(&[2.0, 1.0, 0.5]).loop_period(20.0), Some(2.0));
+    assert_eq!(with(&[2.0, 3.0]).loop_period(20.0), Some(6.0));
+    assert_eq!(with(&[1.5, 2.0]).loop_period(20.0), Some(6.0));
+    // To a part in 10^4 (glTF key times are floats).
+    assert_eq!(with(&[2.0, 1.000_05]).loop_period(20.0), Some(2.0));
+    assert_eq!(with(&[2.0, 1.001]).loop_period(20.0), None);
+    // Not past the longest asked for, nor past 16 times the longest.
+    assert_eq!(with(&[8.0, 18.0]).loop_period(20.0), None);
+    assert_eq!(with(&[8.0, 18.0]).loop_period(100.0), Some(72.0));
+    assert_eq!(with(&[1.0, 17.0 / 16.0]).loop_period(100.0), Some(17.0));
+    assert_eq!(with(&[1.0, 18.0 / 17.0]).loop_period(100.0), None);
+    assert_eq!(with(&[2.0, f32::NAN]).loop_period(20.0), Some(2.0));
+}

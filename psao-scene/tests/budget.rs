@@ -1277,3 +1277,96 @@ fn points_known_open_decide_early_as_their_rays_would() {
         assert_eq!(first, None, "{budget:?}: first frame that differs");
     }
 }
+
+/// [`box_by_a_wall`] under a budget of `rays` a step for six rounds of
+/// its loop (2/3 s, 20 steps of 1/30 s) with the loop memory capped at
+/// `loop_memory_bytes`: per step of the last three rounds, the points of
+/// every instance whose held AO lies more than the send threshold from a
+/// full trace; and the points the memory holds.
+fn looping_box_run(rays: u64, loop_memory_bytes: u64) -> (Vec<usize>, usize) {
+    let (scene, _) = box_by_a_wall();
+    assert_eq!(scene.loop_period(20.0), Some(2.0 / 3.0));
+    let c = PipelineConfig {
+        budget: RayBudget::Rays(rays),
+        max_wait: 8,
+        movers_whole: MoversWhole::Off,
+        loop_memory_bytes,
+        ..config(Estimator::ClosestHit)
+    };
+    let ao = c.ao;
+    let mut p = Pipeline::new(scene, c).unwrap();
+    let counts: Vec<u32> = (0..p.instance_count())
+        .map(|i| p.points(i).unwrap().len() as u32)
+        .collect();
+    let mut off = Vec::new();
+    for t in 0..6 * 20 {
+        p.step(1.0 / 30.0).unwrap();
+        if t >= 3 * 20 {
+            let mut base = 0;
+            let mut n = 0;
+            for (i, &count) in counts.iter().enumerate() {
+                n += held_and_fresh(&mut p, i, base, &ao)
+                    .into_iter()
+                    .filter(|&(_, held, fresh)| (held - fresh).abs() > 8.5 / 255.0)
+                    .count();
+                base += count;
+            }
+            off.push(n);
+        }
+    }
+    (off, p.loop_memory().map_or(0, |(_, points, _)| points))
+}
+
+#[test]
+fn the_loop_memory_leaves_fewer_points_off_a_full_trace() {
+    // Without the memory, a point's trend is all the budget knows; with
+    // it, whether the AO it had at this moment of an earlier round would
+    // be sent. Under demand beyond the budget (240 rays a step, the bound
+    // on waiting rises) and within it (960).
+    for (rays, most) in [(240, 0.95), (960, 0.5)] {
+        let (without, none) = looping_box_run(rays, 0);
+        let (with, remembered) = looping_box_run(rays, 64 << 20);
+        assert_eq!(none, 0);
+        assert!(remembered > 0);
+        let (a, b): (usize, usize) = (without.iter().sum(), with.iter().sum());
+        assert!(
+            (b as f64) < most * a as f64,
+            "{rays} rays a step: points off a full trace past the threshold over three rounds, {b} with the memory against {a} without ({with:?} against {without:?})"
+        );
+    }
+}
+
+#[test]
+fn the_loop_memory_is_kept_only_under_a_budget_in_a_scene_that_loops() {
+    let (scene, b) = box_by_a_wall();
+    let under = |budget, bytes| PipelineConfig {
+        budget,
+        loop_memory_bytes: bytes,
+        ..config(Estimator::ClosestHit)
+    };
+    let memory = |scene: &Scene, c| {
+        let mut p = Pipeline::new(scene.clone(), c).unwrap();
+        for _ in 0..25 {
+            p.step(1.0 / 30.0).unwrap();
+        }
+        p.loop_memory()
+    };
+    let (period, points, bytes) = memory(&scene, under(RayBudget::Rays(96), 64 << 20)).unwrap();
+    assert!((period - 2.0 / 3.0).abs() < 1e-6);
+    assert!(points > 0 && bytes > 0);
+    assert_eq!(memory(&scene, under(RayBudget::Unlimited, 64 << 20)), None);
+    assert_eq!(memory(&scene, under(RayBudget::Rays(96), 0)), None);
+    // A scene that does not move has no loop.
+    let mut still = scene.clone();
+    still.animations.clear();
+    assert_eq!(memory(&still, under(RayBudget::Rays(96), 64 << 20)), None);
+    // A part placed by hand breaks the loop.
+    let mut p = Pipeline::new(scene, under(RayBudget::Rays(96), 64 << 20)).unwrap();
+    p.step(1.0 / 30.0).unwrap();
+    let with = p.memory_bytes();
+    assert!(p.loop_memory().is_some());
+    p.place_instance(b, Affine3A::from_translation(Vec3::X))
+        .unwrap();
+    assert_eq!(p.loop_memory(), None);
+    assert!(p.memory_bytes() <= with);
+}

@@ -158,6 +158,9 @@ pub struct Settings {
     /// Under the budget, points that wait long are planned late
     /// ([`PipelineConfig::plan_late`](psao_scene::PipelineConfig::plan_late)).
     pub plan_late: bool,
+    /// Under the budget, the loop memory's cap in bytes
+    /// ([`PipelineConfig::loop_memory_bytes`](psao_scene::PipelineConfig::loop_memory_bytes)).
+    pub loop_memory_bytes: u64,
     /// PSAO servers make early decisions
     /// ([`PipelineConfig::early`](psao_scene::PipelineConfig::early), the
     /// defaults).
@@ -288,6 +291,7 @@ impl Settings {
             movers_every_step: false,
             movers_whole: psao_scene::MoversWhole::Auto,
             plan_late: false,
+            loop_memory_bytes: PipelineConfig::default().loop_memory_bytes,
             early: false,
             ray_reuse: true,
             skip_open: true,
@@ -787,6 +791,7 @@ fn measure_psao(
         config.movers_every_step = s.movers_every_step;
         config.movers_whole = s.movers_whole;
         config.plan_late = s.plan_late;
+        config.loop_memory_bytes = s.loop_memory_bytes;
     }
     config.early = s.early.then(psao_scene::EarlyDecisions::default);
     config.fill_buried = s.fill_buried;

@@ -206,6 +206,13 @@ pub struct BenchArgs {
     /// for none.
     #[arg(long, value_enum, default_value_t = MoversWholeArg::Auto, num_args = 0..=1, default_missing_value = "on")]
     movers_whole: MoversWholeArg,
+    /// Under a budget, where the scene's animations loop together within
+    /// 20 s, remember each traced point's AO by the moment of the loop, in
+    /// at most this many MiB (0: off), and rank points in later rounds by
+    /// how far the AO they had at that moment lies from what clients hold
+    /// (it orders what is traced; nothing is sent from it)
+    #[arg(long, default_value_t = psao_scene::PipelineConfig::default().loop_memory_bytes >> 20, value_parser = clap::value_parser!(u64).range(0..=1 << 20))]
+    loop_memory_mib: u64,
     /// Under --ray-budget, once demand has raised the bound on waiting,
     /// plan a static point that waited a few ticks once, when the budget
     /// takes it, against what moved in every tick it waited, instead of
@@ -266,6 +273,7 @@ impl BenchArgs {
         settings.movers_every_step = self.movers_every_frame;
         settings.movers_whole = self.movers_whole.into();
         settings.plan_late = self.plan_late;
+        settings.loop_memory_bytes = self.loop_memory_mib << 20;
         settings.early = self.early_decisions;
         settings
     }

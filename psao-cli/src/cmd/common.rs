@@ -221,6 +221,13 @@ pub struct BudgetArgs {
     /// such part (`--movers-whole` alone); `off` for none.
     #[arg(long, value_enum, default_value_t = MoversWholeArg::Auto, num_args = 0..=1, default_missing_value = "on")]
     pub movers_whole: MoversWholeArg,
+    /// Under a budget, where the scene's animations loop together within
+    /// 20 s, remember each traced point's AO by the moment of the loop, in
+    /// at most this many MiB (0: off), and rank points in later rounds by
+    /// how far the AO they had at that moment lies from what clients hold
+    /// (it orders what is traced; nothing is sent from it)
+    #[arg(long, default_value_t = PipelineConfig::default().loop_memory_bytes >> 20, value_parser = clap::value_parser!(u64).range(0..=1 << 20))]
+    pub loop_memory_mib: u64,
     /// Early decisions: a moving instance's point stops casting rays once
     /// its AO is known, to 3 standard errors, to stay within the send
     /// threshold of what clients hold (nothing to send); a point that
@@ -238,6 +245,7 @@ impl BudgetArgs {
         config.max_wait_limit = self.max_wait_limit.max(self.max_wait);
         config.movers_every_step = self.movers_every_frame;
         config.movers_whole = self.movers_whole.into();
+        config.loop_memory_bytes = self.loop_memory_mib << 20;
         config.early = self
             .early_decisions
             .then(psao_scene::EarlyDecisions::default);

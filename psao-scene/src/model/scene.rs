@@ -120,6 +120,31 @@ impl Scene {
         Ok(())
     }
 
+    /// The shortest time, in seconds, after which every animation starts
+    /// again together (each loops over its own duration): the longest
+    /// duration times the least whole number, up to 16, that every other
+    /// duration divides (to a part in 10^4). `None` where nothing animates
+    /// (no animation lasts longer than 0), or where that time would pass
+    /// `longest` seconds or no such number exists.
+    pub fn loop_period(&self, longest: f32) -> Option<f32> {
+        let durations: Vec<f32> = self
+            .animations
+            .iter()
+            .map(Animation::duration)
+            .filter(|d| d.is_finite() && *d > 0.0)
+            .collect();
+        let base = durations.iter().copied().reduce(f32::max)?;
+        (1..=16u32)
+            .map(|m| base * m as f32)
+            .take_while(|&p| p <= longest)
+            .find(|&p| {
+                durations.iter().all(|&d| {
+                    let r = p / d;
+                    (r - r.round()).abs() <= 1e-4 * r
+                })
+            })
+    }
+
     /// Adds a node; returns its index. `parent` must already exist.
     pub fn add_node(&mut self, name: &str, parent: Option<usize>, trs: Trs) -> usize {
         self.nodes.push(Node {

@@ -11,6 +11,7 @@ use rayon::prelude::*;
 use super::budget::{Candidate, REPLAN_WAITS, RayBudget, Waiting, due};
 use super::config::{MoversWhole, PipelineConfig};
 use super::dirty::{Batch, PAR_MIN, StepMotion};
+use super::loops::{LoopMemory, Moment};
 use super::plan::Plan;
 use super::ray_cache::key;
 use super::reach::{MotionBoxes, ReachQuery, reached_rays};
@@ -103,6 +104,8 @@ struct Ranking<'a> {
     placed: &'a [bool],
     /// The step's number.
     step: u64,
+    /// The loop memory, if any, and the step's moment of the loop.
+    loop_memory: Option<(&'a LoopMemory, Moment)>,
 }
 
 impl Ranking<'_> {
@@ -166,10 +169,23 @@ impl Ranking<'_> {
             return 0.0;
         };
         let threshold = self.config.thresholds.ao_steps.max(1) as f32;
-        let own = s
-            .trend
-            .get(k as usize)
-            .map_or(0.0, |t| t.urgency(age, self.config.thresholds.ao_steps));
+        let trend = s.trend.get(k as usize);
+        // Where the scene loops and the AO the point had at this moment of
+        // an earlier round would not be sent against what clients hold, it
+        // probably has nothing to send: it waits for its due. (Not a point
+        // stored as posed, whose position alone may send it.)
+        let stays = s.positions.is_empty() || s.bind;
+        let nothing_to_send = stays
+            && self.loop_memory.is_some_and(|(m, at)| {
+                trend.and_then(|t| t.held()).is_some_and(|held| {
+                    m.predict(key(i, k), at)
+                        .is_some_and(|ao| !self.config.thresholds.ao_changed(ao, held))
+                })
+            });
+        if nothing_to_send {
+            return 0.0;
+        }
+        let own = trend.map_or(0.0, |t| t.urgency(age, self.config.thresholds.ao_steps));
         // Not a deforming instance's points: its pose changes them all
         // at once, so a neighbour's pace says nothing of a front sweeping
         // over it, and its points' own paces say how fast they move. Not
@@ -375,6 +391,10 @@ impl Pipeline {
             stages: &self.stages,
             placed: &motion.placed,
             step: self.frame,
+            loop_memory: self.loop_memory.as_ref().map(|m| {
+                let at = m.moment(self.time + self.config.lead as f64);
+                (m, at)
+            }),
         };
         // A moving point that may stop early costs what such points cast
         // on average.

@@ -266,6 +266,15 @@ pub struct PipelineConfig {
     /// on the default scene (three pairs of runs lost 0.9 dB more than
     /// without it on average, three others tied): off by default.
     pub plan_late: bool,
+    /// Under a budget, where the scene's animations loop together
+    /// ([`Scene::loop_period`](crate::Scene::loop_period), within 20
+    /// seconds), each traced
+    /// point's AO at that moment of the loop is remembered, up to this many
+    /// bytes (0: off), and ranks the point in later rounds: the AO it had
+    /// at the same moment tells how far its AO now is from what clients
+    /// hold. It only orders the points the budget traces; nothing is sent
+    /// from it (the pipeline's `loops` module). 64 MiB.
+    pub loop_memory_bytes: u64,
     /// Early decisions (`Some`): a moving or deforming instance's point casts
     /// its rays in a spread order over the scores its last trace kept and stops
     /// once its AO is known, to the stated confidence, to stay within the send
@@ -347,6 +356,7 @@ impl Default for PipelineConfig {
             movers_every_step: false,
             movers_whole: MoversWhole::Auto,
             plan_late: false,
+            loop_memory_bytes: 64 << 20,
             early: None,
             lead: 0.0,
             settle_steps: 0,

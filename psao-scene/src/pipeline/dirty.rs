@@ -262,7 +262,9 @@ impl Pipeline {
                     values
                 }
             };
-            self.compare_remembered(&values, &sub)?
+            let compared = self.compare_remembered(&values, &sub)?;
+            self.note_loop(&values, &sub, &finishing);
+            compared
         };
         let (traced, rays_cast) = (sub.ids.len() as u64, result.rays + rays_staged);
         let t_after = std::time::Instant::now();
@@ -638,6 +640,26 @@ impl Pipeline {
         }
         for s in &mut self.instances {
             s.heat.cool(now);
+        }
+    }
+
+    /// Notes in the loop memory (if any) the AO `values` traced for
+    /// `batch` at this step's moment of the scene's loop: not the points
+    /// that stopped early (their value is what clients hold, not a trace),
+    /// nor those of the parts whose stage ends (`finishing`: traced at
+    /// their stage's pose).
+    fn note_loop(&mut self, values: &AoResult, batch: &Batch, finishing: &[(usize, Stage)]) {
+        let t = self.time + self.config.lead as f64;
+        let Some(memory) = self.loop_memory.as_mut() else {
+            return;
+        };
+        let at = memory.moment(t);
+        for (&(i, k), &ao) in batch.owner.iter().zip(&values.ao) {
+            let k = key(i, k);
+            if finishing.iter().any(|(f, _)| *f == i) || self.last_early.binary_search(&k).is_ok() {
+                continue;
+            }
+            memory.note(k, at, quantize_ao(ao));
         }
     }
 

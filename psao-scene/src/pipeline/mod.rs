@@ -38,6 +38,7 @@ mod choose;
 pub(crate) mod config;
 mod dirty;
 pub(crate) mod early;
+mod loops;
 mod plan;
 mod ray_cache;
 mod reach;
@@ -281,6 +282,9 @@ pub struct Pipeline {
     moved: std::collections::VecDeque<(u32, reach::MotionBoxes)>,
     /// Moving points' ray scores from their last trace (early decisions).
     kept_scores: early::KeptScores,
+    /// Each traced point's AO by the moment of the scene's loop (under a
+    /// budget, where the animations loop together; see `loops`).
+    loop_memory: Option<loops::LoopMemory>,
     /// The order early decisions cast a point's rays in.
     ray_order: Vec<u32>,
     /// Keys of the points that stopped early in the last step, ascending.
@@ -640,6 +644,12 @@ impl Pipeline {
         let ray_cache = ray_cache::RayCache::new(config.ao.rays, config.ray_cache_bytes);
         let (config_rays, config_cache_bytes) = (config.ao.rays, config.ray_cache_bytes);
         let config_wait = config.max_wait;
+        let loop_memory = match config.budget {
+            budget::RayBudget::Unlimited => None,
+            _ => scene
+                .loop_period(loops::LOOP_LONGEST)
+                .and_then(|p| loops::LoopMemory::new(p, config.loop_memory_bytes)),
+        };
         let mut pipeline = Pipeline {
             scene,
             backend,
@@ -660,6 +670,7 @@ impl Pipeline {
             waiting: budget::Waiting::default(),
             moved: std::collections::VecDeque::new(),
             kept_scores: early::KeptScores::new(config_rays, config_cache_bytes),
+            loop_memory,
             ray_order: early::ray_order(config_rays),
             last_early: Vec::new(),
             early_rested: Vec::new(),
@@ -832,6 +843,7 @@ impl Pipeline {
             + self.skin_groups.iter().map(|g| bvh(&g.bvh)).sum::<u64>()
             + self.ray_cache.memory_bytes()
             + self.kept_scores.memory_bytes()
+            + self.loop_memory.as_ref().map_or(0, loops::LoopMemory::memory_bytes)
             + self.waiting.memory_bytes()
             // What is known against the envelope: a slot a point, the
             // masks and their words.
@@ -847,6 +859,16 @@ impl Pipeline {
     /// ([`PipelineConfig::ray_reuse`]).
     pub fn kept_ray_points(&self) -> usize {
         self.ray_cache.len()
+    }
+
+    /// The loop memory ([`PipelineConfig::loop_memory_bytes`]): the
+    /// scene's loop period in seconds, the points remembered and the bytes
+    /// they take; `None` where there is none (no budget, no loop within
+    /// 20 s, off, or an instance was placed by hand).
+    pub fn loop_memory(&self) -> Option<(f32, usize, u64)> {
+        self.loop_memory
+            .as_ref()
+            .map(|m| (m.period(), m.len(), m.memory_bytes()))
     }
 
     /// World transform of instance `i` now.
@@ -888,6 +910,9 @@ impl Pipeline {
         )?;
         self.overrides[i] = Some(transform);
         self.placed[i] = true;
+        // The instance no longer follows its animation: the scene's loop
+        // is broken, and what was remembered of it says nothing now.
+        self.loop_memory = None;
         Ok(())
     }
 

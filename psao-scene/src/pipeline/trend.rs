@@ -23,6 +23,8 @@ pub(super) struct Trend {
     traced: bool,
     last: u8,
     gap: u8,
+    /// What clients hold after its last trace (`None`: nothing).
+    held: Option<u8>,
     at: u32,
     pace: f32,
 }
@@ -35,6 +37,7 @@ impl Trend {
             traced: true,
             last: q,
             gap: 0,
+            held: Some(q),
             at,
             pace: 0.0,
         }
@@ -58,10 +61,17 @@ impl Trend {
             traced: true,
             last: q,
             gap,
+            held: if sent { Some(q) } else { held },
             at: now,
             pace,
         };
         pace
+    }
+
+    /// What clients hold of the point after its last trace (`None`
+    /// before any, or where they hold nothing).
+    pub fn held(&self) -> Option<u8> {
+        self.held.filter(|_| self.traced)
     }
 
     /// How far from what clients hold the point's AO probably is once it
@@ -254,6 +264,15 @@ mod tests {
         // The pace still counts after a send.
         t.note(104, Some(100), 2, false);
         assert_eq!(t.urgency(0, 8), (4.0 + 4.0) / 8.0);
+        // What clients hold after each trace: the trace where it went out,
+        // what they held where not, nothing where they held nothing.
+        assert_eq!(Trend::default().held(), None);
+        assert_eq!(Trend::seeded(77, 0).held(), Some(77));
+        assert_eq!(t.held(), Some(100));
+        t.note(200, Some(100), 3, true);
+        assert_eq!(t.held(), Some(200));
+        assert_eq!(u.held(), Some(108));
+        assert_eq!(v.held(), None);
     }
 
     #[test]
