@@ -268,12 +268,15 @@ pub struct PipelineConfig {
     pub plan_late: bool,
     /// Under a budget, where the scene's animations loop together
     /// ([`Scene::loop_period`](crate::Scene::loop_period), within 20
-    /// seconds), each traced
-    /// point's AO at that moment of the loop is remembered, up to this many
-    /// bytes (0: off), and ranks the point in later rounds: the AO it had
-    /// at the same moment tells how far its AO now is from what clients
-    /// hold. It only orders the points the budget traces; nothing is sent
-    /// from it (the pipeline's `loops` module). 64 MiB.
+    /// seconds), each traced point's AO at that moment of the loop is
+    /// remembered, up to this many bytes (0: off). In a later round, a
+    /// point whose remembered AO at the same moment would not be sent
+    /// against what clients hold ranks as one with nothing to send and
+    /// waits for its due, leaving the rays to the points that changed. It
+    /// only orders the points the budget traces; nothing is sent from it,
+    /// and it is dropped once an instance is placed by hand
+    /// ([`Pipeline::place_instance`](crate::Pipeline::place_instance)),
+    /// which breaks the loop (the pipeline's `loops` module). 64 MiB.
     pub loop_memory_bytes: u64,
     /// Early decisions (`Some`): a moving or deforming instance's point casts
     /// its rays in a spread order over the scores its last trace kept and stops
