@@ -101,7 +101,7 @@ fn main() {
         ray_reuse: !flag("--no-ray-reuse"),
         skip_open: !flag("--no-skip-open"),
         plan_late: flag("--plan-late"),
-        loop_memory_bytes: arg::<u64>("--loop-memory-mib", 64) << 20,
+        loop_memory_bytes: arg::<u64>("--loop-memory-mib", 64).saturating_mul(1 << 20),
         budget: match arg("--ray-budget", String::new()).as_str() {
             "" => RayBudget::Unlimited,
             "auto" => RayBudget::Auto { share: 0.8 },

@@ -563,9 +563,13 @@ fn a_scene_loops_when_every_animation_starts_again_together() {
     assert_eq!(with(&[2.0, 1.0, 0.5]).loop_period(20.0), Some(2.0));
     assert_eq!(with(&[2.0, 3.0]).loop_period(20.0), Some(6.0));
     assert_eq!(with(&[1.5, 2.0]).loop_period(20.0), Some(6.0));
-    // To a part in 10^4 (glTF key times are floats).
-    assert_eq!(with(&[2.0, 1.000_05]).loop_period(20.0), Some(2.0));
-    assert_eq!(with(&[2.0, 1.001]).loop_period(20.0), None);
+    // To a part in 10^6 (glTF key times are floats), each at most 10^4
+    // times.
+    assert_eq!(with(&[2.0, 2.0 / 3.0]).loop_period(20.0), Some(2.0));
+    assert_eq!(with(&[2.0, 1.000_000_5]).loop_period(20.0), Some(2.0));
+    assert_eq!(with(&[2.0, 1.000_05]).loop_period(20.0), None);
+    assert_eq!(with(&[2.0, 4e-4]).loop_period(20.0), Some(2.0));
+    assert_eq!(with(&[2.0, 1e-4]).loop_period(20.0), None);
     // Not past the longest asked for, nor past 16 times the longest.
     assert_eq!(with(&[8.0, 18.0]).loop_period(20.0), None);
     assert_eq!(with(&[8.0, 18.0]).loop_period(100.0), Some(72.0));

@@ -208,9 +208,10 @@ pub struct BenchArgs {
     movers_whole: MoversWholeArg,
     /// Under a budget, where the scene's animations loop together within
     /// 20 s, remember each traced point's AO by the moment of the loop, in
-    /// at most this many MiB (0: off), and rank points in later rounds by
-    /// how far the AO they had at that moment lies from what clients hold
-    /// (it orders what is traced; nothing is sent from it)
+    /// about this many MiB (0: off); in later rounds a point whose AO at
+    /// that moment would not be sent against what clients hold ranks below
+    /// the points that changed (it orders what is traced; nothing is sent
+    /// from it, and a placement by MOVE_INSTANCE drops it)
     #[arg(long, default_value_t = psao_scene::PipelineConfig::default().loop_memory_bytes >> 20, value_parser = clap::value_parser!(u64).range(0..=1 << 20))]
     loop_memory_mib: u64,
     /// Under --ray-budget, once demand has raised the bound on waiting,
@@ -413,6 +414,28 @@ mod tests {
             assert_eq!(got.settle_steps, want.settle_steps);
             assert_eq!(got.image_frames, ImageFrames::List(vec![0]));
             assert_eq!(got.backend, Backend::Cpu);
+        }
+    }
+
+    /// `--loop-memory-mib` is the pipeline's default (64 MiB) unless
+    /// given; 0 turns the memory off; a negative or huge size is refused.
+    #[test]
+    fn the_loop_memory_is_64_mib_by_default_and_0_turns_it_off() {
+        assert_eq!(settings(&[]).loop_memory_bytes, 64 << 20);
+        assert_eq!(
+            settings(&[]).loop_memory_bytes,
+            psao_scene::PipelineConfig::default().loop_memory_bytes
+        );
+        assert_eq!(settings(&["--loop-memory-mib", "0"]).loop_memory_bytes, 0);
+        assert_eq!(
+            settings(&["--loop-memory-mib", "3"]).loop_memory_bytes,
+            3 << 20
+        );
+        for bad in ["-1", "2000000", "lots"] {
+            assert!(
+                Cli::try_parse_from(["bench", "--loop-memory-mib", bad]).is_err(),
+                "{bad}"
+            );
         }
     }
 

@@ -223,9 +223,10 @@ pub struct BudgetArgs {
     pub movers_whole: MoversWholeArg,
     /// Under a budget, where the scene's animations loop together within
     /// 20 s, remember each traced point's AO by the moment of the loop, in
-    /// at most this many MiB (0: off), and rank points in later rounds by
-    /// how far the AO they had at that moment lies from what clients hold
-    /// (it orders what is traced; nothing is sent from it)
+    /// about this many MiB (0: off); in later rounds a point whose AO at
+    /// that moment would not be sent against what clients hold ranks below
+    /// the points that changed (it orders what is traced; nothing is sent
+    /// from it, and a placement by MOVE_INSTANCE drops it)
     #[arg(long, default_value_t = PipelineConfig::default().loop_memory_bytes >> 20, value_parser = clap::value_parser!(u64).range(0..=1 << 20))]
     pub loop_memory_mib: u64,
     /// Early decisions: a moving instance's point stops casting rays once

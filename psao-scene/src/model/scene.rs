@@ -123,9 +123,10 @@ impl Scene {
     /// The shortest time, in seconds, after which every animation starts
     /// again together (each loops over its own duration): the longest
     /// duration times the least whole number, up to 16, that every other
-    /// duration divides (to a part in 10^4). `None` where nothing animates
-    /// (no animation lasts longer than 0), or where that time would pass
-    /// `longest` seconds or no such number exists.
+    /// duration divides (to a part in 10^6, so that rounds stay in step
+    /// over many of them), each at most 10^4 times. `None` where nothing
+    /// animates (no animation lasts longer than 0), or where that time
+    /// would pass `longest` seconds or no such number exists.
     pub fn loop_period(&self, longest: f32) -> Option<f32> {
         let durations: Vec<f32> = self
             .animations
@@ -139,8 +140,8 @@ impl Scene {
             .take_while(|&p| p <= longest)
             .find(|&p| {
                 durations.iter().all(|&d| {
-                    let r = p / d;
-                    (r - r.round()).abs() <= 1e-4 * r
+                    let r = p as f64 / d as f64;
+                    r <= 1e4 && (r - r.round()).abs() <= 1e-6 * r
                 })
             })
     }

@@ -21,7 +21,10 @@
 //! in the last few steps (`trend::Heat`): a change sweeping over a part
 //! (the rim of a box a bar slides out of) reaches a point's neighbours
 //! first. (Not a deforming part's: its pose changes its points all at
-//! once, and their own paces say how fast.)
+//! once, and their own paces say how fast.) Where the scene's animations
+//! loop, a point whose AO at the same moment of an earlier round would
+//! not be sent against what clients hold has an urgency of 0, whatever
+//! its trend (the loop memory, `loops`).
 //! To it is added [`REACH_PRIOR`]
 //! times the share of its rays motion reached, a prior for points whose
 //! pace is not known yet. The sum, times the steps waited plus one (so

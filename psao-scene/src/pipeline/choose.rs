@@ -172,14 +172,22 @@ impl Ranking<'_> {
         let trend = s.trend.get(k as usize);
         // Where the scene loops and the AO the point had at this moment of
         // an earlier round would not be sent against what clients hold, it
-        // probably has nothing to send: it waits for its due. (Not a point
-        // stored as posed, whose position alone may send it.)
-        let stays = s.positions.is_empty() || s.bind;
+        // probably has nothing to send: it ranks as one without a trend,
+        // by the share of its rays motion reached. Not a point stored as
+        // posed, whose position alone may send it, nor where every trace
+        // is sent (a negative position quantum); against the settling
+        // threshold where settling may send it.
+        let th = &self.config.thresholds;
+        let stays = (s.positions.is_empty() || s.bind) && th.position_quanta >= 0.0;
+        let mut ao_th = *th;
+        if let Some(settle) = self.config.settle_steps.checked_sub(1) {
+            ao_th.ao_steps = ao_th.ao_steps.min(settle);
+        }
         let nothing_to_send = stays
             && self.loop_memory.is_some_and(|(m, at)| {
                 trend.and_then(|t| t.held()).is_some_and(|held| {
                     m.predict(key(i, k), at)
-                        .is_some_and(|ao| !self.config.thresholds.ao_changed(ao, held))
+                        .is_some_and(|ao| !ao_th.ao_changed(ao, held))
                 })
             });
         if nothing_to_send {

@@ -269,10 +269,10 @@ pub struct PipelineConfig {
     /// Under a budget, where the scene's animations loop together
     /// ([`Scene::loop_period`](crate::Scene::loop_period), within 20
     /// seconds), each traced point's AO at that moment of the loop is
-    /// remembered, up to this many bytes (0: off). In a later round, a
+    /// remembered, in about this many bytes (0: off). In a later round, a
     /// point whose remembered AO at the same moment would not be sent
-    /// against what clients hold ranks as one with nothing to send and
-    /// waits for its due, leaving the rays to the points that changed. It
+    /// against what clients hold ranks as one with nothing to send (below
+    /// the points that changed; it is still traced by its due). It
     /// only orders the points the budget traces; nothing is sent from it,
     /// and it is dropped once an instance is placed by hand
     /// ([`Pipeline::place_instance`](crate::Pipeline::place_instance)),

@@ -740,6 +740,10 @@ impl Pipeline {
             if held.word.is_allocated() && held.word.fields().ao.abs_diff(q) >= steps {
                 s.table.set_point(p, pos, nrm, dequantize_ao(q))?;
                 s.buried.note_set(p);
+                let stored = matches!(s.table.placement(p), psao_codec::Placement::Stored { .. });
+                if let Some(t) = s.trend.get_mut(at) {
+                    t.set_held(stored.then_some(q));
+                }
                 out.touched[i] = true;
                 out.updated += 1;
             }
@@ -1103,6 +1107,13 @@ impl Pipeline {
             let (p, n) = (positions[k as usize], normals[k as usize]);
             s.table.set_point(k, p, n, value)?;
             s.buried.note_set(k);
+            // A point the table dropped (no slot for it) is held by no
+            // client, whatever its trend noted.
+            if !matches!(s.table.placement(k), psao_codec::Placement::Stored { .. })
+                && let Some(t) = s.trend.get_mut(k as usize)
+            {
+                t.set_held(None);
+            }
         }
         Ok(())
     }

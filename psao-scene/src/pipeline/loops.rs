@@ -7,15 +7,18 @@
 //! time after which all of them start again together). The memory keeps,
 //! per point traced under a ray budget, its quantized AO at each slot of
 //! the loop it was traced in (a slot is one step of the loop at 60 Hz, or
-//! a [`MAX_SLOTS`]-th of it when longer). When the budget ranks a point
-//! whose AO at the same slot of an earlier round would not be sent against
-//! what clients hold, it ranks as one with nothing to send (urgency 0):
-//! it waits for its due instead of taking rays from the points that
+//! a [`MAX_SLOTS`]-th of a loop longer than 20 s). When the budget ranks a
+//! point whose AO at the same slot of an earlier round would not be sent
+//! against what clients hold, it ranks as one with nothing to send
+//! (urgency 0: only the share of its rays motion reached and its wait
+//! rank it, as for a point without a trend), below the points that
 //! changed. A point the memory knows nothing of, or whose remembered AO
 //! would be sent, ranks by its trend as before. Nothing is sent from the
 //! memory: it only orders the points the budget traces, and every point
 //! is still traced by its due. A wrong prediction (where a loop's end
-//! jumps, float noise between rounds) delays a point to its due at most.
+//! jumps, float noise between rounds, a server running for days, whose
+//! f32 pose time then lags its clock by milliseconds) delays a point to
+//! its due at most.
 //!
 //! Predicting only *nothing to send*, and leaving the points that would
 //! be sent to their trends, is measured to be the safer rule:
@@ -24,7 +27,8 @@
 //! full trace than no memory at all (BENCHMARKS.md, the ray budget's
 //! fifteenth part).
 //!
-//! Memory is capped ([`PipelineConfig::loop_memory_bytes`]): past the cap
+//! Memory is capped ([`PipelineConfig::loop_memory_bytes`], counted as
+//! the slots and a map entry a point, so about that much): past the cap
 //! no further point is remembered. It is dropped when an instance is
 //! placed by hand ([`Pipeline::place_instance`]), which breaks the loop.
 //!
@@ -67,13 +71,15 @@ pub(super) struct LoopMemory {
 }
 
 impl LoopMemory {
-    /// A memory of a loop of `period` seconds (positive, finite) holding at
-    /// most `max_bytes`; `None` where not even one point fits.
+    /// A memory of a loop of `period` seconds (positive, finite, at least
+    /// two steps at 60 Hz) holding about `max_bytes`; `None` where the loop
+    /// is shorter (its moments cannot be told apart) or not even one point
+    /// fits.
     pub fn new(period: f32, max_bytes: u64) -> Option<LoopMemory> {
-        if !(period.is_finite() && period > 0.0) {
+        if !(period.is_finite() && period * 60.0 >= 2.0) {
             return None;
         }
-        let slots = ((period as f64 * 60.0).round() as u32).clamp(1, MAX_SLOTS);
+        let slots = ((period as f64 * 60.0).round() as u32).clamp(2, MAX_SLOTS);
         let per_point = Self::point_bytes(slots);
         let max_points = usize::try_from(max_bytes / per_point).unwrap_or(usize::MAX);
         (max_points > 0).then(|| LoopMemory {
@@ -203,11 +209,17 @@ mod tests {
     }
 
     #[test]
-    fn a_long_loop_is_cut_into_at_most_max_slots() {
-        let m = LoopMemory::new(LOOP_LONGEST, 1 << 30).unwrap();
+    fn a_loop_is_cut_into_steps_at_60_hz_and_at_most_max_slots() {
+        assert_eq!(LoopMemory::new(LOOP_LONGEST, 1 << 30).unwrap().slots, 1200);
+        assert_eq!(LoopMemory::new(1.25, 1 << 30).unwrap().slots, 75);
+        let m = LoopMemory::new(100.0, 1 << 30).unwrap();
         assert_eq!(m.slots, MAX_SLOTS);
-        for t in [0.0, 1.0, LOOP_LONGEST as f64 - 1e-6, 1e6] {
+        for t in [0.0, 1.0, 100.0 - 1e-6, 1e6] {
             assert!(m.moment(t).slot < MAX_SLOTS);
         }
+        // Under two steps its moments cannot be told apart.
+        assert!(LoopMemory::new(1.0 / 60.0, 1 << 30).is_none());
+        assert!(LoopMemory::new(-1.0, 1 << 30).is_none());
+        assert_eq!(LoopMemory::new(2.0 / 60.0, 1 << 30).unwrap().slots, 2);
     }
 }

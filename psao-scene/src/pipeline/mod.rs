@@ -864,7 +864,8 @@ impl Pipeline {
     /// The loop memory ([`PipelineConfig::loop_memory_bytes`]): the
     /// scene's loop period in seconds, the points remembered and the bytes
     /// they take; `None` where there is none (no budget, no loop within
-    /// 20 s, off, or an instance was placed by hand).
+    /// 20 s, a cap under one point's share or 0, or an instance was placed
+    /// by hand).
     pub fn loop_memory(&self) -> Option<(f32, usize, u64)> {
         self.loop_memory
             .as_ref()

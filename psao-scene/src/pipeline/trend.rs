@@ -74,6 +74,13 @@ impl Trend {
         self.held.filter(|_| self.traced)
     }
 
+    /// Notes what clients hold of the point now, where that changed
+    /// without a trace of it (settled to its last trace, or dropped by the
+    /// table): `None`, nothing.
+    pub fn set_held(&mut self, held: Option<u8>) {
+        self.held = held;
+    }
+
     /// How far from what clients hold the point's AO probably is once it
     /// has waited `age` steps as a candidate (0: reached this step), as a
     /// share of `threshold`: the gap its last trace left plus its pace
@@ -273,6 +280,14 @@ mod tests {
         assert_eq!(t.held(), Some(200));
         assert_eq!(u.held(), Some(108));
         assert_eq!(v.held(), None);
+        u.set_held(Some(100));
+        assert_eq!(u.held(), Some(100));
+        u.set_held(None);
+        assert_eq!(u.held(), None);
+        // Before any trace nothing is known, whatever was set.
+        let mut w = Trend::default();
+        w.set_held(Some(3));
+        assert_eq!(w.held(), None);
     }
 
     #[test]
