@@ -106,9 +106,13 @@ fn scene_summary(p: &mut Pipeline, setup_s: f64) -> anyhow::Result<String> {
         )
     });
     let keyframe = p.keyframe()?.bytes.len();
+    // Under a budget, whether the scene loops (the loop memory ranks by it).
+    let looping = p.loop_memory().map_or(String::new(), |(period, _, _)| {
+        format!("; the animation loops every {period:.3} s (--loop-memory-mib)")
+    });
     Ok(format!(
         "scene ready in {setup_s:.1} s: {triangles} triangles, {instances} instances ({moving} moving), \
-         {points} points, keyframe {:.1} kB, {:.1} MB held by the pipeline ({:.0} bytes per point){process}",
+         {points} points, keyframe {:.1} kB, {:.1} MB held by the pipeline ({:.0} bytes per point){process}{looping}",
         keyframe as f64 / 1e3,
         memory as f64 / 1e6,
         memory as f64 / points.max(1) as f64
