@@ -11,6 +11,11 @@ fuzz_target!(|data: &[u8]| {
         assert!(tris.iter().flatten().all(|p| p.is_finite()));
         // Animation and skinning at any time never panic (a later pose may
         // be degenerate; the pipeline reports that as an error).
+        // Whatever its durations, the scene's loop is a finite positive
+        // time within the bound, or none.
+        if let Some(p) = scene.loop_period(20.0) {
+            assert!(p.is_finite() && p > 0.0 && p <= 20.0, "loop of {p} s");
+        }
         for t in [0.0, 0.37, 1e3, -1.0] {
             let pose = scene.pose(t);
             for i in 0..scene.instances.len() {
