@@ -1419,3 +1419,47 @@ fn the_loop_memory_leaves_points_stored_as_posed_to_their_trends() {
         "the memory changed frames of points stored as posed"
     );
 }
+
+/// The steps, of the 60 in which [`turning_cross`] turns (at 30 Hz), in
+/// which the transform clients hold of its first bar did not move, under
+/// a budget a bar's points cost 1.5 times, held whole as `movers_whole`
+/// says.
+fn cross_held_steps(movers_whole: MoversWhole) -> usize {
+    let scene = turning_cross();
+    let bar = 2;
+    let mut c = PipelineConfig {
+        max_wait: 6,
+        movers_whole,
+        ..config(Estimator::ClosestHit)
+    };
+    let p = Pipeline::new(scene.clone(), c.clone()).unwrap();
+    let n = p.points(bar).unwrap().len() as u64;
+    c.budget = RayBudget::Rays(n * u64::from(c.ao.rays) * 2 / 3);
+    let mut p = Pipeline::new(scene, c).unwrap();
+    let id = p.table(bar).unwrap().id();
+    let mut client = psao_codec::Decoder::new(psao_codec::Limits::default());
+    client.receive(&p.keyframe().unwrap().bytes).unwrap();
+    let held = |c: &psao_codec::Decoder| c.mirror().instance(id).unwrap().transform().cloned();
+    let mut still = 0;
+    for _ in 0..60 {
+        let before = held(&client);
+        let (f, _) = p.step(1.0 / 30.0).unwrap();
+        if let Some(f) = f {
+            client.receive(&f.bytes).unwrap();
+        }
+        still += usize::from(held(&client) == before);
+    }
+    still
+}
+
+#[test]
+fn auto_does_not_hold_a_part_turning_in_place() {
+    // A part turning about its own centre by a block changes its own AO
+    // as it turns (as a wheel in its arch does), but it stays where it
+    // is: its AO pattern stays with its surroundings, and a transform held
+    // back would turn that pattern with the part. `Auto` sends its
+    // transform every step it turns, where `On` holds it.
+    assert_eq!(cross_held_steps(MoversWhole::Auto), 0);
+    assert_eq!(cross_held_steps(MoversWhole::Off), 0);
+    assert!(cross_held_steps(MoversWhole::On) > 0);
+}

@@ -201,8 +201,8 @@ pub struct BenchArgs {
     /// (on the CPU, over several ticks against a snapshot of the scene
     /// where it does not fit a tick's budget), its transform held back with its points
     /// while they wait: `auto` (the default) for those whose own AO
-    /// changes as they move, while together they cost at most half the
-    /// budget; `on` for every such part (`--movers-whole` alone); `off`
+    /// changes as they move and that do not turn in place, while together
+    /// they cost at most half the budget; `on` for every such part (`--movers-whole` alone); `off`
     /// for none.
     #[arg(long, value_enum, default_value_t = MoversWholeArg::Auto, num_args = 0..=1, default_missing_value = "on")]
     movers_whole: MoversWholeArg,

@@ -216,8 +216,9 @@ pub struct BudgetArgs {
     /// with its points while they wait (occlusion stays where it was
     /// traced, as from a slower server, instead of sliding with the part):
     /// `auto` (the default) for those whose own AO changes as they move
-    /// (at least 10% of their traced points change enough to be sent),
-    /// while together they cost at most half the budget; `on` for every
+    /// (at least 10% of their traced points change enough to be sent) and
+    /// that do not turn in place (as a wheel on its axle), while together
+    /// they cost at most half the budget; `on` for every
     /// such part (`--movers-whole` alone); `off` for none.
     #[arg(long, value_enum, default_value_t = MoversWholeArg::Auto, num_args = 0..=1, default_missing_value = "on")]
     pub movers_whole: MoversWholeArg,
@@ -360,7 +361,7 @@ pub enum MoversWholeArg {
     Off,
     /// Every one.
     On,
-    /// Those whose own AO changes as they move.
+    /// Those whose own AO changes as they move, not turning in place.
     Auto,
 }
 

@@ -625,9 +625,10 @@ impl Pipeline {
     /// holds whole this step, given each one's `cost` in rays, whether
     /// one of its points is due now, and the step's `budget`: those held
     /// already (until they are traced), then, most dependent on their pose
-    /// first, those whose AO depends on their pose and none of whose points
-    /// is due now (else it would be traced whole at once, whatever the
-    /// budget), as long as the held ones together cost at most half a
+    /// first, those whose AO depends on their pose, that do not turn in
+    /// place (their occlusion stays with their surroundings) and none of
+    /// whose points is due now (else it would be traced whole at once,
+    /// whatever the budget), as long as the held ones together cost at most half a
     /// budget a step (each its cost over `max_wait` steps): a scene of many
     /// moving parts holds only those it can afford to trace whole.
     fn auto_held(
@@ -646,7 +647,13 @@ impl Pipeline {
         let mut held: Vec<bool> = (0..self.instances.len()).map(already).collect();
         let mut spent: u64 = (0..held.len()).filter(|&i| held[i]).map(per_step).sum();
         let mut wanted: Vec<(f32, usize)> = (self.instances.iter().enumerate())
-            .filter(|&(i, s)| candidate[i] && !held[i] && s.pose.depends() && !due_now[i])
+            .filter(|&(i, s)| {
+                candidate[i]
+                    && !held[i]
+                    && s.pose.depends()
+                    && !s.pose.turns_in_place()
+                    && !due_now[i]
+            })
             .map(|(i, s)| (s.pose.share().unwrap_or(0.0), i))
             .collect();
         wanted.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));

@@ -78,10 +78,13 @@ pub enum MoversWhole {
     /// threshold, or settled). A part sliding over an even floor keeps its AO as it
     /// goes (on the default scene 2% of its traced points went out),
     /// so holding its transform back would only misplace it; a box turning
-    /// by another (BoxAnimated: 31%) or a wheel turning against the road
-    /// (the milk truck: 68%) changes its own AO as it moves, and sending its
-    /// transform with AO of another pose misplaces the occlusion instead.
-    /// A part starts unheld, starts to be held in a step where none of
+    /// by another (BoxAnimated: 31%) changes its own AO as it moves, and
+    /// sending its transform with AO of another pose misplaces the
+    /// occlusion instead. Not a part that turns in place (its bounds'
+    /// centre travelled lately under a quarter of what their farthest
+    /// corner did: a wheel on its axle, the milk truck's 68%): its
+    /// occlusion stays with its surroundings, and a transform held back
+    /// would turn it with the part. A part starts unheld, starts to be held in a step where none of
     /// its points is due (else it would be traced whole at once), and
     /// stays held until it is traced. Parts are held, most dependent
     /// first, while together they cost at most half the budget a step

@@ -283,6 +283,9 @@ impl Pipeline {
             let both = (before.0.min(after.0), before.1.max(after.1));
             motion.swept.push(grow(&ao, both));
             motion.boxes.push(both);
+            if next != s.transform && s.positions.is_empty() {
+                s.pose.note_move(&s.transform, &next, s.bounds);
+            }
             if next != s.transform || placed {
                 s.transform = next;
                 s.transform_seq = s.transform_seq.wrapping_add(1);

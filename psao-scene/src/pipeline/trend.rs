@@ -11,7 +11,7 @@
 //! points moved at lately, and the point of a rigid part that can move,
 //! traced in full, is at least as urgent as that pace makes it.
 
-use glam::{IVec3, Vec3};
+use glam::{Affine3A, IVec3, Vec3};
 use rustc_hash::FxHashMap;
 
 /// A point's trend: whether it has been traced, its last trace quantized,
@@ -103,6 +103,11 @@ impl Trend {
 pub(super) struct PoseDependence {
     traced: f32,
     sent: f32,
+    /// How far its bounds' centre travelled lately, and the farthest
+    /// corner of its bounds (each step's distance, the sums decaying by
+    /// [`PoseDependence::TRAVEL_DECAY`] a step).
+    centre: f32,
+    corner: f32,
 }
 
 impl PoseDependence {
@@ -110,6 +115,40 @@ impl PoseDependence {
     const MEMORY: f32 = 4096.0;
     /// Traced points below which nothing is known yet.
     const LEAST: f32 = 64.0;
+    /// What the travelled distances keep of their sums each step.
+    const TRAVEL_DECAY: f32 = 0.9;
+    /// The share of its farthest corner's travel under which a part's
+    /// centre stays put: it turns in place.
+    const IN_PLACE: f32 = 0.25;
+
+    /// Notes a step's move of the part from `before` to `after`, its
+    /// local bounds `bounds`.
+    pub fn note_move(&mut self, before: &Affine3A, after: &Affine3A, bounds: (Vec3, Vec3)) {
+        let (lo, hi) = bounds;
+        let at = |m: &Affine3A, p: Vec3| m.transform_point3(p);
+        let travel = |p: Vec3| at(after, p).distance(at(before, p));
+        let centre = travel((lo + hi) * 0.5);
+        let corner = (0..8)
+            .map(|k| {
+                travel(Vec3::new(
+                    if k & 1 == 0 { lo.x } else { hi.x },
+                    if k & 2 == 0 { lo.y } else { hi.y },
+                    if k & 4 == 0 { lo.z } else { hi.z },
+                ))
+            })
+            .fold(0.0, f32::max);
+        if centre.is_finite() && corner.is_finite() {
+            self.centre = self.centre * Self::TRAVEL_DECAY + centre;
+            self.corner = self.corner * Self::TRAVEL_DECAY + corner;
+        }
+    }
+
+    /// Whether it turns in place lately: its bounds' centre travelled
+    /// under [`PoseDependence::IN_PLACE`] of what their farthest corner
+    /// did (a wheel spinning on its axle, not a box tumbling along).
+    pub fn turns_in_place(&self) -> bool {
+        self.corner > 0.0 && self.centre < Self::IN_PLACE * self.corner
+    }
 
     /// Notes a step's trace of `traced` of the part's points, `sent` of
     /// which went out.
@@ -239,6 +278,54 @@ mod tests {
         let mut e = PoseDependence::default();
         e.note(100, 500);
         assert_eq!(e.share(), Some(1.0));
+    }
+
+    #[test]
+    fn a_part_whose_centre_stays_while_its_corners_travel_turns_in_place() {
+        let bounds = (Vec3::splat(-1.0), Vec3::splat(1.0));
+        let turn = |deg: f32| Affine3A::from_rotation_y(deg.to_radians());
+        let slide = |x: f32| Affine3A::from_translation(Vec3::new(x, 0.0, 0.0));
+        // Nothing known: it does not.
+        assert!(!PoseDependence::default().turns_in_place());
+        let mut wheel = PoseDependence::default();
+        for k in 0..10 {
+            wheel.note_move(
+                &turn(k as f32 * 10.0),
+                &turn(k as f32 * 10.0 + 10.0),
+                bounds,
+            );
+        }
+        assert!(wheel.turns_in_place());
+        let mut slider = PoseDependence::default();
+        for k in 0..10 {
+            slider.note_move(&slide(k as f32 * 0.1), &slide(k as f32 * 0.1 + 0.1), bounds);
+        }
+        assert!(!slider.turns_in_place());
+        // Tumbling along (turning as it travels, as BoxAnimated's box).
+        let mut tumbler = PoseDependence::default();
+        for k in 0..10 {
+            let (a, b) = (k as f32, k as f32 + 1.0);
+            tumbler.note_move(
+                &(slide(a * 0.1) * turn(a * 10.0)),
+                &(slide(b * 0.1) * turn(b * 10.0)),
+                bounds,
+            );
+        }
+        assert!(!tumbler.turns_in_place());
+        // What it did lately counts: a part that slid and now turns in
+        // place turns in place after some steps.
+        for k in 0..40 {
+            slider.note_move(
+                &turn(k as f32 * 10.0),
+                &turn(k as f32 * 10.0 + 10.0),
+                bounds,
+            );
+        }
+        assert!(slider.turns_in_place());
+        // Non-finite moves are not noted.
+        let mut odd = PoseDependence::default();
+        odd.note_move(&slide(0.0), &slide(f32::NAN), bounds);
+        assert!(!odd.turns_in_place());
     }
 
     #[test]
