@@ -285,42 +285,28 @@ mod tests {
         let bounds = (Vec3::splat(-1.0), Vec3::splat(1.0));
         let turn = |deg: f32| Affine3A::from_rotation_y(deg.to_radians());
         let slide = |x: f32| Affine3A::from_translation(Vec3::new(x, 0.0, 0.0));
+        // Steps from pose `at(k)` to `at(k + 1)` for k in `ks`.
+        let moved =
+            |d: &mut PoseDependence, ks: std::ops::Range<u32>, at: &dyn Fn(f32) -> Affine3A| {
+                for k in ks {
+                    d.note_move(&at(k as f32), &at(k as f32 + 1.0), bounds);
+                }
+            };
         // Nothing known: it does not.
         assert!(!PoseDependence::default().turns_in_place());
         let mut wheel = PoseDependence::default();
-        for k in 0..10 {
-            wheel.note_move(
-                &turn(k as f32 * 10.0),
-                &turn(k as f32 * 10.0 + 10.0),
-                bounds,
-            );
-        }
+        moved(&mut wheel, 0..10, &|a| turn(a * 10.0));
         assert!(wheel.turns_in_place());
         let mut slider = PoseDependence::default();
-        for k in 0..10 {
-            slider.note_move(&slide(k as f32 * 0.1), &slide(k as f32 * 0.1 + 0.1), bounds);
-        }
+        moved(&mut slider, 0..10, &|a| slide(a * 0.1));
         assert!(!slider.turns_in_place());
         // Tumbling along (turning as it travels, as BoxAnimated's box).
         let mut tumbler = PoseDependence::default();
-        for k in 0..10 {
-            let (a, b) = (k as f32, k as f32 + 1.0);
-            tumbler.note_move(
-                &(slide(a * 0.1) * turn(a * 10.0)),
-                &(slide(b * 0.1) * turn(b * 10.0)),
-                bounds,
-            );
-        }
+        moved(&mut tumbler, 0..10, &|a| slide(a * 0.3) * turn(a * 10.0));
         assert!(!tumbler.turns_in_place());
         // What it did lately counts: a part that slid and now turns in
         // place turns in place after some steps.
-        for k in 0..40 {
-            slider.note_move(
-                &turn(k as f32 * 10.0),
-                &turn(k as f32 * 10.0 + 10.0),
-                bounds,
-            );
-        }
+        moved(&mut slider, 0..40, &|a| turn(a * 10.0));
         assert!(slider.turns_in_place());
         // Non-finite moves are not noted.
         let mut odd = PoseDependence::default();
