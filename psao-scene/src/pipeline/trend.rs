@@ -99,6 +99,8 @@ impl Trend {
 /// traced lately (not stopped early), how many went out (their AO moved
 /// past the send threshold, or settled). Counts halve past
 /// [`PoseDependence::MEMORY`] traced points, so the recent ones weigh most.
+/// And whether it turns in place lately (a wheel on its axle), which
+/// `Auto` does not hold: see [`PoseDependence::turns_in_place`].
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub(super) struct PoseDependence {
     traced: f32,
