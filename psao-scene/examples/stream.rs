@@ -20,7 +20,9 @@
 //!   rigid moving parts whole (`PipelineConfig::movers_whole`; `auto`
 //!   by default, `on` for `--movers-whole` alone);
 //!   `--plan-late` plans points that wait long once, when the budget
-//!   takes them (`PipelineConfig::plan_late`);
+//!   takes them (`PipelineConfig::plan_late`); `--loop-memory-mib M`
+//!   caps the loop memory (`PipelineConfig::loop_memory_bytes`; 64, 0 for
+//!   off);
 //! - `--early`: early decisions (a moving instance's point stops casting
 //!   rays once its AO is known to stay within the send threshold);
 //!   `--early-z Z` sets their confidence (3 standard errors) and
@@ -118,8 +120,13 @@ fn main() {
             "off" => MoversWhole::Off,
             "auto" => MoversWhole::Auto,
             "on" => MoversWhole::On,
-            _ if flag("--movers-whole") => MoversWhole::On,
-            _ => MoversWhole::Auto,
+            "" if !flag("--movers-whole") => MoversWhole::Auto,
+            // Alone: followed by nothing or by another option.
+            v if v.is_empty() || v.starts_with("--") => MoversWhole::On,
+            v => {
+                eprintln!("error: --movers-whole takes off, on or auto, not {v}");
+                std::process::exit(2)
+            }
         },
         early: flag("--early").then(|| EarlyDecisions {
             z: arg("--early-z", 3.0),

@@ -6,6 +6,7 @@
 
 use std::time::Instant;
 
+use psao_codec::Thresholds;
 use rayon::prelude::*;
 
 use super::budget::{Candidate, REPLAN_WAITS, RayBudget, Waiting, due};
@@ -104,8 +105,10 @@ struct Ranking<'a> {
     placed: &'a [bool],
     /// The step's number.
     step: u64,
-    /// The loop memory, if any, and the step's moment of the loop.
-    loop_memory: Option<(&'a LoopMemory, Moment)>,
+    /// The loop memory, if any, the step's moment of the loop, and the
+    /// thresholds a remembered AO is compared with (the send threshold,
+    /// or the settling one where settling may send a point).
+    loop_memory: Option<(&'a LoopMemory, Moment, Thresholds)>,
 }
 
 impl Ranking<'_> {
@@ -174,20 +177,13 @@ impl Ranking<'_> {
         // an earlier round would not be sent against what clients hold, it
         // probably has nothing to send: it ranks as one without a trend,
         // by the share of its rays motion reached. Not a point stored as
-        // posed, whose position alone may send it, nor where every trace
-        // is sent (a negative position quantum); against the settling
-        // threshold where settling may send it.
-        let th = &self.config.thresholds;
-        let stays = (s.positions.is_empty() || s.bind) && th.position_quanta >= 0.0;
-        let mut ao_th = *th;
-        if let Some(settle) = self.config.settle_steps.checked_sub(1) {
-            ao_th.ao_steps = ao_th.ao_steps.min(settle);
-        }
+        // posed, whose position alone may send it.
+        let stays = s.positions.is_empty() || s.bind;
         let nothing_to_send = stays
-            && self.loop_memory.is_some_and(|(m, at)| {
+            && self.loop_memory.is_some_and(|(m, at, th)| {
                 trend.and_then(|t| t.held()).is_some_and(|held| {
                     m.predict(key(i, k), at)
-                        .is_some_and(|ao| !ao_th.ao_changed(ao, held))
+                        .is_some_and(|ao| !th.ao_changed(ao, held))
                 })
             });
         if nothing_to_send {
@@ -399,10 +395,7 @@ impl Pipeline {
             stages: &self.stages,
             placed: &motion.placed,
             step: self.frame,
-            loop_memory: self.loop_memory.as_ref().map(|m| {
-                let at = m.moment(self.time + self.config.lead as f64);
-                (m, at)
-            }),
+            loop_memory: self.loop_rule(),
         };
         // A moving point that may stop early costs what such points cast
         // on average.
@@ -527,6 +520,23 @@ impl Pipeline {
             whole,
             unreached,
         }
+    }
+
+    /// The loop memory, if any, with this step's moment of the loop and
+    /// the thresholds a remembered AO is compared with: the send
+    /// threshold, or the settling one where settling may send a point
+    /// ([`PipelineConfig::settle_steps`]). None where every trace is sent
+    /// (a negative position quantum), where nothing can be predicted.
+    fn loop_rule(&self) -> Option<(&LoopMemory, Moment, Thresholds)> {
+        let memory = self.loop_memory.as_ref()?;
+        let mut th = self.config.thresholds;
+        if th.position_quanta < 0.0 {
+            return None;
+        }
+        if let Some(settle) = self.config.settle_steps.checked_sub(1) {
+            th.ao_steps = th.ao_steps.min(settle);
+        }
+        Some((memory, self.loop_moment()?, th))
     }
 
     /// Which rigid movers a step traces whole and which it holds, under

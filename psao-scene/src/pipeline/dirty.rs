@@ -649,11 +649,12 @@ impl Pipeline {
     /// nor those of the parts whose stage ends (`finishing`: traced at
     /// their stage's pose).
     fn note_loop(&mut self, values: &AoResult, batch: &Batch, finishing: &[(usize, Stage)]) {
-        let t = self.time + self.config.lead as f64;
+        let Some(at) = self.loop_moment() else {
+            return;
+        };
         let Some(memory) = self.loop_memory.as_mut() else {
             return;
         };
-        let at = memory.moment(t);
         for (&(i, k), &ao) in batch.owner.iter().zip(&values.ao) {
             let k = key(i, k);
             if finishing.iter().any(|(f, _)| *f == i) || self.last_early.binary_search(&k).is_ok() {

@@ -872,6 +872,13 @@ impl Pipeline {
             .map(|m| (m.period(), m.len(), m.memory_bytes()))
     }
 
+    /// The moment of the scene's loop this step poses (its time plus the
+    /// lead), where there is a loop memory.
+    fn loop_moment(&self) -> Option<loops::Moment> {
+        let memory = self.loop_memory.as_ref()?;
+        Some(memory.moment(self.time + self.config.lead as f64))
+    }
+
     /// World transform of instance `i` now.
     pub fn transform(&self, i: usize) -> Option<Affine3A> {
         self.instances.get(i).map(|s| s.transform)

@@ -15,15 +15,15 @@ use glam::{Affine3A, IVec3, Vec3};
 use rustc_hash::FxHashMap;
 
 /// A point's trend: whether it has been traced, its last trace quantized,
-/// that trace's distance from what clients hold in 1/255 steps (0 when it
-/// went out), the step it was traced in, and the pace its AO moved at
-/// between its last two traces (steps of 1/255 per pipeline step).
+/// what clients hold (so the trace's distance from it in 1/255 steps, its
+/// gap: 0 when it went out), the step it was traced in, and the pace its
+/// AO moved at between its last two traces (steps of 1/255 per pipeline
+/// step).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub(super) struct Trend {
     traced: bool,
     last: u8,
-    gap: u8,
-    /// What clients hold after its last trace (`None`: nothing).
+    /// What clients hold since its last trace (`None`: nothing).
     held: Option<u8>,
     at: u32,
     pace: f32,
@@ -36,7 +36,6 @@ impl Trend {
         Trend {
             traced: true,
             last: q,
-            gap: 0,
             held: Some(q),
             at,
             pace: 0.0,
@@ -48,10 +47,6 @@ impl Trend {
     /// clients hold it now and no gap is left.
     /// Returns the pace noted.
     pub fn note(&mut self, q: u8, held: Option<u8>, now: u32, sent: bool) -> f32 {
-        let gap = match (sent, held) {
-            (false, Some(h)) => h.abs_diff(q),
-            _ => 0,
-        };
         let pace = if self.traced {
             self.last.abs_diff(q) as f32 / now.wrapping_sub(self.at).max(1) as f32
         } else {
@@ -60,7 +55,6 @@ impl Trend {
         *self = Trend {
             traced: true,
             last: q,
-            gap,
             held: if sent { Some(q) } else { held },
             at: now,
             pace,
@@ -81,6 +75,12 @@ impl Trend {
         self.held = held;
     }
 
+    /// How far its last trace lies from what clients hold, in 1/255 steps
+    /// (0 where it went out, or where they hold nothing).
+    fn gap(&self) -> u8 {
+        self.held.map_or(0, |h| h.abs_diff(self.last))
+    }
+
     /// How far from what clients hold the point's AO probably is once it
     /// has waited `age` steps as a candidate (0: reached this step), as a
     /// share of `threshold`: the gap its last trace left plus its pace
@@ -90,7 +90,7 @@ impl Trend {
         if !self.traced {
             return 0.0;
         }
-        (self.gap as f32 + self.pace * (age as f32 + 1.0)) / threshold.max(1) as f32
+        (self.gap() as f32 + self.pace * (age as f32 + 1.0)) / threshold.max(1) as f32
     }
 }
 
@@ -357,6 +357,8 @@ mod tests {
         assert_eq!(v.held(), None);
         u.set_held(Some(100));
         assert_eq!(u.held(), Some(100));
+        // Settled to its last trace: no gap is left.
+        assert_eq!(u.urgency(0, 8), 0.0);
         u.set_held(None);
         assert_eq!(u.held(), None);
         // Before any trace nothing is known, whatever was set.
