@@ -454,17 +454,28 @@ fn seen_entry(seen: &[SeenBox], origin: Vec3A, dir: Vec3A, len: f32) -> Option<f
 /// the envelope (found once while it holds: a static point's rays are
 /// fixed, and what moves stays inside); a point none of whose rays
 /// reaches it needs no test at all. A rotating wheel's box barely moves,
-/// so the points around it test all their rays once, not every step.
+/// so the points around it test all their rays once, not every step. A
+/// box that travels is given room for [`ENVELOPE_STEPS`] steps of its
+/// last step's travel, so that an envelope over parts that walk holds
+/// for several steps too.
 #[derive(Clone, Debug, Default)]
 pub struct Envelope {
     /// The instances that moved, ascending, one box each.
     moving: Vec<usize>,
     boxes: Vec<(Vec3, Vec3)>,
+    /// The instances that moved in the last step, and their boxes then.
+    last: (Vec<usize>, Vec<(Vec3, Vec3)>),
 }
 
 /// How much an envelope box is larger than the box it was made for, as a
 /// share of that box's diagonal, on every side.
 pub const ENVELOPE_MARGIN: f32 = 0.05;
+
+/// The steps of its last step's travel an envelope box leaves room for,
+/// beyond [`ENVELOPE_MARGIN`]: a point learns which of its rays reach
+/// the envelope in its second step under it, so an envelope that holds
+/// for fewer steps costs more tests than it saves.
+pub const ENVELOPE_STEPS: f32 = 8.0;
 
 impl Envelope {
     /// Takes a step's boxes, one per instance in `moving` (ascending):
@@ -480,15 +491,26 @@ impl Envelope {
                 .iter()
                 .zip(&self.boxes)
                 .all(|(b, e)| b.0.cmpge(e.0).all() && b.1.cmple(e.1).all());
+        let last = std::mem::replace(&mut self.last, (moving.to_vec(), boxes.to_vec()));
         if inside {
             return false;
         }
+        // How far each box's sides moved in the last step (none for an
+        // instance that did not move then, or a box that is not finite).
+        let travel = |n: usize, &(lo, hi): &(Vec3, Vec3)| {
+            let j = last.0.binary_search(&moving[n]).ok()?;
+            let (a, b) = last.1.get(j)?;
+            let t = (lo - *a).abs().max((hi - *b).abs());
+            t.is_finite().then_some(t)
+        };
         self.moving = moving.to_vec();
         self.boxes = boxes
             .iter()
-            .map(|&(lo, hi)| {
-                let m = Vec3::splat(ENVELOPE_MARGIN * (hi - lo).length());
-                (lo - m, hi + m)
+            .enumerate()
+            .map(|(n, b)| {
+                let m = Vec3::splat(ENVELOPE_MARGIN * (b.1 - b.0).length())
+                    .max(travel(n, b).unwrap_or(Vec3::ZERO) * ENVELOPE_STEPS);
+                (b.0 - m, b.1 + m)
             })
             .collect();
         true
@@ -636,6 +658,40 @@ mod tests {
             !e.cover(&[], &[]),
             "nothing moving again: the same (empty) envelope"
         );
+    }
+
+    #[test]
+    fn an_envelope_over_a_part_that_travels_leaves_it_room_for_several_steps() {
+        // A unit box sliding 2 cm a step along x, and a wheel's box
+        // turning in place beside it, for 64 steps.
+        let mut e = Envelope::default();
+        let mut renewed = 0;
+        for step in 0..64 {
+            let x = 0.02 * step as f32;
+            let slid = (Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 1.0, 1.0));
+            let wheel = (Vec3::new(5.0, 0.0, 0.0), Vec3::new(6.0, 1.0, 1.0));
+            renewed += u32::from(e.cover(&[2, 7], &[slid, wheel]));
+            // Whatever it does, each box lies inside its own.
+            for (b, env) in [slid, wheel].iter().zip(e.boxes()) {
+                assert!(
+                    b.0.cmpge(env.0).all() && b.1.cmple(env.1).all(),
+                    "step {step}"
+                );
+            }
+            // The wheel's box did not travel: its margin alone.
+            let m = ENVELOPE_MARGIN * 3f32.sqrt();
+            assert!(
+                (e.boxes()[1].0 - (wheel.0 - Vec3::splat(m)))
+                    .abs()
+                    .max_element()
+                    < 1e-5
+            );
+        }
+        // The margin alone (8.7 cm) holds the sliding box 4 steps: 13
+        // envelopes in 64 steps. With room for 8 steps of 2 cm, at most
+        // one in 8 steps after the first two.
+        assert!(renewed <= 2 + 64 / 8, "{renewed} envelopes in 64 steps");
+        assert!(renewed >= 64 / 16, "{renewed}: room for more than 16 steps");
     }
 
     /// A point, a normal, 1 to 3 boxes around it, a ray count and an
