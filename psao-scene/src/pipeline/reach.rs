@@ -307,7 +307,9 @@ impl MotionBoxes {
             if nearest.distance_squared(origin) > len * len {
                 return false;
             }
-            // A corner in front of the tangent plane (or on it).
+            // A corner in front of the tangent plane (or on it, or at a
+            // height that is not a number: a box reaching to infinity
+            // along an axis the normal has no part of may reach).
             let c = (0..8).map(|k| {
                 Vec3A::new(
                     if k & 1 == 0 { lo.x } else { hi.x },
@@ -315,7 +317,7 @@ impl MotionBoxes {
                     if k & 4 == 0 { lo.z } else { hi.z },
                 )
             });
-            c.into_iter().any(|c| normal.dot(c - origin) >= 0.0)
+            c.into_iter().any(|c| !(normal.dot(c - origin) < 0.0))
         };
         let seen = |(lo, hi)| SeenBox::new(lo, hi, rays);
         match near {
@@ -472,16 +474,20 @@ pub struct Envelope {
 pub const ENVELOPE_MARGIN: f32 = 0.05;
 
 /// The steps of its last step's travel an envelope box leaves room for,
-/// beyond [`ENVELOPE_MARGIN`]: a point learns which of its rays reach
-/// the envelope in its second step under it, so an envelope that holds
-/// for fewer steps costs more tests than it saves.
+/// on every side, where that is more than [`ENVELOPE_MARGIN`] gives: a
+/// point learns which of its rays reach the envelope in its second step
+/// under it, so an envelope that holds for fewer steps costs more tests
+/// than it saves.
 pub const ENVELOPE_STEPS: f32 = 8.0;
 
 impl Envelope {
     /// Takes a step's boxes, one per instance in `moving` (ascending):
     /// keeps the envelope if the same instances move and each box lies
-    /// inside its own, else makes a new one, each box grown by
-    /// [`ENVELOPE_MARGIN`]. Returns whether it changed. (Another instance
+    /// inside its own, else makes a new one, each box grown on every side
+    /// by [`ENVELOPE_MARGIN`] of its diagonal or [`ENVELOPE_STEPS`] times
+    /// the most its sides moved along that axis in the last step (the
+    /// same instance's box then), whichever is more. Returns whether it
+    /// changed. (Another instance
     /// moving makes a new one: a point of an instance that moved has
     /// other rays, and what was found against the last no longer holds.)
     pub fn cover(&mut self, moving: &[usize], boxes: &[(Vec3, Vec3)]) -> bool {
@@ -498,7 +504,7 @@ impl Envelope {
         // How far each box's sides moved in the last step (none for an
         // instance that did not move then, or a box that is not finite).
         let travel = |n: usize, &(lo, hi): &(Vec3, Vec3)| {
-            let j = last.0.binary_search(&moving[n]).ok()?;
+            let j = last.0.binary_search(moving.get(n)?).ok()?;
             let (a, b) = last.1.get(j)?;
             let t = (lo - *a).abs().max((hi - *b).abs());
             t.is_finite().then_some(t)
@@ -692,6 +698,43 @@ mod tests {
         // one in 8 steps after the first two.
         assert!(renewed <= 2 + 64 / 8, "{renewed} envelopes in 64 steps");
         assert!(renewed >= 64 / 16, "{renewed}: room for more than 16 steps");
+        // The sliding box stops and the wheel's box slides: the wheel's
+        // room is its own travel, not that of the box before it in the
+        // last step's list.
+        let wheel = |x: f32| (Vec3::new(5.0 + x, 0.0, 0.0), Vec3::new(6.0 + x, 1.0, 1.0));
+        assert!(e.cover(&[7], &[wheel(0.0)]), "other instances move");
+        assert!(e.cover(&[7], &[wheel(0.1)]), "out of its 5% margin");
+        let room = e.boxes()[0].1.x - wheel(0.1).1.x;
+        assert!(
+            (room - 0.8).abs() < 1e-4,
+            "room {room} for 8 steps of 10 cm"
+        );
+    }
+
+    #[test]
+    fn a_box_reaching_to_infinity_is_seen_from_a_floor() {
+        // A floor point (its normal has no part along x) under a box
+        // that reaches to infinity along x: its corners' heights are not
+        // numbers, and the box is still seen.
+        let p = AoParams {
+            rays: 32,
+            ..AoParams::default()
+        };
+        let rays = PointRays::new(0, Vec3::ZERO, Vec3::Y, &p).expect("rays");
+        let b = (
+            Vec3::new(f32::NEG_INFINITY, 0.1, -0.2),
+            Vec3::new(f32::INFINITY, 0.3, 0.2),
+        );
+        let boxes = MotionBoxes::new([b], 0.0);
+        let mask = reached_rays(
+            &rays,
+            32,
+            &boxes,
+            Estimator::ClosestHit,
+            p.radius,
+            ReachQuery::default(),
+        );
+        assert!(!mask.is_empty(), "the rays straight up enter the box");
     }
 
     /// A point, a normal, 1 to 3 boxes around it, a ray count and an
