@@ -317,7 +317,10 @@ impl MotionBoxes {
                     if k & 4 == 0 { lo.z } else { hi.z },
                 )
             });
-            c.into_iter().any(|c| !(normal.dot(c - origin) < 0.0))
+            c.into_iter().any(|c| {
+                let height = normal.dot(c - origin);
+                height >= 0.0 || height.is_nan()
+            })
         };
         let seen = |(lo, hi)| SeenBox::new(lo, hi, rays);
         match near {
