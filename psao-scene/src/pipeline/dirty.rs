@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use super::Pipeline;
 use super::backend::{AoBackend, RayJob};
-use super::budget::{due, next_bound, select};
+use super::budget::{due, next_bound, ns_per_priced_ray, select};
 use super::config::MoversWhole;
 use super::early::Kept;
 use super::plan::{Learnt, Plan};
@@ -274,10 +274,11 @@ impl Pipeline {
             cast: t_after.duration_since(casting),
             apply: Duration::ZERO,
         };
-        if rays_cast >= 1024 {
-            // The cost of a ray, for an automatic budget: a running mean
-            // over the casting alone (planning is paid for apart).
-            let ns = casting.elapsed().as_nanos() as f64 / rays_cast as f64;
+        let open = sub_plans.iter().filter(|p| matches!(p, Plan::Open)).count() as u64;
+        // The cost of a ray the budget pays for, for an automatic budget:
+        // a running mean over the casting alone (planning is paid for
+        // apart).
+        if let Some(ns) = ns_per_priced_ray(casting.elapsed(), rays_cast, open, rays) {
             self.ray_ns = if self.ray_ns > 0.0 {
                 0.7 * self.ray_ns + 0.3 * ns
             } else {
@@ -285,7 +286,6 @@ impl Pipeline {
             };
         }
         let planned: u64 = sub_plans.iter().map(|p| u64::from(p.cost(rays))).sum();
-        let open = sub_plans.iter().filter(|p| matches!(p, Plan::Open)).count() as u64;
         self.apply(&sub.owner, &result)?;
         let settle = self.settle_left(&sub.owner)?;
         for (t, s) in touched.iter_mut().zip(&settle.touched) {

@@ -299,7 +299,9 @@ pub struct Pipeline {
     /// leaves alone are settled.
     last_traced: Vec<u64>,
     /// Nanoseconds a ray costs, measured over the last steps (from setup's
-    /// trace at first): what an automatic budget divides by.
+    /// trace at first) per ray the budget paid for
+    /// ([`budget::ns_per_priced_ray`]): what an automatic budget divides
+    /// by.
     ray_ns: f64,
     /// Seconds a step takes besides casting once its budget is set
     /// (choosing the points, the waiting list, then tables, buried points,
