@@ -99,9 +99,9 @@ pub enum RayBudget {
     Rays(u64),
     /// The rays that `share` of the step's period affords at the cost of
     /// a ray measured over the last steps (from setup's trace at first;
-    /// per ray paid for, the rays of points found open included,
-    /// [`ns_per_priced_ray`]), less the time the step's other phases
-    /// took.
+    /// per ray paid for, the rays of points found open without casting
+    /// one included, so that the time they did not take is spent too),
+    /// less the time the step's other phases took.
     Auto {
         /// The share of the period, in (0, 1].
         share: f32,
