@@ -230,6 +230,7 @@ impl Pipeline {
         }
         self.look_up_held(&mut sub);
         let casting = std::time::Instant::now();
+        self.uncast_rays = 0;
         let mut rays_staged = self.trace_slices(&slices);
         let th = self.config.thresholds;
         let settling = self.config.settle_steps > 0;
@@ -278,7 +279,8 @@ impl Pipeline {
         // The cost of a ray the budget pays for, for an automatic budget:
         // a running mean over the casting alone (planning is paid for
         // apart).
-        if let Some(ns) = ns_per_priced_ray(casting.elapsed(), rays_cast, open, rays) {
+        let uncast = std::mem::take(&mut self.uncast_rays);
+        if let Some(ns) = ns_per_priced_ray(casting.elapsed(), rays_cast, uncast) {
             self.ray_ns = if self.ray_ns > 0.0 {
                 0.7 * self.ray_ns + 0.3 * ns
             } else {
@@ -932,6 +934,8 @@ impl Pipeline {
         for d in &mut done {
             result.ao.push(d.value);
             result.rays += d.cast;
+            // A point known open casts none of the rays it was priced at.
+            self.uncast_rays += d.priced.saturating_sub(d.cast);
             let (i, k) = batch.owner[d.b];
             if let Some(kept) = d.kept.take() {
                 eligible += 1;
