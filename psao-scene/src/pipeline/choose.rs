@@ -221,15 +221,16 @@ impl Pipeline {
     /// The budget's choices stand (such a point was chosen at the cost of
     /// its rays, and with early decisions decides on scores of 1, as its
     /// rays would): frames are the same as with every ray cast, and the
-    /// step takes less time. With [`PipelineConfig::skip`] and
-    /// [`PipelineConfig::skip_open`].
+    /// step takes less time. Not the points of the instances `staged`,
+    /// whose stage ends this step and gives their AO whatever their plan.
+    /// With [`PipelineConfig::skip`] and [`PipelineConfig::skip_open`].
     ///
     /// [`PipelineConfig::skip`]: super::config::PipelineConfig::skip
     /// [`PipelineConfig::skip_open`]: super::config::PipelineConfig::skip_open
     pub(super) fn known_open<'p>(
         &self,
         tracer: &AoTracer,
-        chosen: &Batch,
+        (chosen, staged): (&Batch, &[usize]),
         plans: &mut [&'p Plan],
         open: &'p Plan,
     ) {
@@ -241,6 +242,7 @@ impl Pipeline {
             .filter(|&b| {
                 let (i, k) = chosen.owner[b];
                 matches!(plans[b], Plan::Full { .. })
+                    && !staged.contains(&i)
                     && self.instances[i].last_ao.get(k as usize) == Some(&u8::MAX)
             })
             .collect();

@@ -226,7 +226,10 @@ impl Pipeline {
         let (mut sub, mut sub_plans) =
             self.chosen_batch((&batch, &plans), &take, &take_apart, (&late, &full));
         if let Some(t) = tracer {
-            self.known_open(t, &sub, &mut sub_plans, &open);
+            // Not the points of a part whose stage ends now: the stage
+            // gives their AO, whatever their plan.
+            let staged: Vec<usize> = finishing.iter().map(|f| f.0).collect();
+            self.known_open(t, (&sub, &staged), &mut sub_plans, &open);
         }
         self.look_up_held(&mut sub);
         let casting = std::time::Instant::now();
