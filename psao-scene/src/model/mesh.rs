@@ -233,16 +233,23 @@ pub fn bounds_of(points: &[Vec3]) -> Option<(Vec3, Vec3)> {
     )
 }
 
-/// The box holding a box `(lo, hi)` after transform `t`: the bounds of its
-/// eight transformed corners.
-pub fn transformed_bounds(t: &Affine3A, (lo, hi): (Vec3, Vec3)) -> (Vec3, Vec3) {
-    let mut out = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-    for k in 0..8 {
-        let corner = Vec3::new(
+/// The eight corners of the box `(lo, hi)`: corner `k` takes `hi`'s x,
+/// y and z where bits 0, 1 and 2 of `k` are set, `lo`'s where not.
+pub fn box_corners((lo, hi): (Vec3, Vec3)) -> [Vec3; 8] {
+    std::array::from_fn(|k| {
+        Vec3::new(
             if k & 1 == 0 { lo.x } else { hi.x },
             if k & 2 == 0 { lo.y } else { hi.y },
             if k & 4 == 0 { lo.z } else { hi.z },
-        );
+        )
+    })
+}
+
+/// The box holding a box `(lo, hi)` after transform `t`: the bounds of its
+/// eight transformed corners.
+pub fn transformed_bounds(t: &Affine3A, b: (Vec3, Vec3)) -> (Vec3, Vec3) {
+    let mut out = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for corner in box_corners(b) {
         let w = t.transform_point3(corner);
         out = (out.0.min(w), out.1.max(w));
     }

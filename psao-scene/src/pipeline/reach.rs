@@ -12,6 +12,7 @@ use std::sync::OnceLock;
 use glam::{IVec3, Vec3, Vec3A, Vec4};
 use rustc_hash::FxHashMap;
 
+use crate::model::mesh::box_corners;
 use crate::trace::ao::{Estimator, PointRays};
 use crate::trace::geometry::RAY_LEAD;
 
@@ -310,15 +311,8 @@ impl MotionBoxes {
             // A corner in front of the tangent plane (or on it, or at a
             // height that is not a number: a box reaching to infinity
             // along an axis the normal has no part of may reach).
-            let c = (0..8).map(|k| {
-                Vec3A::new(
-                    if k & 1 == 0 { lo.x } else { hi.x },
-                    if k & 2 == 0 { lo.y } else { hi.y },
-                    if k & 4 == 0 { lo.z } else { hi.z },
-                )
-            });
-            c.into_iter().any(|c| {
-                let height = normal.dot(c - origin);
+            box_corners((lo.into(), hi.into())).into_iter().any(|c| {
+                let height = normal.dot(Vec3A::from(c) - origin);
                 height >= 0.0 || height.is_nan()
             })
         };

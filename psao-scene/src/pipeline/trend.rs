@@ -14,6 +14,8 @@
 use glam::{Affine3A, IVec3, Vec3};
 use rustc_hash::FxHashMap;
 
+use crate::model::mesh::box_corners;
+
 /// A point's trend: whether it has been traced, its last trace quantized,
 /// what clients hold (so the trace's distance from it in 1/255 steps, its
 /// gap: 0 when it went out), the step it was traced in, and the pace its
@@ -126,18 +128,12 @@ impl PoseDependence {
     /// Notes a step's move of the part from `before` to `after`, its
     /// local bounds `bounds`.
     pub fn note_move(&mut self, before: &Affine3A, after: &Affine3A, bounds: (Vec3, Vec3)) {
-        let (lo, hi) = bounds;
         let at = |m: &Affine3A, p: Vec3| m.transform_point3(p);
         let travel = |p: Vec3| at(after, p).distance(at(before, p));
-        let centre = travel((lo + hi) * 0.5);
-        let corner = (0..8)
-            .map(|k| {
-                travel(Vec3::new(
-                    if k & 1 == 0 { lo.x } else { hi.x },
-                    if k & 2 == 0 { lo.y } else { hi.y },
-                    if k & 4 == 0 { lo.z } else { hi.z },
-                ))
-            })
+        let centre = travel((bounds.0 + bounds.1) * 0.5);
+        let corner = box_corners(bounds)
+            .into_iter()
+            .map(travel)
             .fold(0.0, f32::max);
         if centre.is_finite() && corner.is_finite() {
             self.centre = self.centre * Self::TRAVEL_DECAY + centre;
