@@ -27,6 +27,17 @@ use crate::morton::morton_order;
 use crate::trace::ao::{AoParams, AoResult, AoTracer, ChangedPoints, PointRays};
 use psao_codec::wire::point::{dequantize_ao, quantize_ao};
 
+/// What casting a step's chosen points gave: their values, and the rays
+/// the points known open would have cast but did not (the budget paid
+/// for them: an automatic budget prices a ray over both,
+/// [`ns_per_priced_ray`]).
+struct Cast {
+    /// Each point's AO, and the rays cast.
+    values: AoResult,
+    /// The rays the points known open would have cast.
+    uncast: u64,
+}
+
 /// The fewest points a parallel pass over a step's points hands a thread
 /// (below that, handing work out costs more than it saves).
 pub(super) const PAR_MIN: usize = 1024;
@@ -233,7 +244,8 @@ impl Pipeline {
         }
         self.look_up_held(&mut sub);
         let casting = std::time::Instant::now();
-        self.uncast_rays = 0;
+        // Rays the points known open would have cast but did not.
+        let mut uncast = 0;
         let mut rays_staged = self.trace_slices(&slices);
         let th = self.config.thresholds;
         let settling = self.config.settle_steps > 0;
@@ -245,27 +257,32 @@ impl Pipeline {
             // Compared where it was traced.
             (self.trace_batch(tracer, &sub, false, &th)?, 0)
         } else {
-            let values = if planned_on_backend {
+            let cast = if planned_on_backend {
                 self.place_backend()?;
                 self.trace_planned(None, &sub, &sub_plans, &motion.changed)?
             } else if self.backend.is_some() {
-                self.trace_values(&sub)?
+                Cast {
+                    values: self.trace_values(&sub)?,
+                    uncast: 0,
+                }
             } else {
                 let owned = tracer.is_none().then(|| self.tracer(false));
                 let tracer = tracer.or(owned.as_ref()).expect("a tracer");
                 if finishing.is_empty() {
                     self.trace_planned(Some(tracer), &sub, &sub_plans, &motion.changed)?
                 } else {
-                    let (values, staged) = self.trace_finishing(
+                    let (cast, staged) = self.trace_finishing(
                         tracer,
                         (&sub, &sub_plans),
                         &motion.changed,
                         &mut finishing,
                     )?;
                     rays_staged += staged;
-                    values
+                    cast
                 }
             };
+            uncast = cast.uncast;
+            let values = cast.values;
             let compared = self.compare_remembered(&values, &sub)?;
             self.note_loop(&values, &sub, &finishing);
             compared
@@ -282,7 +299,6 @@ impl Pipeline {
         // The cost of a ray the budget pays for, for an automatic budget:
         // a running mean over the casting alone (planning is paid for
         // apart).
-        let uncast = std::mem::take(&mut self.uncast_rays);
         if let Some(ns) = ns_per_priced_ray(casting.elapsed(), rays_cast, uncast) {
             self.ray_ns = if self.ray_ns > 0.0 {
                 0.7 * self.ray_ns + 0.3 * ns
@@ -501,15 +517,16 @@ impl Pipeline {
     /// does, but for the points of the parts whose stage ends (`finishing`):
     /// those take the AO their stage traced at its pose (what is left of
     /// it traced now, and a point that joined the part's candidates since
-    /// it began traced against its snapshot). Returns the values and the
-    /// rays the stages cast.
+    /// it began traced against its snapshot). Returns what was cast (the
+    /// points of those parts know none open: their plans are not used)
+    /// and the rays the stages cast.
     fn trace_finishing(
         &mut self,
         tracer: &AoTracer,
         (sub, plans): (&Batch, &[&Plan]),
         changed: &[bool],
         finishing: &mut [(usize, Stage)],
-    ) -> Result<(AoResult, u64), SceneError> {
+    ) -> Result<(Cast, u64), SceneError> {
         let bases = self.id_bases();
         let ao = self.config.ao;
         let mut cast = 0;
@@ -531,16 +548,20 @@ impl Pipeline {
             .collect();
         let at: Vec<usize> = (0..staged.len()).filter(|&b| staged[b].is_none()).collect();
         let rest_plans: Vec<&Plan> = at.iter().map(|&b| plans[b]).collect();
-        let values = self.trace_planned(Some(tracer), &sub.select(&at), &rest_plans, changed)?;
+        let rest_cast = self.trace_planned(Some(tracer), &sub.select(&at), &rest_plans, changed)?;
+        let values = rest_cast.values;
         let mut rest = values.ao.into_iter();
         let ao = staged
             .iter()
             .map(|v| v.unwrap_or_else(|| rest.next().unwrap_or(1.0)))
             .collect();
         Ok((
-            AoResult {
-                ao,
-                rays: values.rays,
+            Cast {
+                values: AoResult {
+                    ao,
+                    rays: values.rays,
+                },
+                uncast: rest_cast.uncast,
             },
             cast,
         ))
@@ -806,8 +827,9 @@ impl Pipeline {
             .filter(|_| self.keeps_ray_scores() && c.skip && c.settle_steps == 0 && c.ao.rays >= 8)
     }
 
-    /// Traces `batch` by `plans`, on the CPU (`tracer`) or, with none, on
-    /// the backend, which casts the rays asked of it
+    /// Traces `batch` by `plans` ([`Cast`]: the values, and the rays the
+    /// points known open did not cast), on the CPU (`tracer`) or, with
+    /// none, on the backend, which casts the rays asked of it
     /// ([`AoBackend::cast_rays`]): a full trace casts every ray (and keeps
     /// the scores of a static instance's point), a partial one casts its
     /// needed rays over the kept scores. Each AO is the kept and new
@@ -826,7 +848,7 @@ impl Pipeline {
         batch: &Batch,
         plans: &[&Plan],
         changed: &[bool],
-    ) -> Result<AoResult, SceneError> {
+    ) -> Result<Cast, SceneError> {
         let ao = self.config.ao;
         ao.validate()?;
         let rays = ao.rays;
@@ -933,12 +955,13 @@ impl Pipeline {
             ao: Vec::with_capacity(done.len()),
             rays: 0,
         };
+        let mut uncast = 0u64;
         let (mut eligible, mut eligible_rays) = (0u64, 0u64);
         for d in &mut done {
             result.ao.push(d.value);
             result.rays += d.cast;
             // A point known open casts none of the rays it was priced at.
-            self.uncast_rays += d.priced.saturating_sub(d.cast);
+            uncast += d.priced.saturating_sub(d.cast);
             let (i, k) = batch.owner[d.b];
             if let Some(kept) = d.kept.take() {
                 eligible += 1;
@@ -970,7 +993,10 @@ impl Pipeline {
         if eligible > 0 {
             self.early_cost = eligible_rays as f64 / eligible as f64;
         }
-        Ok(result)
+        Ok(Cast {
+            values: result,
+            uncast,
+        })
     }
 
     /// The listed points of each instance in world space, with what clients

@@ -303,10 +303,6 @@ pub struct Pipeline {
     /// ([`budget::ns_per_priced_ray`]): what an automatic budget divides
     /// by.
     ray_ns: f64,
-    /// Rays the points cast by the last `trace_planned` calls of a step
-    /// would have cast but did not, being known open: what the budget
-    /// paid for beyond the rays cast (set to 0 before casting).
-    uncast_rays: u64,
     /// Seconds a step takes besides casting once its budget is set
     /// (choosing the points, the waiting list, then tables, buried points,
     /// encoding), a running mean: what an automatic budget keeps aside.
@@ -683,7 +679,6 @@ impl Pipeline {
             early_cost: config_rays as f64,
             last_traced: Vec::new(),
             ray_ns: 0.0,
-            uncast_rays: 0,
             tail_s: 0.0,
             wait_bound: config_wait,
             envelope: reach::Envelope::default(),
