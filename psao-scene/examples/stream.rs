@@ -22,7 +22,8 @@
 //!   `--plan-late` plans points that wait long once, when the budget
 //!   takes them (`PipelineConfig::plan_late`); `--loop-memory-mib M`
 //!   caps the loop memory (`PipelineConfig::loop_memory_bytes`; 64, 0 for
-//!   off);
+//!   off) and `--no-loop-verify` keeps it from verifying waiting points
+//!   (`PipelineConfig::loop_verify`);
 //! - `--early`: early decisions (a moving instance's point stops casting
 //!   rays once its AO is known to stay within the send threshold);
 //!   `--early-z Z` sets their confidence (3 standard errors) and
@@ -104,6 +105,7 @@ fn main() {
         skip_open: !flag("--no-skip-open"),
         plan_late: flag("--plan-late"),
         loop_memory_bytes: arg::<u64>("--loop-memory-mib", 64).saturating_mul(1 << 20),
+        loop_verify: !flag("--no-loop-verify"),
         budget: match arg("--ray-budget", String::new()).as_str() {
             "" => RayBudget::Unlimited,
             "auto" => RayBudget::Auto { share: 0.8 },
@@ -280,8 +282,9 @@ fn main() {
     );
     if let Some((period, points, bytes)) = server.loop_memory() {
         println!(
-            "  loop memory        the scene loops every {period:.3} s; {points} points remembered in {:.1} MB",
-            bytes as f64 / 1e6
+            "  loop memory        the scene loops every {period:.3} s; {points} points remembered in {:.1} MB; {:.1} waiting points per frame verified (not behind a full re-trace, their wait started again)",
+            bytes as f64 / 1e6,
+            sum.verified as f64 / n
         );
     }
     if let Some(b) = sum.budget {

@@ -161,6 +161,9 @@ pub struct Settings {
     /// Under the budget, the loop memory's cap in bytes
     /// ([`PipelineConfig::loop_memory_bytes`](psao_scene::PipelineConfig::loop_memory_bytes)).
     pub loop_memory_bytes: u64,
+    /// Under the budget, the loop memory verifies waiting points
+    /// ([`PipelineConfig::loop_verify`](psao_scene::PipelineConfig::loop_verify)).
+    pub loop_verify: bool,
     /// PSAO servers make early decisions
     /// ([`PipelineConfig::early`](psao_scene::PipelineConfig::early), the
     /// defaults).
@@ -292,6 +295,7 @@ impl Settings {
             movers_whole: psao_scene::MoversWhole::Auto,
             plan_late: false,
             loop_memory_bytes: PipelineConfig::default().loop_memory_bytes,
+            loop_verify: true,
             early: false,
             ray_reuse: true,
             skip_open: true,
@@ -792,6 +796,7 @@ fn measure_psao(
         config.movers_whole = s.movers_whole;
         config.plan_late = s.plan_late;
         config.loop_memory_bytes = s.loop_memory_bytes;
+        config.loop_verify = s.loop_verify;
     }
     config.early = s.early.then(psao_scene::EarlyDecisions::default);
     config.fill_buried = s.fill_buried;

@@ -210,10 +210,17 @@ pub struct BenchArgs {
     /// 20 s, remember each traced point's AO by the moment of the loop, in
     /// about this many MiB (0: off); in later rounds a point whose AO at
     /// that moment would not be sent against what clients hold ranks below
-    /// the points that changed (it orders what is traced; nothing is sent
-    /// from it, and a placement by MOVE_INSTANCE drops it)
+    /// the points that changed (it orders what is traced and verifies
+    /// waiting points, see --no-loop-verify; nothing is sent from it, and
+    /// a placement by MOVE_INSTANCE drops it)
     #[arg(long, default_value_t = psao_scene::PipelineConfig::default().loop_memory_bytes >> 20, value_parser = clap::value_parser!(u64).range(0..=1 << 20))]
     loop_memory_mib: u64,
+    /// Keep the loop memory from verifying waiting points (by default, a
+    /// waiting point whose AO traced at the same time of the loop would
+    /// not be sent has its wait started again instead of being traced
+    /// when due)
+    #[arg(long)]
+    no_loop_verify: bool,
     /// Under --ray-budget, once demand has raised the bound on waiting,
     /// plan a static point that waited a few ticks once, when the budget
     /// takes it, against what moved in every tick it waited, instead of
@@ -275,6 +282,7 @@ impl BenchArgs {
         settings.movers_whole = self.movers_whole.into();
         settings.plan_late = self.plan_late;
         settings.loop_memory_bytes = self.loop_memory_mib << 20;
+        settings.loop_verify = !self.no_loop_verify;
         settings.early = self.early_decisions;
         settings
     }
@@ -427,6 +435,8 @@ mod tests {
             psao_scene::PipelineConfig::default().loop_memory_bytes
         );
         assert_eq!(settings(&["--loop-memory-mib", "0"]).loop_memory_bytes, 0);
+        assert!(settings(&[]).loop_verify);
+        assert!(!settings(&["--no-loop-verify"]).loop_verify);
         assert_eq!(
             settings(&["--loop-memory-mib", "3"]).loop_memory_bytes,
             3 << 20

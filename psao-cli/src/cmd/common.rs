@@ -226,10 +226,17 @@ pub struct BudgetArgs {
     /// 20 s, remember each traced point's AO by the moment of the loop, in
     /// about this many MiB (0: off); in later rounds a point whose AO at
     /// that moment would not be sent against what clients hold ranks below
-    /// the points that changed (it orders what is traced; nothing is sent
-    /// from it, and a placement by MOVE_INSTANCE drops it)
+    /// the points that changed (it orders what is traced and verifies
+    /// waiting points, see --no-loop-verify; nothing is sent from it, and
+    /// a placement by MOVE_INSTANCE drops it)
     #[arg(long, default_value_t = PipelineConfig::default().loop_memory_bytes >> 20, value_parser = clap::value_parser!(u64).range(0..=1 << 20))]
     pub loop_memory_mib: u64,
+    /// Keep the loop memory from verifying waiting points (by default,
+    /// where the same time of the loop poses the scene alike, a waiting
+    /// point whose AO traced at that time would not be sent has its wait
+    /// started again instead of being traced when due)
+    #[arg(long)]
+    pub no_loop_verify: bool,
     /// Early decisions: a moving instance's point stops casting rays once
     /// its AO is known, to 3 standard errors, to stay within the send
     /// threshold of what clients hold (nothing to send); a point that
@@ -248,6 +255,7 @@ impl BudgetArgs {
         config.movers_every_step = self.movers_every_frame;
         config.movers_whole = self.movers_whole.into();
         config.loop_memory_bytes = self.loop_memory_mib << 20;
+        config.loop_verify = !self.no_loop_verify;
         config.early = self
             .early_decisions
             .then(psao_scene::EarlyDecisions::default);

@@ -3,7 +3,10 @@
 //!
 //! Points are taken in order of priority until the budget is spent:
 //! first every point that has waited its due (so none starves, and none
-//! lags a full re-trace by more than the bound in force: a point's due is
+//! lags a full re-trace by more than the bound in force; its wait counts
+//! from its last trace, or from the last step where the loop memory
+//! verified that clients were not behind a full re-trace of it, `loops`,
+//! [`PipelineConfig::loop_verify`]: a point's due is
 //! that bound less a few steps (under half of it, at most [`MAX_SPREAD`]),
 //! spread by a hash of the point, so that points that began to wait
 //! together do not all come due in one step; see [`due`]), then by what a
@@ -77,6 +80,7 @@
 //! [`PipelineConfig::movers_every_step`]: super::config::PipelineConfig::movers_every_step
 //! [`PipelineConfig::skip_open`]: super::config::PipelineConfig::skip_open
 //! [`PipelineConfig::plan_late`]: super::config::PipelineConfig::plan_late
+//! [`PipelineConfig::loop_verify`]: super::config::PipelineConfig::loop_verify
 
 use super::slots::PointSlots;
 
@@ -405,6 +409,16 @@ impl Waiting {
         if s != 0 && s & (FULL | LATE) == 0 {
             self.state.set(key, s | LATE);
             self.since.set(key, step);
+        }
+    }
+
+    /// Starts waiting `key`'s wait again, as one put to wait in this step
+    /// (its age 1; its flags kept): clients were found not behind a full
+    /// re-trace of it (the loop memory verified it).
+    pub fn restart(&mut self, key: u64) {
+        let s = self.state.get(key);
+        if s != 0 {
+            self.state.set(key, (1 << AGE_SHIFT) | (s & (FULL | LATE)));
         }
     }
 

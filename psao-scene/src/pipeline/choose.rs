@@ -36,6 +36,12 @@ pub(super) struct Candidates {
     /// late), has not really waited (as it would not have, planned with
     /// the others).
     pub apart_really: Vec<bool>,
+    /// Per planned candidate, whether the loop memory verified it
+    /// (`Ranking::verified`): it enters the budget as one that has not
+    /// waited, and if not chosen its wait starts again.
+    pub verified_at: Vec<bool>,
+    /// The same per point apart.
+    pub verified_apart: Vec<bool>,
     /// Each candidate in merged order: (apart, index into `at` or into
     /// the points apart).
     pub merged: Vec<(bool, usize)>,
@@ -111,6 +117,25 @@ struct Ranking<'a> {
     loop_memory: Option<(&'a LoopMemory, Moment, Thresholds)>,
 }
 
+/// What the loop memory says of a candidate at a step (all false without
+/// a memory, or for a point stored as posed, whose position alone may
+/// send it).
+#[derive(Clone, Copy, Default)]
+struct Remembered {
+    /// Its AO traced at this moment of an earlier round, or at a pose that
+    /// verifies this step's, would not be sent against what clients hold:
+    /// it probably has nothing to send, and ranks as one without a trend
+    /// (urgency 0), by the share of its rays motion reached.
+    nothing_to_send: bool,
+    /// Its AO traced at a pose that verifies this step's (the same time
+    /// within the loop, to the tolerance, no jump between) would not be
+    /// sent: clients are not behind a full re-trace now. (Applied only to
+    /// a point that waits as itself, not one of a part traced or held
+    /// whole, whose transform clients hold need not be the one posed
+    /// now.)
+    verified: bool,
+}
+
 impl Ranking<'_> {
     /// The age and cost a candidate, point `key` costing `cost` rays,
     /// enters the budget with: a mover's point traced every step it moves
@@ -119,16 +144,17 @@ impl Ranking<'_> {
     /// a part held whole (`Some(false)`) as one that fits no budget and is
     /// not due (a held point's cost fits no budget below `u32::MAX` rays;
     /// a part that cost as much would fit such a budget whole); any other
-    /// as it waited. A point of a part traced whole whose stage traced it
-    /// already costs nothing more.
+    /// as it waited, or, where the loop memory verifies it (`verified`,
+    /// [`Remembered::verified`]), as one that has not waited (its wait
+    /// starts again: the third value). A point of a part traced whole
+    /// whose stage traced it already costs nothing more.
     fn age_and_cost(
         &self,
         key: u64,
-        every_step: bool,
-        whole: Option<bool>,
+        (every_step, whole, verified): (bool, Option<bool>, bool),
         cost: u32,
         bound: u32,
-    ) -> (u32, u32) {
+    ) -> (u32, u32, bool) {
         // Traced by a stage that ends now as planned (one placed, or
         // made to end early at another pose, is dropped: traced now).
         let staged = || {
@@ -141,23 +167,64 @@ impl Ranking<'_> {
                 && stage.traced(key as u32).is_some()
         };
         match (every_step, whole) {
-            (false, Some(true)) if staged() => (bound, 0),
-            (true, _) | (false, Some(true)) => (bound, cost),
-            (false, Some(false)) => (0, u32::MAX),
-            (false, None) => (self.waiting.get(key).map_or(0, |w| w.0), cost),
+            (false, Some(true)) if staged() => (bound, 0, false),
+            (true, _) | (false, Some(true)) => (bound, cost, false),
+            (false, Some(false)) => (0, u32::MAX, false),
+            (false, None) => match self.waiting.get(key) {
+                Some(_) if verified => (0, cost, true),
+                w => (w.map_or(0, |w| w.0), cost, false),
+            },
+        }
+    }
+
+    /// What the loop memory (`loops`) says of point `key` at this step:
+    /// one look-up.
+    fn remembered(&self, key: u64) -> Remembered {
+        let none = Remembered::default();
+        let Some((memory, at, th)) = self.loop_memory else {
+            return none;
+        };
+        let Some(s) = self.instances.get((key >> 32) as usize) else {
+            return none;
+        };
+        // Not a point stored as posed, whose position alone may send it.
+        if !(s.positions.is_empty() || s.bind) {
+            return none;
+        }
+        let held = s.trend.get(key as u32 as usize).and_then(|t| t.held());
+        let (Some(held), Some(r)) = (held, memory.recall(key, at)) else {
+            return none;
+        };
+        let unsent = !th.ao_changed(r.ao, held);
+        Remembered {
+            nothing_to_send: unsent && (r.earlier || r.verifies),
+            verified: unsent && r.verifies,
         }
     }
 
     /// Point `key`'s candidate: it costs `cost` rays, motion reached
-    /// `reached` of its rays, it has waited `age` steps, under `bound`.
-    fn candidate(&self, key: u64, cost: u32, reached: u32, age: u32, bound: u32) -> Candidate {
+    /// `reached` of its rays, it has waited `age` steps, under `bound`;
+    /// `unsent`: the loop memory says it has nothing to send
+    /// ([`Remembered::nothing_to_send`]).
+    fn candidate(
+        &self,
+        key: u64,
+        (cost, reached, age): (u32, u32, u32),
+        bound: u32,
+        unsent: bool,
+    ) -> Candidate {
         let rays = self.config.ao.rays.max(1);
+        let urgency = if unsent {
+            0.0
+        } else {
+            self.urgency((key >> 32) as usize, key as u32, age, reached >= rays)
+        };
         Candidate {
             cost,
             reached: reached as f32 / rays as f32,
             age,
             due: due(key, bound),
-            urgency: self.urgency((key >> 32) as usize, key as u32, age, reached >= rays),
+            urgency,
         }
     }
 
@@ -173,22 +240,6 @@ impl Ranking<'_> {
         };
         let threshold = self.config.thresholds.ao_steps.max(1) as f32;
         let trend = s.trend.get(k as usize);
-        // Where the scene loops and the AO the point had at this moment of
-        // an earlier round would not be sent against what clients hold, it
-        // probably has nothing to send: it ranks as one without a trend,
-        // by the share of its rays motion reached. Not a point stored as
-        // posed, whose position alone may send it.
-        let stays = s.positions.is_empty() || s.bind;
-        let nothing_to_send = stays
-            && self.loop_memory.is_some_and(|(m, at, th)| {
-                trend.and_then(|t| t.held()).is_some_and(|held| {
-                    m.predict(key(i, k), at)
-                        .is_some_and(|ao| !th.ao_changed(ao, held))
-                })
-            });
-        if nothing_to_send {
-            return 0.0;
-        }
         let own = trend.map_or(0.0, |t| t.urgency(age, self.config.thresholds.ao_steps));
         // Not a deforming instance's points: its pose changes them all
         // at once, so a neighbour's pace says nothing of a front sweeping
@@ -414,7 +465,7 @@ impl Pipeline {
         // mover's point traced every step counts as overdue without
         // having waited); `None` where motion reached no ray. In
         // parallel: tens of thousands may wait.
-        let planned: Vec<Option<(Candidate, bool)>> = (plans.par_iter().enumerate())
+        let planned: Vec<Option<(Candidate, bool, bool)>> = (plans.par_iter().enumerate())
             .with_min_len(PAR_MIN)
             .map(|(b, plan)| {
                 let reached = match plan {
@@ -444,52 +495,62 @@ impl Pipeline {
                 // configured (see `age_and_cost`); it has not really
                 // waited.
                 let every_step = every_step_movers && motion.changed[i];
-                let (age, cost) = rank.age_and_cost(key(i, k), every_step, whole[i], cost, bound);
+                let m = rank.remembered(key(i, k));
+                let (age, cost, verified) =
+                    rank.age_and_cost(key(i, k), (every_step, whole[i], m.verified), cost, bound);
                 let really = !every_step && whole[i] != Some(true);
-                Some((rank.candidate(key(i, k), cost, reached, age, bound), really))
+                let c = rank.candidate(key(i, k), (cost, reached, age), bound, m.nothing_to_send);
+                Some((c, really, verified))
             })
             .collect();
         let (mut at, mut cands, mut waited_really) = (Vec::new(), Vec::new(), Vec::new());
+        let mut verified_at = Vec::new();
         let mut unreached = 0u64;
         for (b, p) in planned.into_iter().enumerate() {
             match p {
                 None => unreached += 1,
-                Some((c, really)) => {
+                Some((c, really, verified)) => {
                     at.push(b);
                     cands.push(c);
                     waited_really.push(really);
+                    verified_at.push(verified);
                 }
             }
         }
         // The points apart: a full trace each (a mover's as a planned
         // one's), or the rays known stale of one planned late (all
         // counted as reached).
-        let (apart_cands, apart_really): (Vec<Candidate>, Vec<bool>) =
-            (apart.keys.par_iter().enumerate())
-                .with_min_len(PAR_MIN)
-                .map(|(j, &k)| {
-                    let i = (k >> 32) as usize;
-                    let whole = whole.get(i).copied().flatten();
-                    let reached = apart.cost(j, rays);
-                    let (cost, every_step, really) = match apart.how[j] {
-                        ApartAs::Moving => {
-                            let cost = if instances.get(i).is_some_and(|s| s.dynamic)
-                                && kept.may_stop(k, max_stops)
-                            {
-                                moving_cost
-                            } else {
-                                reached
-                            };
-                            let every_step = every_step_movers;
-                            (cost, every_step, !every_step && whole != Some(true))
-                        }
-                        ApartAs::Full => (reached, false, true),
-                        ApartAs::Late(_) => (reached, false, whole != Some(true)),
-                    };
-                    let (age, cost) = rank.age_and_cost(k, every_step, whole, cost, bound);
-                    (rank.candidate(k, cost, reached, age, bound), really)
-                })
-                .unzip();
+        let (apart_cands, (apart_really, verified_apart)): (
+            Vec<Candidate>,
+            (Vec<bool>, Vec<bool>),
+        ) = (apart.keys.par_iter().enumerate())
+            .with_min_len(PAR_MIN)
+            .map(|(j, &k)| {
+                let i = (k >> 32) as usize;
+                let whole = whole.get(i).copied().flatten();
+                let reached = apart.cost(j, rays);
+                let (cost, every_step, really) = match apart.how[j] {
+                    ApartAs::Moving => {
+                        let cost = if instances.get(i).is_some_and(|s| s.dynamic)
+                            && kept.may_stop(k, max_stops)
+                        {
+                            moving_cost
+                        } else {
+                            reached
+                        };
+                        let every_step = every_step_movers;
+                        (cost, every_step, !every_step && whole != Some(true))
+                    }
+                    ApartAs::Full => (reached, false, true),
+                    ApartAs::Late(_) => (reached, false, whole != Some(true)),
+                };
+                let m = rank.remembered(k);
+                let (age, cost, verified) =
+                    rank.age_and_cost(k, (every_step, whole, m.verified), cost, bound);
+                let c = rank.candidate(k, (cost, reached, age), bound, m.nothing_to_send);
+                (c, (really, verified))
+            })
+            .unzip();
         let apart = &apart.keys;
         // Both in (instance, point) order, merged so (`select` breaks ties
         // by position): (apart, index) of each.
@@ -517,6 +578,8 @@ impl Pipeline {
             at,
             waited_really,
             apart_really,
+            verified_at,
+            verified_apart,
             merged,
             all,
             whole,
@@ -892,8 +955,10 @@ impl Pipeline {
     /// traced in full when its turn comes, or planned late,
     /// [`Self::plan_late`], with
     /// [`PipelineConfig::plan_late`](super::config::PipelineConfig::plan_late)).
-    /// Returns the chosen planned points (indices into `batch`) and the
-    /// chosen points apart (keys).
+    /// A point the loop memory verified (`Candidates::verified_at`) that
+    /// waits starts its wait again, as one put to wait now. Returns the
+    /// chosen planned points (indices into `batch`), the chosen points
+    /// apart (keys), and how many waits started again.
     pub(super) fn record_choices(
         &mut self,
         batch: &Batch,
@@ -902,7 +967,7 @@ impl Pipeline {
         cands: &Candidates,
         chosen: &[bool],
         bound: u32,
-    ) -> (Vec<usize>, Vec<u64>) {
+    ) -> (Vec<usize>, Vec<u64>, u64) {
         let (at, merged) = (&cands.at, &cands.merged);
         let (mut chosen_at, mut chosen_apart) =
             (vec![false; at.len()], vec![false; apart.keys.len()]);
@@ -915,11 +980,23 @@ impl Pipeline {
         }
         let mut take = Vec::new();
         let mut take_apart = Vec::new();
-        for ((&k, how), &go) in apart.keys.iter().zip(&apart.how).zip(&chosen_apart) {
+        // Those the loop memory verified, not chosen: their wait starts
+        // again once they have been put back to wait.
+        let mut restart = Vec::new();
+        for (j, ((&k, how), &go)) in apart
+            .keys
+            .iter()
+            .zip(&apart.how)
+            .zip(&chosen_apart)
+            .enumerate()
+        {
             if go {
                 self.waiting.done(k);
                 take_apart.push(k);
                 continue;
+            }
+            if cands.verified_apart[j] {
+                restart.push(k);
             }
             match how {
                 // One planned late waits so while its scores are kept.
@@ -935,13 +1012,16 @@ impl Pipeline {
                 }
             }
         }
-        for (&b, &go) in at.iter().zip(&chosen_at) {
+        for (j, (&b, &go)) in at.iter().zip(&chosen_at).enumerate() {
             let (i, k) = batch.owner[b];
             let key = key(i, k);
             if go {
                 self.waiting.done(key);
                 take.push(b);
                 continue;
+            }
+            if cands.verified_at[j] {
+                restart.push(key);
             }
             // Planned again next step, unless demand has raised the bound
             // and it has waited a while already.
@@ -962,7 +1042,10 @@ impl Pipeline {
                 }
             }
         }
-        (take, take_apart)
+        for &k in &restart {
+            self.waiting.restart(k);
+        }
+        (take, take_apart, restart.len() as u64)
     }
 }
 

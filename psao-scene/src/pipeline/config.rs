@@ -275,12 +275,24 @@ pub struct PipelineConfig {
     /// remembered, in about this many bytes (0: off). In a later round, a
     /// point whose remembered AO at the same moment would not be sent
     /// against what clients hold ranks as one with nothing to send (below
-    /// the points that changed; it is still traced by its due). It
-    /// only orders the points the budget traces; nothing is sent from it,
-    /// and it is dropped once an instance is placed by hand
+    /// the points that changed; it is still traced by its due, unless
+    /// the memory verifies it, [`loop_verify`](Self::loop_verify)). It
+    /// orders the points the budget traces and verifies waiting ones;
+    /// nothing is sent from it, and it is dropped once an instance is
+    /// placed by hand
     /// ([`Pipeline::place_instance`](crate::Pipeline::place_instance)),
     /// which breaks the loop (the pipeline's `loops` module). 64 MiB.
     pub loop_memory_bytes: u64,
+    /// Under a budget, with the loop memory, where the scene's pose is a
+    /// function of the time within its loop (every animation's duration
+    /// divides the loop's exactly): a waiting point whose AO traced at
+    /// the same time within the loop (to 0.1 ms, no jump of the pose
+    /// between) would not be sent against what clients hold is verified:
+    /// clients are not behind a full re-trace, and its wait starts again
+    /// as if traced (the bound on waiting counts from the last trace or
+    /// verification; [`FrameReport::verified`](crate::FrameReport::verified)
+    /// counts them). Nothing is sent from the memory. On by default.
+    pub loop_verify: bool,
     /// Early decisions (`Some`): a moving or deforming instance's point casts
     /// its rays in a spread order over the scores its last trace kept and stops
     /// once its AO is known, to the stated confidence, to stay within the send
@@ -363,6 +375,7 @@ impl Default for PipelineConfig {
             movers_whole: MoversWhole::Auto,
             plan_late: false,
             loop_memory_bytes: 64 << 20,
+            loop_verify: true,
             early: None,
             lead: 0.0,
             settle_steps: 0,

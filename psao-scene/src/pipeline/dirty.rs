@@ -70,6 +70,8 @@ pub(super) struct StepTrace {
     pub rays_kept: u64,
     pub budget: Option<u64>,
     pub overdue: u64,
+    /// Waiting points whose wait the loop memory started again.
+    pub verified: u64,
     pub settled: u64,
     pub early: u64,
     /// Points known open without a ray ([`Plan::Open`]).
@@ -225,7 +227,7 @@ impl Pipeline {
                 };
                 (n + 1, r + if really { c.cost as u64 } else { 0 })
             });
-        let (take, take_apart) =
+        let (take, take_apart, verified) =
             self.record_choices(&batch, &plans, &apart, &cands, &chosen, bound);
         if let Some(b) = budget {
             let (least, limit) = (self.config.max_wait, self.config.max_wait_limit);
@@ -328,6 +330,7 @@ impl Pipeline {
             rays_kept: ((traced - open) * rays as u64).saturating_sub(planned),
             budget,
             overdue,
+            verified,
             early: self.last_early.len() as u64,
             open,
             phases,

@@ -7,18 +7,34 @@
 //! time after which all of them start again together). The memory keeps,
 //! per point traced under a ray budget, its quantized AO at each slot of
 //! the loop it was traced in (a slot is one step of the loop at 60 Hz, or
-//! a [`MAX_SLOTS`]-th of a loop longer than 20 s). When the budget ranks a
-//! point whose AO at the same slot of an earlier round would not be sent
-//! against what clients hold, it ranks as one with nothing to send
-//! (urgency 0: only the share of its rays motion reached and its wait
-//! rank it, as for a point without a trend), below the points that
-//! changed. A point the memory knows nothing of, or whose remembered AO
-//! would be sent, ranks by its trend as before. Nothing is sent from the
-//! memory: it only orders the points the budget traces, and every point
-//! is still traced by its due. A wrong prediction (where a loop's end
-//! jumps, float noise between rounds, a server running for days, whose
-//! f32 pose time then lags its clock by milliseconds) delays a point to
-//! its due at most.
+//! a [`MAX_SLOTS`]-th of a loop longer than 20 s), with the round and the
+//! time within the slot it was traced at. It serves two rules:
+//!
+//! - **Ranking.** When the budget ranks a point whose AO at the same slot
+//!   of an earlier round would not be sent against what clients hold, it
+//!   ranks as one with nothing to send (urgency 0: only the share of its
+//!   rays motion reached and its wait rank it, as for a point without a
+//!   trend), below the points that changed. A point the memory knows
+//!   nothing of, or whose remembered AO would be sent, ranks by its trend
+//!   as before. A wrong prediction (where a loop's end jumps, or the pose
+//!   a slot stands for drifts between rounds) costs ranking only.
+//! - **Verifying.** Where the scene's pose is a function of the time
+//!   within the loop ([`LoopMemory::new`]'s `exact`: every animation's
+//!   duration divides the period exactly, so that the same time within
+//!   the loop poses every part alike), a point's remembered AO traced at
+//!   a time within the loop at most [`VERIFY_TOLERANCE`] from now is a
+//!   full trace of the scene as it is posed now, to within that much of
+//!   animation time. Where it would not be sent against what clients
+//!   hold, clients are not behind a full re-trace: the point's wait
+//!   starts again, as if traced (it keeps waiting for the rays motion
+//!   reached, ranked as one with nothing to send). So the bound on
+//!   waiting is kept, counted from the last trace or verification,
+//!   without tracing the points a looping part keeps reaching but
+//!   leaves as they were (the wheel wells of a truck whose wheels turn).
+//!   Only the remembered AO's round is not needed here: any round, this
+//!   one included, poses the same at the same time within the loop.
+//!   Nothing is sent from the memory: a point that would be sent is
+//!   traced.
 //!
 //! Predicting only *nothing to send*, and leaving the points that would
 //! be sent to their trends, is measured to be the safer rule:
@@ -27,15 +43,24 @@
 //! full trace than no memory at all (BENCHMARKS.md, the ray budget's
 //! fifteenth part).
 //!
+//! The time a step poses is the server's clock, stepped by whatever `dt`
+//! it is given, so the same slot of two rounds need not pose alike: at
+//! steps of an f32 1/60 s a 1.25 s loop drifts 65 ns a round, and past
+//! about 2,000 s of scene time the f32 time the scene is posed at moves
+//! in steps over 0.1 ms. A remembered AO verifies only while the times
+//! lie within the tolerance; past it the point waits out its due and its
+//! trace is remembered afresh.
+//!
 //! Memory is capped ([`PipelineConfig::loop_memory_bytes`], counted as
-//! the slots and a map entry a point, so about that much): past the cap
-//! no further point is remembered. It is dropped when an instance is
+//! the slots of a point, 4 bytes each): past the cap no further point is
+//! remembered. Beside it, each instance with a point remembered keeps a
+//! row index of 4 bytes a point. It is dropped when an instance is
 //! placed by hand ([`Pipeline::place_instance`]), which breaks the loop.
 //!
 //! [`PipelineConfig::loop_memory_bytes`]: super::config::PipelineConfig::loop_memory_bytes
 //! [`Pipeline::place_instance`]: super::Pipeline::place_instance
 
-use rustc_hash::FxHashMap;
+use crate::model::animation::{Animation, Interpolation};
 
 /// The longest loop remembered, in seconds.
 pub const LOOP_LONGEST: f32 = 20.0;
@@ -43,17 +68,45 @@ pub const LOOP_LONGEST: f32 = 20.0;
 /// The most slots a loop is cut into.
 pub const MAX_SLOTS: u32 = 1200;
 
-/// The bit that marks a slot traced (the others: the AO in the low 8
-/// bits, the round it was traced in, modulo 128, in the 7 above).
-const KNOWN: u16 = 1 << 15;
+/// How far apart in animation time (seconds) a remembered trace's pose and
+/// a step's may be for the trace to verify the step's (see the module):
+/// 0.1 ms, a 167th of a step at 60 Hz, in which a part moving at 1 m/s
+/// moves 0.1 mm.
+pub const VERIFY_TOLERANCE: f64 = 1e-4;
 
-/// A moment of the scene's loop: its slot, and the round (modulo 128).
+/// The most places in a loop where its pose may jump (a loop's start, an
+/// animation's start, a key of a step interpolation) for which traces are
+/// verified (past them, none is).
+const MAX_JUMPS: usize = 1 << 16;
+
+/// The time within its slot a trace was made at, as a share of the slot
+/// from its start, is kept in this many steps (16 bits: 0.25 us at
+/// 60 Hz).
+const OFFSET_STEPS: f64 = 65535.0;
+
+/// The bit that marks a slot traced (the others: the time within the
+/// slot in the low 16 bits, the AO in the 8 above, and the round it was
+/// traced in, modulo 128, in the 7 above those).
+const KNOWN: u32 = 1 << 31;
+
+/// No row: the point is not remembered.
+const NO_ROW: u32 = u32::MAX;
+
+/// A moment of the scene's loop: its slot, its round (modulo 128), the
+/// time within its slot, and which times within the slot a remembered
+/// trace verifies at.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) struct Moment {
     /// The slot of the loop.
     pub slot: u32,
     /// The round, modulo 128.
     pub round: u16,
+    /// The time within the slot, in [`OFFSET_STEPS`] from its start.
+    pub offset: u16,
+    /// The times within the slot (inclusive, as `offset`) of a trace that
+    /// verifies now: within [`VERIFY_TOLERANCE`] and no jump of the pose
+    /// between; empty (`lo > hi`) where none does.
+    pub verifies: (u16, u16),
 }
 
 /// Per point, its AO at the slots of the scene's loop it was traced in.
@@ -65,17 +118,85 @@ pub(super) struct LoopMemory {
     slots: u32,
     /// Points past which no new one is remembered.
     max_points: usize,
-    /// By point key, per slot, the quantized AO and the round it was
-    /// traced in, with [`KNOWN`] (0: not traced there).
-    points: FxHashMap<u64, Box<[u16]>>,
+    /// Where the scene's pose may jump within the loop (seconds from its
+    /// start, ascending, the start included), where the pose is a
+    /// function of the time within the loop; `None` where it is not (or
+    /// where verifying is off): no trace verifies.
+    jumps: Option<Vec<f64>>,
+    /// By instance, by point, its row in `by_slot` ([`NO_ROW`]: none):
+    /// an array, not a map, as a step looks up tens of thousands of
+    /// points in key order.
+    rows: Vec<Vec<u32>>,
+    /// Points remembered (rows given).
+    remembered: usize,
+    /// Per slot, by row, the quantized AO, the round and the time within
+    /// the slot the point was traced at, with [`KNOWN`] (0, or past the
+    /// end: not traced there). Slot by slot, so that a step, which looks
+    /// at one slot only, reads one short array.
+    by_slot: Vec<Vec<u32>>,
+}
+
+/// What the loop memory holds of a point at a moment of the loop.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) struct Recall {
+    /// Its AO traced at the moment's slot (quantized).
+    pub ao: u8,
+    /// Whether that trace was in an earlier round than the moment's
+    /// (modulo 128): it predicts the moment's AO (the ranking rule of the
+    /// module).
+    pub earlier: bool,
+    /// Whether that trace verifies the moment's pose (the verifying rule
+    /// of the module).
+    pub verifies: bool,
+}
+
+/// Where the pose of a scene whose animations are `animations` may jump
+/// within a loop of `period` seconds, ascending: each animation's start
+/// (and so the loop's), whose end need not pose as its start does, and
+/// each key of a step interpolation, in every round of the animation
+/// within the loop. `None` where the loop's time does not fix the pose:
+/// an animation whose duration does not divide `period` exactly (its
+/// time would drift against the loop's round by round), or too many
+/// jumps to keep.
+pub(super) fn jumps(period: f64, animations: &[Animation]) -> Option<Vec<f64>> {
+    let mut out = vec![0.0];
+    for a in animations {
+        let d = a.duration() as f64;
+        if !(d.is_finite() && d > 0.0) {
+            // Posed at its start whatever the time.
+            continue;
+        }
+        let m = (period / d).round();
+        if !(m >= 1.0 && m * d == period && m as usize <= MAX_JUMPS) {
+            return None;
+        }
+        let steps: Vec<f64> = a
+            .channels
+            .iter()
+            .filter(|c| c.interpolation == Interpolation::Step)
+            .flat_map(|c| c.times.iter().map(|&t| t as f64))
+            .collect();
+        for k in 0..m as usize {
+            out.push(k as f64 * d);
+            out.extend(steps.iter().map(|t| k as f64 * d + t));
+            if out.len() > MAX_JUMPS {
+                return None;
+            }
+        }
+    }
+    out.retain(|&x| (0.0..period).contains(&x));
+    out.sort_by(f64::total_cmp);
+    out.dedup();
+    Some(out)
 }
 
 impl LoopMemory {
     /// A memory of a loop of `period` seconds (positive, finite, at least
-    /// two steps at 60 Hz) holding about `max_bytes`; `None` where the loop
-    /// is shorter (its moments cannot be told apart) or not even one point
-    /// fits.
-    pub fn new(period: f32, max_bytes: u64) -> Option<LoopMemory> {
+    /// two steps at 60 Hz) holding about `max_bytes`, whose traces verify
+    /// a step's pose where `jumps` ([`jumps`]) says where the pose jumps
+    /// (`None`: none verifies); `None` where the loop is shorter (its
+    /// moments cannot be told apart) or not even one point fits.
+    pub fn new(period: f32, max_bytes: u64, jumps: Option<Vec<f64>>) -> Option<LoopMemory> {
         if !(period.is_finite() && period * 60.0 >= 2.0) {
             return None;
         }
@@ -86,53 +207,154 @@ impl LoopMemory {
             period: period as f64,
             slots,
             max_points,
-            points: FxHashMap::default(),
+            jumps,
+            rows: Vec::new(),
+            remembered: 0,
+            by_slot: vec![Vec::new(); slots as usize],
         })
     }
 
     /// Bytes one remembered point takes, with the map's share.
     fn point_bytes(slots: u32) -> u64 {
-        slots as u64 * 2 + std::mem::size_of::<(u64, Box<[u16]>)>() as u64 + 8
+        slots as u64 * 4
+    }
+
+    /// Point `key`'s row, if it has one.
+    fn row(&self, key: u64) -> Option<usize> {
+        let row = *self
+            .rows
+            .get((key >> 32) as usize)?
+            .get(key as u32 as usize)?;
+        (row != NO_ROW).then_some(row as usize)
     }
 
     /// The moment of scene time `t` (seconds; the time the scene is posed
-    /// at): its slot of the loop, and its round.
+    /// at): its slot of the loop, its round, the time within the slot,
+    /// and which remembered traces verify at it.
     pub fn moment(&self, t: f64) -> Moment {
         let rounds = (t / self.period).max(0.0);
-        let slot = (rounds.fract() * self.slots as f64).round() as u64;
+        let at = rounds.fract() * self.slots as f64;
+        let slot = at.round() as u64;
         // The last slot's second half is the next round's first slot.
         let round = rounds.floor() as u64 + slot / self.slots as u64;
+        let slot = (slot % self.slots as u64) as u32;
+        // From -0.5 (the slot's start) to 0.5 (its end).
+        let within = (at - at.round()).clamp(-0.5, 0.5);
         Moment {
-            slot: (slot % self.slots as u64) as u32,
+            slot,
             round: (round % 128) as u16,
+            offset: ((within + 0.5) * OFFSET_STEPS).round() as u16,
+            verifies: self.verifies(slot, within),
         }
+    }
+
+    /// The times within slot `slot` (as [`Moment::offset`]) of a trace
+    /// that verifies a step at `within` of the slot (-0.5 its start, 0.5
+    /// its end): within [`VERIFY_TOLERANCE`] of it and no jump of the pose
+    /// between (a trace whose quantized time could lie on the jump's far
+    /// side is left out).
+    fn verifies(&self, slot: u32, within: f64) -> (u16, u16) {
+        const NONE: (u16, u16) = (1, 0);
+        let Some(jumps) = &self.jumps else {
+            return NONE;
+        };
+        let width = self.period / self.slots as f64;
+        let now = (within + 0.5) * OFFSET_STEPS;
+        let tolerance = VERIFY_TOLERANCE / width * OFFSET_STEPS;
+        let (mut lo, mut hi) = (now - tolerance, now + tolerance);
+        // The jumps within a slot of this one's middle, as times within
+        // it (a loop's start lies in its first slot).
+        let middle = slot as f64 * width;
+        for &x in jumps {
+            let mut d = x - middle;
+            if d > self.period / 2.0 {
+                d -= self.period;
+            } else if d <= -self.period / 2.0 {
+                d += self.period;
+            }
+            let within_jump = d / width;
+            if within_jump.abs() > 0.5 + 2.0 / OFFSET_STEPS {
+                continue;
+            }
+            let q = (within_jump + 0.5) * OFFSET_STEPS;
+            if within < within_jump {
+                hi = hi.min(q - 1.0);
+            } else if within > within_jump {
+                lo = lo.max(q + 1.0);
+            } else {
+                return NONE;
+            }
+        }
+        let (lo, hi) = (lo.ceil().max(0.0), hi.floor().min(OFFSET_STEPS));
+        if lo > hi {
+            return NONE;
+        }
+        (lo as u16, hi as u16)
     }
 
     /// Notes that point `key` traced to `ao` (quantized) at moment `at`.
     pub fn note(&mut self, key: u64, at: Moment, ao: u8) {
-        let full = self.points.len() >= self.max_points;
-        let slots = self.slots as usize;
-        let entry = match self.points.get_mut(&key) {
-            Some(e) => e,
-            None if full => return,
-            None => self
-                .points
-                .entry(key)
-                .or_insert_with(|| vec![0; slots].into_boxed_slice()),
+        let row = match self.row(key) {
+            Some(row) => row,
+            None if self.remembered >= self.max_points => return,
+            None => {
+                let (i, k) = ((key >> 32) as usize, key as u32 as usize);
+                if self.rows.len() <= i {
+                    self.rows.resize(i + 1, Vec::new());
+                }
+                if self.rows[i].len() <= k {
+                    self.rows[i].resize(k + 1, NO_ROW);
+                }
+                self.rows[i][k] = self.remembered as u32;
+                self.remembered += 1;
+                self.remembered - 1
+            }
         };
-        if let Some(s) = entry.get_mut(at.slot as usize) {
-            *s = KNOWN | at.round << 8 | ao as u16;
+        if let Some(slot) = self.by_slot.get_mut(at.slot as usize) {
+            if slot.len() <= row {
+                // Grown by doubling, but never past the cap's rows.
+                if slot.capacity() <= row {
+                    let want = (slot.len() * 2).max(row + 1).max(16).min(self.max_points);
+                    slot.reserve_exact(want.saturating_sub(slot.len()));
+                }
+                slot.resize(row + 1, 0);
+            }
+            slot[row] =
+                KNOWN | u32::from(at.round) << 24 | u32::from(ao) << 16 | u32::from(at.offset);
         }
+    }
+
+    /// What the memory holds of point `key` at moment `at`'s slot: its AO
+    /// there, and whether it predicts and verifies `at` (one look-up for
+    /// both).
+    pub fn recall(&self, key: u64, at: Moment) -> Option<Recall> {
+        let row = self.row(key)?;
+        let v = *self.by_slot.get(at.slot as usize)?.get(row)?;
+        if v & KNOWN == 0 {
+            return None;
+        }
+        let (lo, hi) = at.verifies;
+        Some(Recall {
+            ao: (v >> 16) as u8,
+            earlier: (v >> 24) & 0x7f != u32::from(at.round),
+            verifies: (lo..=hi).contains(&(v as u16)),
+        })
     }
 
     /// Point `key`'s AO at moment `at`'s slot in an earlier round (not in
     /// `at`'s own round, where the slot spans several steps: a trace a
     /// step ago says nothing of the loop).
+    #[cfg(test)]
     pub fn predict(&self, key: u64, at: Moment) -> Option<u8> {
-        match self.points.get(&key)?.get(at.slot as usize) {
-            Some(&v) if v & KNOWN != 0 && (v >> 8) & 0x7f != at.round => Some(v as u8),
-            _ => None,
-        }
+        self.recall(key, at).filter(|r| r.earlier).map(|r| r.ao)
+    }
+
+    /// Point `key`'s AO traced at a pose that verifies moment `at`'s (see
+    /// the module): at `at`'s slot, in any round, at a time within it
+    /// that `at` admits.
+    #[cfg(test)]
+    pub fn verify(&self, key: u64, at: Moment) -> Option<u8> {
+        self.recall(key, at).filter(|r| r.verifies).map(|r| r.ao)
     }
 
     /// The loop's period in seconds.
@@ -142,13 +364,14 @@ impl LoopMemory {
 
     /// The points remembered.
     pub fn len(&self) -> usize {
-        self.points.len()
+        self.remembered
     }
 
     /// Bytes it holds.
     pub fn memory_bytes(&self) -> u64 {
-        let slot = std::mem::size_of::<(u64, Box<[u16]>)>() as u64 + 8;
-        self.points.capacity() as u64 * slot + self.points.len() as u64 * self.slots as u64 * 2
+        let rows: usize = self.rows.iter().map(Vec::capacity).sum();
+        let slots: usize = self.by_slot.iter().map(Vec::capacity).sum();
+        (rows + slots) as u64 * 4
     }
 }
 
@@ -158,11 +381,15 @@ mod tests {
 
     #[test]
     fn a_point_is_predicted_by_the_same_moment_of_an_earlier_round() {
-        let mut m = LoopMemory::new(2.0, 1 << 20).unwrap();
-        assert_eq!(m.moment(0.0), Moment { slot: 0, round: 0 });
-        assert_eq!(m.moment(2.0 + 1.0 / 60.0), Moment { slot: 1, round: 1 });
+        let mut m = LoopMemory::new(2.0, 1 << 20, None).unwrap();
+        let slot_round = |t: f64| {
+            let at = m.moment(t);
+            (at.slot, at.round)
+        };
+        assert_eq!(slot_round(0.0), (0, 0));
+        assert_eq!(slot_round(2.0 + 1.0 / 60.0), (1, 1));
         // Just short of a round's end is the next round's first slot.
-        assert_eq!(m.moment(4.0 - 1e-9), Moment { slot: 0, round: 2 });
+        assert_eq!(slot_round(4.0 - 1e-9), (0, 2));
         let (half, later) = (m.moment(0.5), m.moment(0.6));
         let (next, next_later) = (m.moment(2.5), m.moment(2.6));
         let (beside, far) = (m.moment(2.5 + 1.0 / 60.0), m.moment(200.5));
@@ -190,7 +417,7 @@ mod tests {
     #[test]
     fn past_its_cap_no_new_point_is_remembered() {
         let per_point = LoopMemory::point_bytes(120);
-        let mut m = LoopMemory::new(2.0, per_point * 3).unwrap();
+        let mut m = LoopMemory::new(2.0, per_point * 3, None).unwrap();
         let (now, soon) = (m.moment(0.1), m.moment(0.2));
         let (later, later_soon) = (m.moment(2.1), m.moment(2.2));
         for key in 0..10 {
@@ -202,24 +429,125 @@ mod tests {
         assert_eq!(m.predict(1, later_soon), Some(99));
         assert_eq!(m.predict(2, later), Some(2));
         assert_eq!(m.predict(9, later), None);
-        assert!(m.memory_bytes() >= 3 * per_point);
-        assert!(LoopMemory::new(2.0, per_point - 1).is_none());
-        assert!(LoopMemory::new(0.0, 1 << 20).is_none());
-        assert!(LoopMemory::new(f32::NAN, 1 << 20).is_none());
+        // Slots are kept as they are traced, never past the cap.
+        assert!(m.memory_bytes() > 0 && m.memory_bytes() <= 3 * per_point);
+        let mut full = LoopMemory::new(2.0, per_point * 40, None).unwrap();
+        for slot in 0..120 {
+            for key in 0..50 {
+                full.note(key, full.moment(slot as f64 / 60.0), 1);
+            }
+        }
+        assert_eq!(full.len(), 40);
+        // The slots within the cap; beside it, the row index (4 bytes a
+        // point up to the last remembered).
+        let slots = full.by_slot.iter().map(Vec::capacity).sum::<usize>() as u64 * 4;
+        assert!(slots <= 40 * per_point, "{slots}");
+        let bytes = full.memory_bytes();
+        assert!(bytes <= 40 * per_point + 4 * 64, "{bytes}");
+        assert!(LoopMemory::new(2.0, per_point - 1, None).is_none());
+        assert!(LoopMemory::new(0.0, 1 << 20, None).is_none());
+        assert!(LoopMemory::new(f32::NAN, 1 << 20, None).is_none());
     }
 
     #[test]
     fn a_loop_is_cut_into_steps_at_60_hz_and_at_most_max_slots() {
-        assert_eq!(LoopMemory::new(LOOP_LONGEST, 1 << 30).unwrap().slots, 1200);
-        assert_eq!(LoopMemory::new(1.25, 1 << 30).unwrap().slots, 75);
-        let m = LoopMemory::new(100.0, 1 << 30).unwrap();
+        assert_eq!(
+            LoopMemory::new(LOOP_LONGEST, 1 << 30, None).unwrap().slots,
+            1200
+        );
+        assert_eq!(LoopMemory::new(1.25, 1 << 30, None).unwrap().slots, 75);
+        let m = LoopMemory::new(100.0, 1 << 30, None).unwrap();
         assert_eq!(m.slots, MAX_SLOTS);
         for t in [0.0, 1.0, 100.0 - 1e-6, 1e6] {
             assert!(m.moment(t).slot < MAX_SLOTS);
         }
         // Under two steps its moments cannot be told apart.
-        assert!(LoopMemory::new(1.0 / 60.0, 1 << 30).is_none());
-        assert!(LoopMemory::new(-1.0, 1 << 30).is_none());
-        assert_eq!(LoopMemory::new(2.0 / 60.0, 1 << 30).unwrap().slots, 2);
+        assert!(LoopMemory::new(1.0 / 60.0, 1 << 30, None).is_none());
+        assert!(LoopMemory::new(-1.0, 1 << 30, None).is_none());
+        assert_eq!(LoopMemory::new(2.0 / 60.0, 1 << 30, None).unwrap().slots, 2);
+    }
+
+    #[test]
+    fn a_trace_verifies_the_same_time_of_any_round_with_no_jump_between() {
+        // A loop of 2 s (120 slots of 1/60 s) whose pose jumps at its
+        // start and half way (an animation of 1 s).
+        let anim = crate::model::animation::Animation::translation(
+            "slide",
+            0,
+            &[(0.0, glam::Vec3::ZERO), (1.0, glam::Vec3::X)],
+        );
+        let jumped = jumps(2.0, std::slice::from_ref(&anim)).unwrap();
+        assert_eq!(jumped, vec![0.0, 1.0]);
+        let mut m = LoopMemory::new(2.0, 1 << 20, Some(jumped)).unwrap();
+        let t = 0.25;
+        m.note(7, m.moment(t), 90);
+        // The same time in this round and later ones, to the tolerance.
+        for dt in [
+            0.0,
+            2.0,
+            20.0,
+            2.0 + 0.9 * VERIFY_TOLERANCE,
+            4.0 - 0.9 * VERIFY_TOLERANCE,
+        ] {
+            assert_eq!(m.verify(7, m.moment(t + dt)), Some(90), "{dt}");
+        }
+        // Not past the tolerance, nor in another slot, nor another point.
+        for dt in [
+            2.0 + 1.2 * VERIFY_TOLERANCE,
+            2.0 - 1.2 * VERIFY_TOLERANCE,
+            2.0 + 1.0 / 60.0,
+        ] {
+            assert_eq!(m.verify(7, m.moment(t + dt)), None, "{dt}");
+        }
+        assert_eq!(m.verify(8, m.moment(t + 2.0)), None);
+        // Never across a jump: the loop's start (in its first slot) and
+        // the animation's second start (slot 60), however near in time.
+        let near = 0.3 * VERIFY_TOLERANCE;
+        for jump in [0.0, 1.0] {
+            let key = 10 + jump as u64;
+            m.note(key, m.moment(2.0 + jump - near), 30);
+            assert_eq!(m.verify(key, m.moment(4.0 + jump - near / 2.0)), Some(30));
+            assert_eq!(m.verify(key, m.moment(4.0 + jump + near)), None, "{jump}");
+            m.note(key + 100, m.moment(2.0 + jump + near), 40);
+            assert_eq!(
+                m.verify(key + 100, m.moment(4.0 + jump + near / 2.0)),
+                Some(40)
+            );
+            assert_eq!(
+                m.verify(key + 100, m.moment(4.0 + jump - near)),
+                None,
+                "{jump}"
+            );
+        }
+        // A memory that does not verify (verifying off, or a pose not
+        // fixed by the loop's time) still predicts.
+        let mut off = LoopMemory::new(2.0, 1 << 20, None).unwrap();
+        off.note(7, off.moment(t), 90);
+        assert_eq!(off.verify(7, off.moment(t + 2.0)), None);
+        assert_eq!(off.predict(7, off.moment(t + 2.0)), Some(90));
+    }
+
+    #[test]
+    fn the_pose_jumps_at_each_start_and_step_key_and_is_not_fixed_by_a_loop_its_durations_miss() {
+        use crate::model::animation::{Animation, Interpolation};
+        use glam::Vec3;
+        let mut stepped =
+            Animation::translation("s", 0, &[(0.0, Vec3::ZERO), (0.1, Vec3::X), (0.5, Vec3::Y)]);
+        stepped.channels[0].interpolation = Interpolation::Step;
+        // Two rounds of the stepped one (0.5 s) in a loop of 1 s.
+        assert_eq!(
+            jumps(1.0, std::slice::from_ref(&stepped)).unwrap(),
+            vec![0.0, 0.1f32 as f64, 0.5, 0.5 + 0.1f32 as f64]
+        );
+        // Linear keys jump only where the animation starts again.
+        let linear = Animation::translation("l", 0, &[(0.0, Vec3::ZERO), (0.25, Vec3::X)]);
+        assert_eq!(jumps(0.5, std::slice::from_ref(&linear)).unwrap(), vec![0.0, 0.25]);
+        // A duration that does not divide the loop exactly (in f32, 0.3 s
+        // three times is not 0.9 s): its pose drifts against the loop.
+        let third = Animation::translation("t", 0, &[(0.0, Vec3::ZERO), (0.3, Vec3::X)]);
+        assert_eq!(jumps(0.9f32 as f64, &[third]), None);
+        // An animation of no duration poses alike at every time.
+        let still = Animation::translation("z", 0, &[(0.0, Vec3::X)]);
+        assert_eq!(jumps(0.5, &[linear, still]).unwrap(), vec![0.0, 0.25]);
     }
 }

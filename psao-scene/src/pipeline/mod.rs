@@ -648,9 +648,13 @@ impl Pipeline {
         let config_wait = config.max_wait;
         let loop_memory = match config.budget {
             budget::RayBudget::Unlimited => None,
-            _ => scene
-                .loop_period(loops::LOOP_LONGEST)
-                .and_then(|p| loops::LoopMemory::new(p, config.loop_memory_bytes)),
+            _ => scene.loop_period(loops::LOOP_LONGEST).and_then(|p| {
+                let jumps = config
+                    .loop_verify
+                    .then(|| loops::jumps(p as f64, &scene.animations))
+                    .flatten();
+                loops::LoopMemory::new(p, config.loop_memory_bytes, jumps)
+            }),
         };
         let mut pipeline = Pipeline {
             scene,
@@ -878,7 +882,8 @@ impl Pipeline {
     /// lead), where there is a loop memory.
     fn loop_moment(&self) -> Option<loops::Moment> {
         let memory = self.loop_memory.as_ref()?;
-        Some(memory.moment(self.time + self.config.lead as f64))
+        // The time the scene is posed at, as the animations see it.
+        Some(memory.moment(self.posed_time() as f64))
     }
 
     /// World transform of instance `i` now.

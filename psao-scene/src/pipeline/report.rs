@@ -27,12 +27,19 @@ pub struct FrameReport {
     /// Points that need tracing but wait for a later step (the ray
     /// budget), after this step.
     pub waiting: u64,
-    /// The longest any of them has waited, in steps.
+    /// The longest any of them has waited, in steps: since its last
+    /// trace, or since the loop memory last verified it (`verified`).
     pub oldest_wait: u32,
     /// Points traced whatever the budget because they had waited their
     /// due (`wait_bound` steps less a few, spread over the points): a
     /// budget too small for the motion.
     pub overdue: u64,
+    /// Waiting points the loop memory verified and the budget left
+    /// waiting: traced at the same time within the scene's loop to an AO
+    /// that would not be sent against what clients hold, so clients are
+    /// not behind a full re-trace and their wait starts again
+    /// ([`PipelineConfig::loop_verify`](crate::PipelineConfig::loop_verify)).
+    pub verified: u64,
     /// Under a budget, the bound on waiting this step enforced: no point
     /// waits longer (`oldest_wait` is at most this). It is
     /// [`PipelineConfig::max_wait`](crate::PipelineConfig::max_wait)
@@ -124,6 +131,7 @@ impl FrameReport {
         self.unreached += other.unreached;
         self.rays_kept += other.rays_kept;
         self.overdue += other.overdue;
+        self.verified += other.verified;
         self.early += other.early;
         self.open += other.open;
         self.budget = match (self.budget, other.budget) {

@@ -138,6 +138,7 @@ impl Pipeline {
             report.rays_kept = done.rays_kept;
             report.budget = done.budget;
             report.overdue = done.overdue;
+            report.verified = done.verified;
             report.settled = done.settled;
             report.early = done.early;
             report.open = done.open;
