@@ -1233,9 +1233,14 @@ fn points_near_a_sweeping_change_are_traced_before_the_rest_waits() {
     assert!(err <= 5.5 / 255.0, "off by {} steps", err * 255.0);
 }
 
-/// Frames and early stops of the box by a wall, pushed back and forth
-/// for 40 steps, with early decisions under `budget`.
-fn known_open_run(skip_open: bool, budget: RayBudget) -> (Vec<Option<Vec<u8>>>, u64, u64) {
+/// The frames of the box by a wall, pushed back and forth for 40 steps,
+/// with early decisions under `budget`, with its points known open and
+/// early stops, and per step the rays cast and those the points known
+/// open did not cast.
+type KnownOpenRun = (Vec<Option<Vec<u8>>>, u64, u64, Vec<(u64, u64)>);
+
+/// [`KnownOpenRun`], points known open or not (`skip_open`).
+fn known_open_run(skip_open: bool, budget: RayBudget) -> KnownOpenRun {
     let (scene, b) = box_by_a_wall();
     let mut c = PipelineConfig {
         density: 128.0,
@@ -1247,6 +1252,7 @@ fn known_open_run(skip_open: bool, budget: RayBudget) -> (Vec<Option<Vec<u8>>>, 
     c.ao.rays = 32;
     let mut p = Pipeline::new(scene, c).unwrap();
     let (mut frames, mut open, mut early) = (Vec::new(), 0, 0);
+    let mut rays = Vec::new();
     for t in 0..40 {
         let x = -1.2 + 0.06 * (t % 30) as f32;
         p.place_instance(b, Affine3A::from_translation(Vec3::new(x, 0.0, 0.0)))
@@ -1255,8 +1261,9 @@ fn known_open_run(skip_open: bool, budget: RayBudget) -> (Vec<Option<Vec<u8>>>, 
         frames.push(f.map(|f| f.bytes.to_vec()));
         open += r.open;
         early += r.early;
+        rays.push((r.rays, r.rays_open));
     }
-    (frames, open, early)
+    (frames, open, early, rays)
 }
 
 #[test]
@@ -1269,9 +1276,16 @@ fn points_known_open_decide_early_as_their_rays_would() {
         RayBudget::Rays(3000),
         RayBudget::Rays(8000),
     ] {
-        let (frames, open, early) = known_open_run(true, budget);
-        let (frames_cast, none, early_cast) = known_open_run(false, budget);
+        let (frames, open, early, rays) = known_open_run(true, budget);
+        let (frames_cast, none, early_cast, rays_cast) = known_open_run(false, budget);
         assert!(open > 0 && none == 0, "{budget:?}: {open}");
+        // Each step, the rays the open points did not cast are those the
+        // same points cast when not known open: what the budget paid for.
+        assert!(rays.iter().any(|r| r.1 > 0), "{budget:?}");
+        for (t, (&(cast, uncast), &(all, none))) in rays.iter().zip(&rays_cast).enumerate() {
+            assert_eq!(none, 0, "{budget:?}, step {t}");
+            assert_eq!(cast + uncast, all, "{budget:?}, step {t}");
+        }
         assert_eq!(early, early_cast, "{budget:?}: early stops");
         let first = frames.iter().zip(&frames_cast).position(|(a, b)| a != b);
         assert_eq!(first, None, "{budget:?}: first frame that differs");
@@ -1465,17 +1479,18 @@ fn auto_does_not_hold_a_part_turning_in_place() {
 }
 
 /// [`box_by_a_wall`] over twelve rounds of its loop (40 steps of 1/60 s
-/// each) under a budget of `rays` a step, the loop memory verifying
-/// waiting points or not (`loop_verify`): the points verified and those
+/// each) under a budget of `rays` a step, its box held whole or not
+/// (`whole`), the loop memory verifying waiting points or not
+/// (`loop_verify`): the points verified and those
 /// traced overdue over the run, the longest any point's held AO stayed
 /// more than the send threshold from a full trace of the scene as posed
 /// (steps in a row), the largest bound on waiting in force, and the
 /// points so held summed over the steps.
-fn verify_run(rays: u64, loop_verify: bool) -> (u64, u64, u32, u32, usize) {
+fn verify_run(rays: u64, whole: MoversWhole, loop_verify: bool) -> (u64, u64, u32, u32, usize) {
     let (scene, _) = box_by_a_wall();
     let c = PipelineConfig {
         budget: RayBudget::Rays(rays),
-        movers_whole: MoversWhole::Off,
+        movers_whole: whole,
         loop_verify,
         ..config(Estimator::ClosestHit)
     };
@@ -1520,11 +1535,16 @@ fn the_loop_memory_verifies_waiting_points_and_no_point_lags_past_the_bound() {
     // AO is off is not verified (a wrong verification, across the box's
     // jump or far from the time it was traced at, would keep a point off
     // for good).
-    for rays in [240, 960] {
-        let (verified, overdue, longest, bound, off) = verify_run(rays, true);
-        let (none, overdue_plain, longest_plain, bound_plain, off_plain) = verify_run(rays, false);
+    for (rays, whole) in [
+        (240, MoversWhole::Off),
+        (960, MoversWhole::Off),
+        (240, MoversWhole::Auto),
+    ] {
+        let (verified, overdue, longest, bound, off) = verify_run(rays, whole, true);
+        let (none, overdue_plain, longest_plain, bound_plain, off_plain) =
+            verify_run(rays, whole, false);
         eprintln!(
-            "{rays} rays a step: verified {verified} (off: {none}), overdue {overdue} against {overdue_plain}, held off a full trace at most {longest} steps against {longest_plain}, bound {bound} against {bound_plain}, {off} points held off over the steps against {off_plain}"
+            "{rays} rays a step, {whole:?}: verified {verified} (off: {none}), overdue {overdue} against {overdue_plain}, held off a full trace at most {longest} steps against {longest_plain}, bound {bound} against {bound_plain}, {off} points held off over the steps against {off_plain}"
         );
         assert!(verified > 0 && none == 0, "{rays}: {verified} verified");
         assert!(

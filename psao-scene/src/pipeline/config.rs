@@ -272,7 +272,7 @@ pub struct PipelineConfig {
     /// Under a budget, where the scene's animations loop together
     /// ([`Scene::loop_period`](crate::Scene::loop_period), within 20
     /// seconds), each traced point's AO at that moment of the loop is
-    /// remembered, in about this many bytes (0: off). In a later round, a
+    /// remembered, in at most this many bytes (0: off). In a later round, a
     /// point whose remembered AO at the same moment would not be sent
     /// against what clients hold ranks as one with nothing to send (below
     /// the points that changed; it is still traced by its due, unless

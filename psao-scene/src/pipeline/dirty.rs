@@ -76,6 +76,8 @@ pub(super) struct StepTrace {
     pub early: u64,
     /// Points known open without a ray ([`Plan::Open`]).
     pub open: u64,
+    /// The rays those points were priced at and did not cast.
+    pub rays_open: u64,
     /// The trace phase's parts: planning, choosing, casting, and what
     /// follows (see [`TracePhases`]).
     pub phases: TracePhases,
@@ -333,6 +335,7 @@ impl Pipeline {
             verified,
             early: self.last_early.len() as u64,
             open,
+            rays_open: uncast,
             phases,
             held,
             posed: finishing

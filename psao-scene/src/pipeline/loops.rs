@@ -46,15 +46,16 @@
 //! The time a step poses is the server's clock, stepped by whatever `dt`
 //! it is given, so the same slot of two rounds need not pose alike: at
 //! steps of an f32 1/60 s a 1.25 s loop drifts 65 ns a round, and past
-//! about 2,000 s of scene time the f32 time the scene is posed at moves
-//! in steps over 0.1 ms. A remembered AO verifies only while the times
+//! 1,024 s of scene time the f32 time the scene is posed at moves in
+//! steps of 0.12 ms, over the tolerance. A remembered AO verifies only while the times
 //! lie within the tolerance; past it the point waits out its due and its
 //! trace is remembered afresh.
 //!
-//! Memory is capped ([`PipelineConfig::loop_memory_bytes`], counted as
-//! the slots of a point, 4 bytes each): past the cap no further point is
-//! remembered. Beside it, each instance with a point remembered keeps a
-//! row index of 4 bytes a point. It is dropped when an instance is
+//! Memory is capped ([`PipelineConfig::loop_memory_bytes`], every array
+//! it holds counted: the slots, 4 bytes each, and per instance an index
+//! to them, 4 bytes a point up to the last remembered): a new point is
+//! remembered only while room for all its slots is left, and no slot is
+//! learnt past the cap. It is dropped when an instance is
 //! placed by hand ([`Pipeline::place_instance`]), which breaks the loop.
 //!
 //! [`PipelineConfig::loop_memory_bytes`]: super::config::PipelineConfig::loop_memory_bytes
@@ -89,6 +90,11 @@ const OFFSET_STEPS: f64 = 65535.0;
 /// traced in, modulo 128, in the 7 above those).
 const KNOWN: u32 = 1 << 31;
 
+/// How near a jump (as a share of a slot) a step counts as on it: far
+/// above the rounding of the two ways its time and the jump's are found
+/// (about 1e-14), far below a step.
+const AT_JUMP: f64 = 1e-6;
+
 /// No row: the point is not remembered.
 const NO_ROW: u32 = u32::MAX;
 
@@ -116,8 +122,12 @@ pub(super) struct LoopMemory {
     period: f64,
     /// The slots it is cut into.
     slots: u32,
-    /// Points past which no new one is remembered.
-    max_points: usize,
+    /// The most bytes its arrays may hold (their capacity): past them no
+    /// new point is remembered, and a remembered one learns no slot that
+    /// would need more.
+    max_bytes: u64,
+    /// Bytes its arrays hold (their capacity, `rows`' and `by_slot`'s).
+    held: u64,
     /// Where the scene's pose may jump within the loop (seconds from its
     /// start, ascending, the start included), where the pose is a
     /// function of the time within the loop; `None` where it is not (or
@@ -201,12 +211,11 @@ impl LoopMemory {
             return None;
         }
         let slots = ((period as f64 * 60.0).round() as u32).clamp(2, MAX_SLOTS);
-        let per_point = Self::point_bytes(slots);
-        let max_points = usize::try_from(max_bytes / per_point).unwrap_or(usize::MAX);
-        (max_points > 0).then(|| LoopMemory {
+        (max_bytes >= Self::point_bytes(slots)).then(|| LoopMemory {
             period: period as f64,
             slots,
-            max_points,
+            max_bytes,
+            held: 0,
             jumps,
             rows: Vec::new(),
             remembered: 0,
@@ -214,7 +223,7 @@ impl LoopMemory {
         })
     }
 
-    /// Bytes one remembered point takes, with the map's share.
+    /// Bytes one point's slots take.
     fn point_bytes(slots: u32) -> u64 {
         slots as u64 * 4
     }
@@ -277,12 +286,14 @@ impl LoopMemory {
                 continue;
             }
             let q = (within_jump + 0.5) * OFFSET_STEPS;
-            if within < within_jump {
-                hi = hi.min(q - 1.0);
-            } else if within > within_jump {
-                lo = lo.max(q + 1.0);
-            } else {
+            // A step on the jump (to rounding: the two come by different
+            // sums) poses as after it or before it: none verifies.
+            if (within - within_jump).abs() <= AT_JUMP {
                 return NONE;
+            } else if within < within_jump {
+                hi = hi.min(q - 1.0);
+            } else {
+                lo = lo.max(q + 1.0);
             }
         }
         let (lo, hi) = (lo.ceil().max(0.0), hi.floor().min(OFFSET_STEPS));
@@ -292,34 +303,43 @@ impl LoopMemory {
         (lo as u16, hi as u16)
     }
 
-    /// Notes that point `key` traced to `ao` (quantized) at moment `at`.
+    /// Notes that point `key` traced to `ao` (quantized) at moment `at`
+    /// (not where that would take the memory past its bytes).
     pub fn note(&mut self, key: u64, at: Moment, ao: u8) {
+        let slot = at.slot as usize;
+        if slot >= self.by_slot.len() {
+            return;
+        }
         let row = match self.row(key) {
             Some(row) => row,
-            None if self.remembered >= self.max_points => return,
             None => {
                 let (i, k) = ((key >> 32) as usize, key as u32 as usize);
+                // A new point: its row in the instance's index, which must
+                // fit, and room left for its slots.
+                let room = self.max_bytes.saturating_sub(self.held);
+                let row = self.remembered;
+                if row >= NO_ROW as usize || room < Self::point_bytes(self.slots) {
+                    return;
+                }
                 if self.rows.len() <= i {
                     self.rows.resize(i + 1, Vec::new());
                 }
-                if self.rows[i].len() <= k {
-                    self.rows[i].resize(k + 1, NO_ROW);
+                if !grow(&mut self.rows[i], k, NO_ROW, self.max_bytes, &mut self.held) {
+                    return;
                 }
-                self.rows[i][k] = self.remembered as u32;
+                self.rows[i][k] = row as u32;
                 self.remembered += 1;
-                self.remembered - 1
+                row
             }
         };
-        if let Some(slot) = self.by_slot.get_mut(at.slot as usize) {
-            if slot.len() <= row {
-                // Grown by doubling, but never past the cap's rows.
-                if slot.capacity() <= row {
-                    let want = (slot.len() * 2).max(row + 1).max(16).min(self.max_points);
-                    slot.reserve_exact(want.saturating_sub(slot.len()));
-                }
-                slot.resize(row + 1, 0);
-            }
-            slot[row] =
+        if grow(
+            &mut self.by_slot[slot],
+            row,
+            0,
+            self.max_bytes,
+            &mut self.held,
+        ) {
+            self.by_slot[slot][row] =
                 KNOWN | u32::from(at.round) << 24 | u32::from(ao) << 16 | u32::from(at.offset);
         }
     }
@@ -369,10 +389,35 @@ impl LoopMemory {
 
     /// Bytes it holds.
     pub fn memory_bytes(&self) -> u64 {
-        let rows: usize = self.rows.iter().map(Vec::capacity).sum();
-        let slots: usize = self.by_slot.iter().map(Vec::capacity).sum();
-        (rows + slots) as u64 * 4
+        self.held
     }
+}
+
+/// Makes `v` long enough to hold index `at` (new entries `fill`), its
+/// capacity grown by doubling where `held` bytes (the memory's arrays')
+/// stay within `max`, else by as little as `at` needs; `false` (nothing
+/// changed) where even that would pass `max`.
+fn grow(v: &mut Vec<u32>, at: usize, fill: u32, max: u64, held: &mut u64) -> bool {
+    if at < v.len() {
+        return true;
+    }
+    let before = v.capacity();
+    if at >= before {
+        let room = max.saturating_sub(*held) / 4;
+        let Some(least) = (at + 1).checked_sub(before).filter(|&n| n as u64 <= room) else {
+            return false;
+        };
+        let doubled = (v.len() * 2).max(at + 1).max(16) - before;
+        let extra = if doubled as u64 <= room {
+            doubled
+        } else {
+            least
+        };
+        v.reserve_exact(at + 1 - v.len() + (extra - least));
+        *held += (v.capacity() - before) as u64 * 4;
+    }
+    v.resize(at + 1, fill);
+    true
 }
 
 #[cfg(test)]
@@ -417,33 +462,48 @@ mod tests {
     #[test]
     fn past_its_cap_no_new_point_is_remembered() {
         let per_point = LoopMemory::point_bytes(120);
-        let mut m = LoopMemory::new(2.0, per_point * 3, None).unwrap();
+        let cap = per_point * 3;
+        let mut m = LoopMemory::new(2.0, cap, None).unwrap();
         let (now, soon) = (m.moment(0.1), m.moment(0.2));
         let (later, later_soon) = (m.moment(2.1), m.moment(2.2));
-        for key in 0..10 {
+        for key in 0..1000 {
             m.note(key, now, key as u8);
         }
-        assert_eq!(m.len(), 3);
+        // Points are remembered while room is left for their slots.
+        let kept = m.len() as u64;
+        assert!(kept > 3 && kept < 1000, "{kept}");
+        assert!(m.memory_bytes() <= cap, "{}", m.memory_bytes());
         // Those remembered still learn new slots.
         m.note(1, soon, 99);
         assert_eq!(m.predict(1, later_soon), Some(99));
         assert_eq!(m.predict(2, later), Some(2));
-        assert_eq!(m.predict(9, later), None);
-        // Slots are kept as they are traced, never past the cap.
-        assert!(m.memory_bytes() > 0 && m.memory_bytes() <= 3 * per_point);
+        assert_eq!(m.predict(999, later), None);
+        // A point far down an instance needs the row index to reach it:
+        // not where that passes the cap.
+        let mut far = LoopMemory::new(2.0, cap, None).unwrap();
+        far.note(1 << 20, now, 5);
+        assert_eq!((far.len(), far.predict(1 << 20, later)), (0, None));
+        assert!(far.memory_bytes() <= cap);
+        // Every slot of fifty points does not fit forty points' bytes:
+        // the slots past the cap are not learnt, and nothing passes it.
         let mut full = LoopMemory::new(2.0, per_point * 40, None).unwrap();
         for slot in 0..120 {
             for key in 0..50 {
                 full.note(key, full.moment(slot as f64 / 60.0), 1);
             }
         }
-        assert_eq!(full.len(), 40);
-        // The slots within the cap; beside it, the row index (4 bytes a
-        // point up to the last remembered).
-        let slots = full.by_slot.iter().map(Vec::capacity).sum::<usize>() as u64 * 4;
-        assert!(slots <= 40 * per_point, "{slots}");
-        let bytes = full.memory_bytes();
-        assert!(bytes <= 40 * per_point + 4 * 64, "{bytes}");
+        assert!(
+            full.memory_bytes() <= per_point * 40,
+            "{}",
+            full.memory_bytes()
+        );
+        let learnt = (0..120)
+            .filter(|&slot| {
+                full.predict(0, full.moment(2.0 + slot as f64 / 60.0))
+                    .is_some()
+            })
+            .count();
+        assert!(learnt > 0 && learnt < 120, "{learnt}");
         assert!(LoopMemory::new(2.0, per_point - 1, None).is_none());
         assert!(LoopMemory::new(0.0, 1 << 20, None).is_none());
         assert!(LoopMemory::new(f32::NAN, 1 << 20, None).is_none());
@@ -519,6 +579,22 @@ mod tests {
                 "{jump}"
             );
         }
+        // A step exactly on a jump whose two sums round apart (a 1.25 s
+        // loop of a 0.25 s animation, at 1.5 s: the jump at 0.25 s) is on
+        // neither side: a trace just before the jump does not verify it.
+        let quarter = crate::model::animation::Animation::translation(
+            "q",
+            0,
+            &[(0.0, glam::Vec3::ZERO), (0.25, glam::Vec3::X)],
+        );
+        let at_quarters = jumps(1.25, std::slice::from_ref(&quarter)).unwrap();
+        assert_eq!(at_quarters, vec![0.0, 0.25, 0.5, 0.75, 1.0]);
+        let mut q = LoopMemory::new(1.25, 1 << 20, Some(at_quarters)).unwrap();
+        for (before, on) in [(0.25, 1.5), (0.5, 1.75), (0.25, 2.75)] {
+            q.note(3, q.moment(before - 0.5 * VERIFY_TOLERANCE), 60);
+            assert_eq!(q.verify(3, q.moment(on)), None, "{on}");
+            assert_eq!(q.moment(on).verifies, (1, 0), "{on}");
+        }
         // A memory that does not verify (verifying off, or a pose not
         // fixed by the loop's time) still predicts.
         let mut off = LoopMemory::new(2.0, 1 << 20, None).unwrap();
@@ -541,7 +617,10 @@ mod tests {
         );
         // Linear keys jump only where the animation starts again.
         let linear = Animation::translation("l", 0, &[(0.0, Vec3::ZERO), (0.25, Vec3::X)]);
-        assert_eq!(jumps(0.5, std::slice::from_ref(&linear)).unwrap(), vec![0.0, 0.25]);
+        assert_eq!(
+            jumps(0.5, std::slice::from_ref(&linear)).unwrap(),
+            vec![0.0, 0.25]
+        );
         // A duration that does not divide the loop exactly (in f32, 0.3 s
         // three times is not 0.9 s): its pose drifts against the loop.
         let third = Animation::translation("t", 0, &[(0.0, Vec3::ZERO), (0.3, Vec3::X)]);

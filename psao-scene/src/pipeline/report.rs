@@ -58,6 +58,10 @@ pub struct FrameReport {
     /// ([`PipelineConfig::skip_open`](crate::PipelineConfig::skip_open));
     /// counted in `traced` too.
     pub open: u64,
+    /// The rays the points known open (`open`) were chosen at and did not
+    /// cast (not in `rays`): with every ray cast they would have cast
+    /// these, the choices being the same.
+    pub rays_open: u64,
     /// Points whose change passed the thresholds (set in their table).
     pub updated: u64,
     /// Points sent because they settled below the send threshold (their
@@ -134,6 +138,7 @@ impl FrameReport {
         self.verified += other.verified;
         self.early += other.early;
         self.open += other.open;
+        self.rays_open += other.rays_open;
         self.budget = match (self.budget, other.budget) {
             (Some(a), Some(b)) => Some(a + b),
             (a, b) => a.or(b),

@@ -142,6 +142,7 @@ impl Pipeline {
             report.settled = done.settled;
             report.early = done.early;
             report.open = done.open;
+            report.rays_open = done.rays_open;
             report.trace_phases = done.phases;
             held = done.held;
             posed = done.posed;
