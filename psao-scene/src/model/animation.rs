@@ -264,9 +264,17 @@ impl Animation {
 
     /// The time within the loop at scene time `t`.
     pub fn local_time(&self, t: f32) -> f32 {
+        // Exact either way: the same as the f64 time's.
+        self.local_time_at(t as f64)
+    }
+
+    /// The time within the loop at scene time `t`, taken in f64 (a scene
+    /// time of days keeps its fraction of a millisecond, which an f32 time
+    /// past 1,024 s does not), then as the f32 the keys are sampled at.
+    pub fn local_time_at(&self, t: f64) -> f32 {
         let d = self.duration();
         if d > 0.0 && t.is_finite() {
-            t.rem_euclid(d)
+            (t.rem_euclid(d as f64) as f32).min(d)
         } else {
             0.0
         }
@@ -275,7 +283,13 @@ impl Animation {
     /// Sets every driven property of `nodes` to its value at scene time `t`
     /// (looping). The animation must be valid for `nodes`.
     pub fn apply(&self, t: f32, nodes: &mut [Trs]) {
-        let local = self.local_time(t);
+        self.apply_at(t as f64, nodes);
+    }
+
+    /// [`apply`](Self::apply) at an f64 scene time
+    /// ([`local_time_at`](Self::local_time_at)).
+    pub fn apply_at(&self, t: f64, nodes: &mut [Trs]) {
+        let local = self.local_time_at(t);
         for c in &self.channels {
             if let Some(trs) = nodes.get_mut(c.node) {
                 c.apply(local, trs);
@@ -288,7 +302,13 @@ impl Animation {
     /// them; nodes no channel drives keep theirs. The animation must be
     /// valid.
     pub fn apply_weights(&self, t: f32, weights: &mut [Vec<f32>]) {
-        let local = self.local_time(t);
+        self.apply_weights_at(t as f64, weights);
+    }
+
+    /// [`apply_weights`](Self::apply_weights) at an f64 scene time
+    /// ([`local_time_at`](Self::local_time_at)).
+    pub fn apply_weights_at(&self, t: f64, weights: &mut [Vec<f32>]) {
+        let local = self.local_time_at(t);
         for c in &self.channels {
             if let (Keys::Weights { .. }, Some(w)) = (&c.keys, weights.get_mut(c.node)) {
                 c.weights(local, w);

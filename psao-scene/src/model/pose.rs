@@ -36,16 +36,33 @@ impl Scene {
         p
     }
 
+    /// The scene at time `t` seconds given in f64
+    /// ([`pose_into_at`](Self::pose_into_at)).
+    pub fn pose_at(&self, t: f64) -> Pose {
+        let mut p = Pose::default();
+        self.pose_into_at(t, &mut p);
+        p
+    }
+
     /// The scene at time `t` seconds, reusing `pose`'s memory.
     pub fn pose_into(&self, t: f32, pose: &mut Pose) {
+        // The same pose: an f32 time's place in each loop is exact in f64.
+        self.pose_into_at(t as f64, pose);
+    }
+
+    /// The scene at time `t` seconds given in f64, reusing `pose`'s
+    /// memory: each animation's time within its loop is taken in f64
+    /// ([`Animation::local_time_at`](crate::Animation::local_time_at)), so that a scene posed at a time of
+    /// hours or days moves as smoothly as in its first minute.
+    pub fn pose_into_at(&self, t: f64, pose: &mut Pose) {
         pose.locals.clear();
         pose.locals.extend(self.nodes.iter().map(|n| n.trs));
         pose.node_weights.resize_with(self.nodes.len(), Vec::new);
         pose.node_weights.iter_mut().for_each(Vec::clear);
         for a in &self.animations {
-            a.apply(t, &mut pose.locals);
+            a.apply_at(t, &mut pose.locals);
             if a.drives_weights() {
-                a.apply_weights(t, &mut pose.node_weights);
+                a.apply_weights_at(t, &mut pose.node_weights);
             }
         }
         compose(&self.nodes, &pose.locals, &mut pose.nodes);

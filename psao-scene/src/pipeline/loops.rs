@@ -45,11 +45,14 @@
 //!
 //! The time a step poses is the server's clock, stepped by whatever `dt`
 //! it is given, so the same slot of two rounds need not pose alike: at
-//! steps of an f32 1/60 s a 1.25 s loop drifts 65 ns a round, and past
-//! 1,024 s of scene time the f32 time the scene is posed at moves in
-//! steps of 0.12 ms, over the tolerance. A remembered AO verifies only while the times
-//! lie within the tolerance; past it the point waits out its due and its
-//! trace is remembered afresh.
+//! steps of an f32 1/60 s a 1.25 s loop drifts 65 ns a round. A
+//! remembered AO verifies only while the times lie within the tolerance;
+//! past it the point waits out its due and its trace is remembered
+//! afresh. Each animation's time within its loop is taken from the f64
+//! clock ([`Scene::pose_into_at`](crate::Scene::pose_into_at)), so a
+//! server running for days verifies as in its first minute; its f32
+//! rounding (under 1.2 us for a loop of 20 s) is allowed for at a jump
+//! ([`JUMP_MARGIN`]).
 //!
 //! Memory is capped ([`PipelineConfig::loop_memory_bytes`], every array
 //! it holds counted: the slots, 4 bytes each, and per instance an index
@@ -90,10 +93,13 @@ const OFFSET_STEPS: f64 = 65535.0;
 /// traced in, modulo 128, in the 7 above those).
 const KNOWN: u32 = 1 << 31;
 
-/// How near a jump (as a share of a slot) a step counts as on it: far
-/// above the rounding of the two ways its time and the jump's are found
-/// (about 1e-14), far below a step.
-const AT_JUMP: f64 = 1e-6;
+/// How near a jump, in [`OFFSET_STEPS`] of a slot (4 us at 60 Hz), a
+/// step counts as on it (none verifies), and a trace as maybe on its far
+/// side (it verifies no step): above the rounding of an animation's time
+/// within its loop to f32 (1.2 us for a loop of 20 s) and of the two
+/// ways a step's time and the jump's are found (1e-14 of a slot), far
+/// below the tolerance.
+const JUMP_MARGIN: f64 = 16.0;
 
 /// No row: the point is not remembered.
 const NO_ROW: u32 = u32::MAX;
@@ -282,18 +288,18 @@ impl LoopMemory {
                 d += self.period;
             }
             let within_jump = d / width;
-            if within_jump.abs() > 0.5 + 2.0 / OFFSET_STEPS {
+            if within_jump.abs() > 0.5 + 2.0 * JUMP_MARGIN / OFFSET_STEPS {
                 continue;
             }
             let q = (within_jump + 0.5) * OFFSET_STEPS;
-            // A step on the jump (to rounding: the two come by different
-            // sums) poses as after it or before it: none verifies.
-            if (within - within_jump).abs() <= AT_JUMP {
+            // A step on the jump (to rounding) may pose as after it or
+            // before it: none verifies.
+            if ((within + 0.5) * OFFSET_STEPS - q).abs() <= JUMP_MARGIN {
                 return NONE;
             } else if within < within_jump {
-                hi = hi.min(q - 1.0);
+                hi = hi.min(q - JUMP_MARGIN);
             } else {
-                lo = lo.max(q + 1.0);
+                lo = lo.max(q + JUMP_MARGIN);
             }
         }
         let (lo, hi) = (lo.ceil().max(0.0), hi.floor().min(OFFSET_STEPS));

@@ -882,8 +882,9 @@ impl Pipeline {
     /// lead), where there is a loop memory.
     fn loop_moment(&self) -> Option<loops::Moment> {
         let memory = self.loop_memory.as_ref()?;
-        // The time the scene is posed at, as the animations see it.
-        Some(memory.moment(self.posed_time() as f64))
+        // The time the scene is posed at (each animation's time within its
+        // loop is taken from it in f64).
+        Some(memory.moment(self.posed_at()))
     }
 
     /// World transform of instance `i` now.

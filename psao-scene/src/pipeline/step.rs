@@ -202,7 +202,14 @@ impl Pipeline {
     /// The scene time a step to the pipeline's time poses: that time plus
     /// [`lead`](crate::PipelineConfig::lead).
     pub fn posed_time(&self) -> f32 {
-        (self.time + self.config.lead as f64) as f32
+        self.posed_at() as f32
+    }
+
+    /// [`posed_time`](Self::posed_time) in f64, the time the step's pose
+    /// is made at (each animation's time within its loop taken in f64,
+    /// [`Scene::pose_into_at`](crate::Scene::pose_into_at)).
+    pub fn posed_at(&self) -> f64 {
+        self.time + self.config.lead as f64
     }
 
     /// Animates the scene to the pipeline's time and takes each dynamic
@@ -213,7 +220,9 @@ impl Pipeline {
     /// `report`.
     fn animate(&mut self, report: &mut FrameReport) -> Motion {
         let ao = self.config.ao;
-        self.scene.pose_into(self.posed_time(), &mut self.pose);
+        // In f64: a server running for days poses its scene as finely as
+        // in its first minute.
+        self.scene.pose_into_at(self.posed_at(), &mut self.pose);
         let mut motion = Motion {
             changed: vec![false; self.instances.len()],
             deformed: Vec::new(),
