@@ -46,7 +46,8 @@ impl Scene {
 
     /// The scene at time `t` seconds, reusing `pose`'s memory.
     pub fn pose_into(&self, t: f32, pose: &mut Pose) {
-        // The same pose: an f32 time's place in each loop is exact in f64.
+        // The same pose: an f32 time's place in each loop comes out the
+        // same in f64 (Animation::local_time).
         self.pose_into_at(t as f64, pose);
     }
 

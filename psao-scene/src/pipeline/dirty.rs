@@ -475,8 +475,9 @@ impl Pipeline {
                     time += period as f32 as f64;
                 }
                 let mut pose = self.pose.clone();
+                // At the f64 time, as the step poses it.
                 self.scene
-                    .pose_into((time + self.config.lead as f64) as f32, &mut pose);
+                    .pose_into_at(time + self.config.lead as f64, &mut pose);
                 *pose.instances.get(i)?
             }
         };

@@ -199,8 +199,11 @@ impl Pipeline {
         Ok((frame, report))
     }
 
-    /// The scene time a step to the pipeline's time poses: that time plus
-    /// [`lead`](crate::PipelineConfig::lead).
+    /// The scene time a step to the pipeline's time poses, that time plus
+    /// [`lead`](crate::PipelineConfig::lead), rounded to f32 (the step
+    /// poses at [`posed_at`](Self::posed_at): once an animation has
+    /// looped, `Scene::pose(posed_time())` may differ from the step's
+    /// pose by the f32 rounding of the time).
     pub fn posed_time(&self) -> f32 {
         self.posed_at() as f32
     }
