@@ -255,6 +255,24 @@ fn held_and_fresh(p: &mut Pipeline, i: usize, base: u32, ao: &AoParams) -> Vec<(
         .collect()
 }
 
+/// Per point of every instance (numbered on through the instances),
+/// whether what clients hold lies more than the send threshold from a
+/// full trace now ([`held_and_fresh`]).
+fn held_off(p: &mut Pipeline, ao: &AoParams) -> Vec<bool> {
+    let counts: Vec<u32> = (0..p.instance_count())
+        .map(|i| p.points(i).unwrap().len() as u32)
+        .collect();
+    let mut off = vec![false; counts.iter().sum::<u32>() as usize];
+    let mut base = 0;
+    for (i, &count) in counts.iter().enumerate() {
+        for (k, held, fresh) in held_and_fresh(p, i, base, ao) {
+            off[base as usize + k] = (held - fresh).abs() > 8.5 / 255.0;
+        }
+        base += count;
+    }
+    off
+}
+
 /// The largest difference between what clients hold of instance `i`'s
 /// points and a full trace now ([`held_and_fresh`]).
 fn worst_held_error(p: &mut Pipeline, i: usize, base: u32, ao: &AoParams) -> f32 {
@@ -1333,23 +1351,11 @@ fn looping_box_run(rays: u64, loop_memory_bytes: u64) -> (Vec<usize>, usize) {
     };
     let ao = c.ao;
     let mut p = Pipeline::new(scene, c).unwrap();
-    let counts: Vec<u32> = (0..p.instance_count())
-        .map(|i| p.points(i).unwrap().len() as u32)
-        .collect();
     let mut off = Vec::new();
     for t in 0..6 * 20 {
         p.step(1.0 / 30.0).unwrap();
         if t >= 3 * 20 {
-            let mut base = 0;
-            let mut n = 0;
-            for (i, &count) in counts.iter().enumerate() {
-                n += held_and_fresh(&mut p, i, base, &ao)
-                    .into_iter()
-                    .filter(|&(_, held, fresh)| (held - fresh).abs() > 8.5 / 255.0)
-                    .count();
-                base += count;
-            }
-            off.push(n);
+            off.push(held_off(&mut p, &ao).into_iter().filter(|&o| o).count());
         }
     }
     (off, p.loop_memory().map_or(0, |(_, points, _)| points))
@@ -1520,33 +1526,23 @@ fn verify_run(rays: u64, whole: MoversWhole, loop_verify: bool) -> (u64, u64, u3
     };
     let ao = c.ao;
     let mut p = Pipeline::new(scene, c).unwrap();
-    let counts: Vec<u32> = (0..p.instance_count())
-        .map(|i| p.points(i).unwrap().len() as u32)
-        .collect();
-    let mut streak = vec![0u32; counts.iter().sum::<u32>() as usize];
+    let mut streak = Vec::new();
     let (mut verified, mut overdue, mut longest, mut bound) = (0, 0, 0, 0);
-    let mut held_off = 0;
+    let mut off_steps = 0;
     for _ in 0..12 * 40 {
         let (_, r) = p.step(1.0 / 60.0).unwrap();
         verified += r.verified;
         overdue += r.overdue;
         bound = bound.max(r.wait_bound);
-        let mut base = 0;
-        for (i, &count) in counts.iter().enumerate() {
-            let mut off = vec![false; count as usize];
-            for (k, held, fresh) in held_and_fresh(&mut p, i, base, &ao) {
-                off[k] = (held - fresh).abs() > 8.5 / 255.0;
-            }
-            for (k, off) in off.into_iter().enumerate() {
-                let s = &mut streak[(base + k as u32) as usize];
-                *s = if off { *s + 1 } else { 0 };
-                longest = longest.max(*s);
-                held_off += usize::from(off);
-            }
-            base += count;
+        let off = held_off(&mut p, &ao);
+        streak.resize(off.len(), 0u32);
+        for (s, off) in streak.iter_mut().zip(off) {
+            *s = if off { *s + 1 } else { 0 };
+            longest = longest.max(*s);
+            off_steps += usize::from(off);
         }
     }
-    (verified, overdue, longest, bound, held_off)
+    (verified, overdue, longest, bound, off_steps)
 }
 
 #[test]
