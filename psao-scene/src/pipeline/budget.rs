@@ -412,7 +412,7 @@ impl Waiting {
         }
     }
 
-    /// Starts waiting `key`'s wait again, as one put to wait in this step
+    /// Starts the wait of waiting point `key` again, as if put to wait in this step
     /// (its age 1; its flags kept): clients were found not behind a full
     /// re-trace of it (the loop memory verified it).
     pub fn restart(&mut self, key: u64) {

@@ -37,7 +37,7 @@ pub(super) struct Candidates {
     /// the others).
     pub apart_really: Vec<bool>,
     /// Per planned candidate, whether the loop memory verified it
-    /// (`Ranking::verified`): it enters the budget as one that has not
+    /// (`Remembered::verified`): it enters the budget as one that has not
     /// waited, and if not chosen its wait starts again.
     pub verified_at: Vec<bool>,
     /// The same per point apart.
