@@ -19,12 +19,14 @@
 //!   as before. A wrong prediction (where a loop's end jumps, or the pose
 //!   a slot stands for drifts between rounds) costs ranking only.
 //! - **Verifying.** Where the scene's pose is a function of the time
-//!   within the loop ([`LoopMemory::new`]'s `exact`: every animation's
-//!   duration divides the period exactly, so that the same time within
-//!   the loop poses every part alike), a point's remembered AO traced at
-//!   a time within the loop at most [`VERIFY_TOLERANCE`] from now is a
-//!   full trace of the scene as it is posed now, to within that much of
-//!   animation time. Where it would not be sent against what clients
+//!   within the loop ([`jumps`] is `Some`: every animation's duration
+//!   divides the period exactly, so that the same time within the loop
+//!   poses every part alike), a point's remembered AO traced at a time
+//!   within the loop at most [`VERIFY_TOLERANCE`] from now, with no jump
+//!   of the pose between (an animation's restart where its end does not
+//!   pose as its start, a key of a step interpolation), is a full trace
+//!   of the scene as it is posed now, to within that much of animation
+//!   time. Where it would not be sent against what clients
 //!   hold, clients are not behind a full re-trace: the point's wait
 //!   starts again, as if traced (it keeps waiting for the rays motion
 //!   reached, ranked as one with nothing to send). So the bound on
@@ -78,7 +80,7 @@ pub const MAX_SLOTS: u32 = 1200;
 /// moves 0.1 mm.
 pub const VERIFY_TOLERANCE: f64 = 1e-4;
 
-/// The most places in a loop where its pose may jump (a loop's start, an
+/// The most places in a loop where its pose may jump (an
 /// animation's start, a key of a step interpolation) for which traces are
 /// verified (past them, none is).
 const MAX_JUMPS: usize = 1 << 16;
@@ -135,7 +137,7 @@ pub(super) struct LoopMemory {
     /// Bytes its arrays hold (their capacity, `rows`' and `by_slot`'s).
     held: u64,
     /// Where the scene's pose may jump within the loop (seconds from its
-    /// start, ascending, the start included), where the pose is a
+    /// start, ascending; [`jumps`]), where the pose is a
     /// function of the time within the loop; `None` where it is not (or
     /// where verifying is off): no trace verifies.
     jumps: Option<Vec<f64>>,
@@ -168,14 +170,14 @@ pub(super) struct Recall {
 
 /// Where the pose of a scene whose animations are `animations` may jump
 /// within a loop of `period` seconds, ascending: each animation's start
-/// (and so the loop's), whose end need not pose as its start does, and
-/// each key of a step interpolation, in every round of the animation
-/// within the loop. `None` where the loop's time does not fix the pose:
+/// (and so the loop's), where its end does not pose as its start does
+/// ([`Animation::wraps_smoothly`]), and each key of a step interpolation,
+/// in every round of the animation within the loop. `None` where the loop's time does not fix the pose:
 /// an animation whose duration does not divide `period` exactly (its
 /// time would drift against the loop's round by round), or too many
 /// jumps to keep.
 pub(super) fn jumps(period: f64, animations: &[Animation]) -> Option<Vec<f64>> {
-    let mut out = vec![0.0];
+    let mut out = Vec::new();
     for a in animations {
         let d = a.duration() as f64;
         if !(d.is_finite() && d > 0.0) {
@@ -192,8 +194,11 @@ pub(super) fn jumps(period: f64, animations: &[Animation]) -> Option<Vec<f64>> {
             .filter(|c| c.interpolation == Interpolation::Step)
             .flat_map(|c| c.times.iter().map(|&t| t as f64))
             .collect();
+        let restarts = !a.wraps_smoothly();
         for k in 0..m as usize {
-            out.push(k as f64 * d);
+            if restarts {
+                out.push(k as f64 * d);
+            }
             out.extend(steps.iter().map(|t| k as f64 * d + t));
             if out.len() > MAX_JUMPS {
                 return None;
@@ -278,7 +283,7 @@ impl LoopMemory {
         let tolerance = VERIFY_TOLERANCE / width * OFFSET_STEPS;
         let (mut lo, mut hi) = (now - tolerance, now + tolerance);
         // The jumps within a slot of this one's middle, as times within
-        // it (a loop's start lies in its first slot).
+        // it (the loop's start lies in its first slot).
         let middle = slot as f64 * width;
         for &x in jumps {
             let mut d = x - middle;
@@ -631,6 +636,39 @@ mod tests {
         // three times is not 0.9 s): its pose drifts against the loop.
         let third = Animation::translation("t", 0, &[(0.0, Vec3::ZERO), (0.3, Vec3::X)]);
         assert_eq!(jumps(0.9f32 as f64, &[third]), None);
+        // A wheel turning a whole turn a loop, or a part going there and
+        // back, poses alike at its end and its start: no jump there, and
+        // a trace verifies across the loop's start.
+        let turns = |angles: &[f32]| {
+            let mut a = Animation::translation("w", 0, &[(0.0, Vec3::ZERO)]);
+            a.channels[0].times = (0..angles.len()).map(|k| k as f32 * 0.25).collect();
+            a.channels[0].keys = crate::model::animation::Keys::Rotation(
+                angles
+                    .iter()
+                    .map(|&r| glam::Quat::from_rotation_x(r))
+                    .collect(),
+            );
+            a
+        };
+        let pi = std::f32::consts::PI;
+        let wheel = turns(&[0.0, pi, 2.0 * pi]);
+        assert!(wheel.wraps_smoothly() && !turns(&[0.0, pi]).wraps_smoothly());
+        let back = Animation::translation(
+            "b",
+            0,
+            &[(0.0, Vec3::ZERO), (0.25, Vec3::X), (0.5, Vec3::ZERO)],
+        );
+        assert!(back.wraps_smoothly());
+        assert_eq!(
+            jumps(1.0, &[wheel.clone(), back]).unwrap(),
+            Vec::<f64>::new()
+        );
+        let mut m = LoopMemory::new(1.0, 1 << 20, jumps(1.0, &[wheel])).unwrap();
+        m.note(5, m.moment(1.0 - 0.3 * VERIFY_TOLERANCE), 70);
+        assert_eq!(
+            m.verify(5, m.moment(2.0 + 0.3 * VERIFY_TOLERANCE)),
+            Some(70)
+        );
         // An animation of no duration poses alike at every time.
         let still = Animation::translation("z", 0, &[(0.0, Vec3::X)]);
         assert_eq!(jumps(0.5, &[linear, still]).unwrap(), vec![0.0, 0.25]);
