@@ -319,14 +319,17 @@ impl Animation {
 
     /// Whether it poses its nodes alike at the end of its loop and at the
     /// start of the next (every channel's value at its duration equals
-    /// its value at 0, to 1e-6 of the value, or for a rotation the same
-    /// rotation to 1e-6): where it does, its loop's restart is no jump of
+    /// its value at 0, to 1e-6 of the value; a rotation's quaternion, or
+    /// its negation, to 1e-6 in each part): where it does, its loop's
+    /// restart is no jump of
     /// the pose (a wheel turning a whole turn a loop). The animation must
     /// be valid.
     pub fn wraps_smoothly(&self) -> bool {
         let d = self.duration();
         let near = |a: f32, b: f32| (a - b).abs() <= 1e-6 * (1.0 + a.abs().max(b.abs()));
         let near3 = |a: glam::Vec3, b: glam::Vec3| (0..3).all(|k| near(a[k], b[k]));
+        let near4 =
+            |a: glam::Quat, b: glam::Quat| (a - b).to_array().iter().all(|d| d.abs() <= 1e-6);
         self.channels.iter().all(|c| {
             let (mut start, mut end) = (Trs::default(), Trs::default());
             c.apply(0.0, &mut start);
@@ -336,7 +339,7 @@ impl Animation {
             c.weights(d, &mut w1);
             near3(start.translation, end.translation)
                 && near3(start.scale, end.scale)
-                && start.rotation.dot(end.rotation).abs() >= 1.0 - 1e-6
+                && (near4(start.rotation, end.rotation) || near4(start.rotation, -end.rotation))
                 && w0.len() == w1.len()
                 && w0.iter().zip(&w1).all(|(&a, &b)| near(a, b))
         })

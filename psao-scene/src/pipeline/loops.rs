@@ -653,6 +653,8 @@ mod tests {
         let pi = std::f32::consts::PI;
         let wheel = turns(&[0.0, pi, 2.0 * pi]);
         assert!(wheel.wraps_smoothly() && !turns(&[0.0, pi]).wraps_smoothly());
+        // A turn short by a tenth of a degree is a jump.
+        assert!(!turns(&[0.0, pi, 2.0 * pi - 0.1f32.to_radians()]).wraps_smoothly());
         let back = Animation::translation(
             "b",
             0,
