@@ -215,10 +215,10 @@ pub struct BenchArgs {
     /// a placement by MOVE_INSTANCE drops it)
     #[arg(long, default_value_t = psao_scene::PipelineConfig::default().loop_memory_bytes >> 20, value_parser = clap::value_parser!(u64).range(0..=1 << 20))]
     loop_memory_mib: u64,
-    /// Keep the loop memory from verifying waiting points (by default, a
-    /// waiting point whose AO traced at the same time of the loop would
-    /// not be sent has its wait started again instead of being traced
-    /// when due)
+    /// Keep the loop memory from verifying waiting points (by default,
+    /// where the same time of the loop poses the scene alike, a waiting
+    /// point whose AO traced at that time would not be sent has its wait
+    /// started again instead of being traced when due)
     #[arg(long)]
     no_loop_verify: bool,
     /// Under --ray-budget, once demand has raised the bound on waiting,

@@ -412,9 +412,9 @@ impl Waiting {
         }
     }
 
-    /// Starts the wait of waiting point `key` again, as if put to wait in this step
-    /// (its age 1; its flags kept): clients were found not behind a full
-    /// re-trace of it (the loop memory verified it).
+    /// Starts the wait of waiting point `key` again, as if put to wait in
+    /// this step (its age 1; its flags kept): clients were found not
+    /// behind a full re-trace of it (the loop memory verified it).
     pub fn restart(&mut self, key: u64) {
         let s = self.state.get(key);
         if s != 0 {

@@ -1029,8 +1029,8 @@ impl Pipeline {
             // young is planned again with its kept scores, at the planning's
             // cost each step. Taking a verified point off planning at once
             // instead left more points off a full trace at fixed budgets,
-            // 9,906 against 8,499 in the memory's test at 240 rays a step,
-            // as it then costs a full trace when taken.)
+            // 9,906 against 8,499 in the memory's test at 240 rays a step
+            // at c8ba72b, as it then costs a full trace when taken.)
             let waited = self.waiting.get(key).map_or(0, |w| w.0);
             let replan = bound <= self.config.max_wait || waited < REPLAN_WAITS;
             match &plans[b] {

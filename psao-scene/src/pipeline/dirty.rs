@@ -35,7 +35,7 @@ struct Cast {
     /// Each point's AO, and the rays cast.
     values: AoResult,
     /// The rays the points known open would have cast.
-    uncast: u64,
+    rays_open: u64,
 }
 
 /// The fewest points a parallel pass over a step's points hands a thread
@@ -249,7 +249,7 @@ impl Pipeline {
         self.look_up_held(&mut sub);
         let casting = std::time::Instant::now();
         // Rays the points known open would have cast but did not.
-        let mut uncast = 0;
+        let mut rays_open = 0;
         let mut rays_staged = self.trace_slices(&slices);
         let th = self.config.thresholds;
         let settling = self.config.settle_steps > 0;
@@ -267,7 +267,7 @@ impl Pipeline {
             } else if self.backend.is_some() {
                 Cast {
                     values: self.trace_values(&sub)?,
-                    uncast: 0,
+                    rays_open: 0,
                 }
             } else {
                 let owned = tracer.is_none().then(|| self.tracer(false));
@@ -285,7 +285,7 @@ impl Pipeline {
                     cast
                 }
             };
-            uncast = cast.uncast;
+            rays_open = cast.rays_open;
             let values = cast.values;
             let compared = self.compare_remembered(&values, &sub)?;
             self.note_loop(&values, &sub, &finishing);
@@ -303,7 +303,7 @@ impl Pipeline {
         // The cost of a ray the budget pays for, for an automatic budget:
         // a running mean over the casting alone (planning is paid for
         // apart).
-        if let Some(ns) = ns_per_priced_ray(casting.elapsed(), rays_cast, uncast) {
+        if let Some(ns) = ns_per_priced_ray(casting.elapsed(), rays_cast, rays_open) {
             self.ray_ns = if self.ray_ns > 0.0 {
                 0.7 * self.ray_ns + 0.3 * ns
             } else {
@@ -335,7 +335,7 @@ impl Pipeline {
             verified,
             early: self.last_early.len() as u64,
             open,
-            rays_open: uncast,
+            rays_open,
             phases,
             held,
             posed: finishing
@@ -568,7 +568,7 @@ impl Pipeline {
                     ao,
                     rays: values.rays,
                 },
-                uncast: rest_cast.uncast,
+                rays_open: rest_cast.rays_open,
             },
             cast,
         ))
@@ -962,13 +962,13 @@ impl Pipeline {
             ao: Vec::with_capacity(done.len()),
             rays: 0,
         };
-        let mut uncast = 0u64;
+        let mut rays_open = 0u64;
         let (mut eligible, mut eligible_rays) = (0u64, 0u64);
         for d in &mut done {
             result.ao.push(d.value);
             result.rays += d.cast;
             // A point known open casts none of the rays it was priced at.
-            uncast += d.priced.saturating_sub(d.cast);
+            rays_open += d.priced.saturating_sub(d.cast);
             let (i, k) = batch.owner[d.b];
             if let Some(kept) = d.kept.take() {
                 eligible += 1;
@@ -1002,7 +1002,7 @@ impl Pipeline {
         }
         Ok(Cast {
             values: result,
-            uncast,
+            rays_open,
         })
     }
 

@@ -172,10 +172,10 @@ pub(super) struct Recall {
 /// within a loop of `period` seconds, ascending: each animation's start
 /// (and so the loop's), where its end does not pose as its start does
 /// ([`Animation::wraps_smoothly`]), and each key of a step interpolation,
-/// in every round of the animation within the loop. `None` where the loop's time does not fix the pose:
-/// an animation whose duration does not divide `period` exactly (its
-/// time would drift against the loop's round by round), or too many
-/// jumps to keep.
+/// in every round of the animation within the loop. `None` where the
+/// loop's time does not fix the pose: an animation whose duration does
+/// not divide `period` exactly (its time would drift against the loop's
+/// round by round), or too many jumps to keep.
 pub(super) fn jumps(period: f64, animations: &[Animation]) -> Option<Vec<f64>> {
     let mut out = Vec::new();
     for a in animations {
@@ -213,7 +213,7 @@ pub(super) fn jumps(period: f64, animations: &[Animation]) -> Option<Vec<f64>> {
 
 impl LoopMemory {
     /// A memory of a loop of `period` seconds (positive, finite, at least
-    /// two steps at 60 Hz) holding about `max_bytes`, whose traces verify
+    /// two steps at 60 Hz) holding at most `max_bytes`, whose traces verify
     /// a step's pose where `jumps` ([`jumps`]) says where the pose jumps
     /// (`None`: none verifies); `None` where the loop is shorter (its
     /// moments cannot be told apart) or not even one point fits.
