@@ -80,6 +80,19 @@ pub const CLIENT_HZ: f64 = 60.0;
 /// 8 times this (the bench keeps every frame's G-buffer and reference).
 pub const MAX_PIXELS: u64 = 3840 * 2160;
 
+/// Which PSAO servers of a bench make early decisions
+/// ([`PipelineConfig::early`](psao_scene::PipelineConfig::early)).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EarlyServers {
+    /// None: every point a server chooses casts all its rays.
+    None,
+    /// The budgeted ones (the default); the unbudgeted servers, the
+    /// baseline, trace every point in full.
+    Budgeted,
+    /// Every one, the unbudgeted ones too.
+    All,
+}
+
 /// What to measure.
 #[derive(Clone, Debug)]
 pub struct Settings {
@@ -164,10 +177,10 @@ pub struct Settings {
     /// Under the budget, the loop memory verifies waiting points
     /// ([`PipelineConfig::loop_verify`](psao_scene::PipelineConfig::loop_verify)).
     pub loop_verify: bool,
-    /// PSAO servers make early decisions
+    /// Which PSAO servers make early decisions
     /// ([`PipelineConfig::early`](psao_scene::PipelineConfig::early), the
     /// defaults).
-    pub early: bool,
+    pub early: EarlyServers,
     /// PSAO servers keep the scores of the rays motion did not reach and
     /// re-trace only the reached ones (on the CPU backend, and on the GPU
     /// backend with [`gpu_single_rays`](Self::gpu_single_rays))
@@ -296,7 +309,7 @@ impl Settings {
             plan_late: false,
             loop_memory_bytes: PipelineConfig::default().loop_memory_bytes,
             loop_verify: true,
-            early: false,
+            early: EarlyServers::Budgeted,
             ray_reuse: true,
             skip_open: true,
             gpu_single_rays: false,
@@ -798,7 +811,12 @@ fn measure_psao(
         config.loop_memory_bytes = s.loop_memory_bytes;
         config.loop_verify = s.loop_verify;
     }
-    config.early = s.early.then(psao_scene::EarlyDecisions::default);
+    let early = match s.early {
+        EarlyServers::None => false,
+        EarlyServers::Budgeted => budget,
+        EarlyServers::All => true,
+    };
+    config.early = early.then(psao_scene::EarlyDecisions::default);
     config.fill_buried = s.fill_buried;
     config.bind_space = s.bind_space;
     config.layout.overflow = s.overflow;

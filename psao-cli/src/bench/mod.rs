@@ -20,7 +20,7 @@ use psao_scene::{AoParams, PipelineConfig, Scene, load_scene_file, stage};
 
 use crate::cmd::common::{Embedded, MoversWholeArg};
 
-pub use measure::{ImageFrames, Settings};
+pub use measure::{EarlyServers, ImageFrames, Settings};
 
 /// Where PSAO servers trace.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -228,11 +228,15 @@ pub struct BenchArgs {
     /// under `auto` no gain is resolved on the default scene)
     #[arg(long)]
     plan_late: bool,
-    /// Every PSAO server makes early decisions: a moving instance's point
+    /// Every PSAO server makes early decisions, the unbudgeted ones too
+    /// (by default only the budgeted ones do): a moving instance's point
     /// stops casting rays once its AO is known, to 3 standard errors, to
-    /// stay within the send threshold of what clients hold.
-    #[arg(long)]
+    /// stay within the send threshold of what clients hold
+    #[arg(long, conflicts_with = "no_early_decisions")]
     early_decisions: bool,
+    /// No PSAO server makes early decisions, the budgeted ones neither
+    #[arg(long)]
+    no_early_decisions: bool,
 }
 
 impl BenchArgs {
@@ -283,7 +287,11 @@ impl BenchArgs {
         settings.plan_late = self.plan_late;
         settings.loop_memory_bytes = self.loop_memory_mib << 20;
         settings.loop_verify = !self.no_loop_verify;
-        settings.early = self.early_decisions;
+        settings.early = match (self.early_decisions, self.no_early_decisions) {
+            (_, true) => EarlyServers::None,
+            (true, false) => EarlyServers::All,
+            (false, false) => EarlyServers::Budgeted,
+        };
         settings
     }
 }
@@ -423,6 +431,22 @@ mod tests {
             assert_eq!(got.image_frames, ImageFrames::List(vec![0]));
             assert_eq!(got.backend, Backend::Cpu);
         }
+    }
+
+    /// The budgeted servers make early decisions by default, the
+    /// unbudgeted ones (the baseline) not; `--early-decisions` has every
+    /// server make them, `--no-early-decisions` none; not both.
+    #[test]
+    fn budgeted_servers_make_early_decisions_unless_told_otherwise() {
+        assert_eq!(settings(&[]).early, EarlyServers::Budgeted);
+        assert_eq!(settings(&["--early-decisions"]).early, EarlyServers::All);
+        assert_eq!(
+            settings(&["--no-early-decisions"]).early,
+            EarlyServers::None
+        );
+        assert!(
+            Cli::try_parse_from(["bench", "--early-decisions", "--no-early-decisions"]).is_err()
+        );
     }
 
     /// `--loop-memory-mib` is the pipeline's default (64 MiB) unless

@@ -237,17 +237,24 @@ pub struct BudgetArgs {
     /// started again instead of being traced when due)
     #[arg(long)]
     pub no_loop_verify: bool,
-    /// Early decisions: a moving instance's point stops casting rays once
-    /// its AO is known, to 3 standard errors, to stay within the send
-    /// threshold of what clients hold (nothing to send); a point that
-    /// goes on is traced in full. Fewer rays on moving scenes, for rare
-    /// updates sent a few frames late (BENCHMARKS.md measures both).
-    #[arg(long)]
+    /// Early decisions even without a budget (`--ray-budget none`); under
+    /// a budget they are made by default. A moving instance's point stops
+    /// casting rays once its AO is known, to 3 standard errors, to stay
+    /// within the send threshold of what clients hold (nothing to send); a
+    /// point that goes on is traced in full. Fewer rays on moving scenes,
+    /// for rare updates sent a few frames late (BENCHMARKS.md measures
+    /// both)
+    #[arg(long, conflicts_with = "no_early_decisions")]
     pub early_decisions: bool,
+    /// No early decisions under a budget either: every moving point chosen
+    /// casts all its rays
+    #[arg(long)]
+    pub no_early_decisions: bool,
 }
 
 impl BudgetArgs {
-    /// Sets the budget (and early decisions) in `config`.
+    /// Sets the budget in `config`, and early decisions: by default under
+    /// a budget, not without one (the baseline).
     pub fn apply(&self, config: &mut PipelineConfig) {
         config.budget = self.ray_budget;
         config.max_wait = self.max_wait;
@@ -256,9 +263,13 @@ impl BudgetArgs {
         config.movers_whole = self.movers_whole.into();
         config.loop_memory_bytes = self.loop_memory_mib << 20;
         config.loop_verify = !self.no_loop_verify;
-        config.early = self
-            .early_decisions
-            .then(psao_scene::EarlyDecisions::default);
+        let early = match (self.early_decisions, self.no_early_decisions) {
+            (_, true) => false,
+            (true, false) => true,
+            // By default under a budget, not for the baseline.
+            (false, false) => config.budget != RayBudget::Unlimited,
+        };
+        config.early = early.then(psao_scene::EarlyDecisions::default);
     }
 }
 
@@ -595,6 +606,34 @@ mod tests {
         // A radius lost in a city.
         let w = scale_warnings(&cube(10_000.0), 1e-6, 0.6).unwrap();
         assert!(w.len() == 1 && w[0].contains("1/10,000"), "{w:?}");
+    }
+
+    /// What `BudgetArgs` sets of the pipeline's config for `args`.
+    fn budget_config(args: &[&str]) -> Result<PipelineConfig, clap::Error> {
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            budget: BudgetArgs,
+        }
+        let cli = <Cli as clap::Parser>::try_parse_from(
+            std::iter::once("serve").chain(args.iter().copied()),
+        )?;
+        let mut config = PipelineConfig::default();
+        cli.budget.apply(&mut config);
+        Ok(config)
+    }
+
+    #[test]
+    fn early_decisions_are_made_under_a_budget_unless_turned_off() {
+        let early = |args: &[&str]| budget_config(args).unwrap().early;
+        // The default budget (auto), and a fixed one: early decisions.
+        assert_eq!(early(&[]), Some(psao_scene::EarlyDecisions::default()));
+        assert!(early(&["--ray-budget", "20000"]).is_some());
+        // The baseline traces every point in full, unless asked.
+        assert_eq!(early(&["--ray-budget", "none"]), None);
+        assert!(early(&["--ray-budget", "none", "--early-decisions"]).is_some());
+        assert_eq!(early(&["--no-early-decisions"]), None);
+        assert!(budget_config(&["--early-decisions", "--no-early-decisions"]).is_err());
     }
 
     #[test]

@@ -308,7 +308,10 @@ pub struct PipelineConfig {
     /// (settling needs every trace whole), without [`skip`](Self::skip) (the
     /// baseline), and below 8 rays a point. Moving points' scores take up to
     /// [`ray_cache_bytes`](Self::ray_cache_bytes) besides the static points'
-    /// kept scores.
+    /// kept scores. `None` by default: every point chosen casts all its rays.
+    /// (`psao serve`, `psao demo` and `psao bench` make them by default under
+    /// a ray budget: BENCHMARKS.md, "the ray budget, eighteenth part",
+    /// measures what they gain there.)
     pub early: Option<EarlyDecisions>,
     /// Seconds the scene is posed ahead of the pipeline's clock: a step
     /// to time `t` traces and sends the scene's animation (and its camera
