@@ -93,6 +93,18 @@ pub enum EarlyServers {
     All,
 }
 
+impl EarlyServers {
+    /// Whether a server traced under `budget` makes early decisions (an
+    /// unlimited budget is the baseline's: not budgeted).
+    pub fn make_them(self, budget: RayBudget) -> bool {
+        match self {
+            EarlyServers::None => false,
+            EarlyServers::Budgeted => budget != RayBudget::Unlimited,
+            EarlyServers::All => true,
+        }
+    }
+}
+
 /// What to measure.
 #[derive(Clone, Debug)]
 pub struct Settings {
@@ -811,12 +823,10 @@ fn measure_psao(
         config.loop_memory_bytes = s.loop_memory_bytes;
         config.loop_verify = s.loop_verify;
     }
-    let early = match s.early {
-        EarlyServers::None => false,
-        EarlyServers::Budgeted => budget,
-        EarlyServers::All => true,
-    };
-    config.early = early.then(psao_scene::EarlyDecisions::default);
+    config.early = s
+        .early
+        .make_them(config.budget)
+        .then(psao_scene::EarlyDecisions::default);
     config.fill_buried = s.fill_buried;
     config.bind_space = s.bind_space;
     config.layout.overflow = s.overflow;

@@ -151,7 +151,8 @@ pub struct BenchArgs {
     settle_steps: u8,
     /// Add, per density, a PSAO configuration whose server traces within
     /// this ray budget (`auto`: what 80% of the period affords on this
-    /// machine; or a number of rays per tick), beside the unbudgeted ones.
+    /// machine; or a number of rays per tick), beside the unbudgeted ones;
+    /// it makes early decisions unless --no-early-decisions
     #[arg(long, value_parser = crate::cmd::common::parse_ray_budget)]
     ray_budget: Option<psao_scene::RayBudget>,
     /// Under --ray-budget, the most ticks a point waits while the budget
@@ -447,6 +448,18 @@ mod tests {
         assert!(
             Cli::try_parse_from(["bench", "--early-decisions", "--no-early-decisions"]).is_err()
         );
+        // Which servers: a budgeted one by default, not the unbudgeted
+        // baseline, nor a "budgeted" one under `--ray-budget none`.
+        use psao_scene::RayBudget;
+        let budgets = [
+            RayBudget::Unlimited,
+            RayBudget::Rays(20_000),
+            RayBudget::Auto { share: 0.8 },
+        ];
+        let made = |e: EarlyServers| budgets.map(|b| e.make_them(b));
+        assert_eq!(made(EarlyServers::Budgeted), [false, true, true]);
+        assert_eq!(made(EarlyServers::All), [true; 3]);
+        assert_eq!(made(EarlyServers::None), [false; 3]);
     }
 
     /// `--loop-memory-mib` is the pipeline's default (64 MiB) unless

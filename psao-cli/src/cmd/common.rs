@@ -243,7 +243,8 @@ pub struct BudgetArgs {
     /// within the send threshold of what clients hold (nothing to send); a
     /// point that goes on is traced in full. Fewer rays on moving scenes,
     /// for rare updates sent a few frames late (BENCHMARKS.md measures
-    /// both)
+    /// both); moving points' kept ray scores take up to 64 MiB more. Not
+    /// made while --settle-steps is set, nor below 8 rays a point
     #[arg(long, conflicts_with = "no_early_decisions")]
     pub early_decisions: bool,
     /// No early decisions under a budget either: every moving point chosen

@@ -311,7 +311,7 @@ pub struct PipelineConfig {
     /// kept scores. `None` by default: every point chosen casts all its rays.
     /// (`psao serve`, `psao demo` and `psao bench` make them by default under
     /// a ray budget: BENCHMARKS.md, "the ray budget, eighteenth part",
-    /// measures what they gain there.)
+    /// measures what they gain and cost there.)
     pub early: Option<EarlyDecisions>,
     /// Seconds the scene is posed ahead of the pipeline's clock: a step
     /// to time `t` traces and sends the scene's animation (and its camera
