@@ -34,6 +34,7 @@
 
 use std::time::Instant;
 
+use crate::cmd::common::EarlyServers;
 use anyhow::Context as _;
 use indicatif::ProgressBar;
 use psao_codec::{Decoder, Limits};
@@ -79,31 +80,6 @@ pub const CLIENT_HZ: f64 = 60.0;
 /// Most pixels in one image (3840 x 2160); all frames together may hold
 /// 8 times this (the bench keeps every frame's G-buffer and reference).
 pub const MAX_PIXELS: u64 = 3840 * 2160;
-
-/// Which PSAO servers of a bench make early decisions
-/// ([`PipelineConfig::early`](psao_scene::PipelineConfig::early)).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum EarlyServers {
-    /// None: every point a server chooses casts all its rays.
-    None,
-    /// The budgeted ones (the default); the unbudgeted servers, the
-    /// baseline, trace every point in full.
-    Budgeted,
-    /// Every one, the unbudgeted ones too.
-    All,
-}
-
-impl EarlyServers {
-    /// Whether a server traced under `budget` makes early decisions (an
-    /// unlimited budget is the baseline's: not budgeted).
-    pub fn make_them(self, budget: RayBudget) -> bool {
-        match self {
-            EarlyServers::None => false,
-            EarlyServers::Budgeted => budget != RayBudget::Unlimited,
-            EarlyServers::All => true,
-        }
-    }
-}
 
 /// What to measure.
 #[derive(Clone, Debug)]

@@ -18,9 +18,9 @@ use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressStyle};
 use psao_scene::{AoParams, PipelineConfig, Scene, load_scene_file, stage};
 
-use crate::cmd::common::{Embedded, MoversWholeArg};
+use crate::cmd::common::{EarlyServers, Embedded, MoversWholeArg};
 
-pub use measure::{EarlyServers, ImageFrames, Settings};
+pub use measure::{ImageFrames, Settings};
 
 /// Where PSAO servers trace.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -288,11 +288,7 @@ impl BenchArgs {
         settings.plan_late = self.plan_late;
         settings.loop_memory_bytes = self.loop_memory_mib << 20;
         settings.loop_verify = !self.no_loop_verify;
-        settings.early = match (self.early_decisions, self.no_early_decisions) {
-            (_, true) => EarlyServers::None,
-            (true, false) => EarlyServers::All,
-            (false, false) => EarlyServers::Budgeted,
-        };
+        settings.early = EarlyServers::from_flags(self.early_decisions, self.no_early_decisions);
         settings
     }
 }

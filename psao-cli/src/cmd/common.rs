@@ -185,6 +185,41 @@ pub fn parse_ray_budget(s: &str) -> Result<RayBudget, String> {
     }
 }
 
+/// Which PSAO servers make early decisions
+/// ([`PipelineConfig::early`](psao_scene::PipelineConfig::early)).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EarlyServers {
+    /// None: every point a server chooses casts all its rays.
+    None,
+    /// The budgeted ones (the default); the unbudgeted servers, the
+    /// baseline, trace every point in full.
+    Budgeted,
+    /// Every one, the unbudgeted ones too.
+    All,
+}
+
+impl EarlyServers {
+    /// What `--early-decisions` and `--no-early-decisions` ask for (clap
+    /// refuses both): every server, none, or by default the budgeted ones.
+    pub fn from_flags(early: bool, no_early: bool) -> EarlyServers {
+        match (early, no_early) {
+            (_, true) => EarlyServers::None,
+            (true, false) => EarlyServers::All,
+            (false, false) => EarlyServers::Budgeted,
+        }
+    }
+
+    /// Whether a server traced under `budget` makes early decisions (an
+    /// unlimited budget is the baseline's: not budgeted).
+    pub fn make_them(self, budget: RayBudget) -> bool {
+        match self {
+            EarlyServers::None => false,
+            EarlyServers::Budgeted => budget != RayBudget::Unlimited,
+            EarlyServers::All => true,
+        }
+    }
+}
+
 /// The ray budget options of the commands that run a server.
 #[derive(clap::Args, Clone, Debug)]
 pub struct BudgetArgs {
@@ -264,13 +299,9 @@ impl BudgetArgs {
         config.movers_whole = self.movers_whole.into();
         config.loop_memory_bytes = self.loop_memory_mib << 20;
         config.loop_verify = !self.no_loop_verify;
-        let early = match (self.early_decisions, self.no_early_decisions) {
-            (_, true) => false,
-            (true, false) => true,
-            // By default under a budget, not for the baseline.
-            (false, false) => config.budget != RayBudget::Unlimited,
-        };
-        config.early = early.then(psao_scene::EarlyDecisions::default);
+        config.early = EarlyServers::from_flags(self.early_decisions, self.no_early_decisions)
+            .make_them(config.budget)
+            .then(psao_scene::EarlyDecisions::default);
     }
 }
 
