@@ -113,6 +113,23 @@ fn free_port() -> std::io::Result<u16> {
     Err(std::io::Error::other("no port free for both UDP and TCP"))
 }
 
+/// How many ports [`LocalRelay::start`] tries.
+pub const PORT_TRIES: u32 = 5;
+
+/// How one try of [`LocalRelay::start`] failed.
+enum Attempt {
+    /// The relay found its port taken: worth trying another.
+    PortTaken(LocalRelayError),
+    /// Anything else.
+    Failed(LocalRelayError),
+}
+
+impl From<LocalRelayError> for Attempt {
+    fn from(e: LocalRelayError) -> Attempt {
+        Attempt::Failed(e)
+    }
+}
+
 /// GET `path` from a relay's HTTP listener; the body.
 fn http_get(port: u16, path: &str) -> std::io::Result<String> {
     let mut s = TcpStream::connect(("127.0.0.1", port))?;
@@ -139,19 +156,46 @@ impl LocalRelay {
     /// anonymous publishers and subscribers, clustered with `peer` (it
     /// dials `peer`, pinning its certificate) if given, logging to `log`;
     /// returns once it serves its certificate's fingerprint (20 s at
-    /// most).
+    /// most per try).
+    ///
+    /// A port found free can be taken before the relay binds it (by any
+    /// other socket on the machine, such as another test's outgoing
+    /// connection); when the relay exits saying its address is in use, it
+    /// is started again on another port, [`PORT_TRIES`] times in all.
     pub fn start(
         bin: &Path,
         cert: &RelayCert,
         peer: Option<&LocalRelay>,
         log: PathBuf,
     ) -> Result<LocalRelay, LocalRelayError> {
+        let mut tries = 1;
+        loop {
+            let port = free_port().map_err(|e| LocalRelayError::Process {
+                what: format!("has no port: {e}"),
+                log: log.clone(),
+                tail: String::new(),
+            })?;
+            match Self::start_once(bin, cert, peer, log.clone(), port) {
+                Err(Attempt::PortTaken(_)) if tries < PORT_TRIES => tries += 1,
+                Err(Attempt::PortTaken(e) | Attempt::Failed(e)) => return Err(e),
+                Ok(relay) => return Ok(relay),
+            }
+        }
+    }
+
+    /// One try of [`LocalRelay::start`], on `port`.
+    fn start_once(
+        bin: &Path,
+        cert: &RelayCert,
+        peer: Option<&LocalRelay>,
+        log: PathBuf,
+        port: u16,
+    ) -> Result<LocalRelay, Attempt> {
         let fail = |what: String, log: &Path| LocalRelayError::Process {
             what,
             log: log.to_path_buf(),
             tail: tail(log),
         };
-        let port = free_port().map_err(|e| fail(format!("has no port: {e}"), &log))?;
         let mut cmd = Command::new(bin);
         cmd.arg("--listen")
             .arg(format!("127.0.0.1:{port}"))
@@ -199,17 +243,20 @@ impl LocalRelay {
                 return Ok(relay);
             }
             if let Ok(Some(status)) = relay.child.try_wait() {
-                return Err(fail(
-                    format!("exited ({status}) before serving"),
-                    &relay.log,
-                ));
+                let e = fail(format!("exited ({status}) before serving"), &relay.log);
+                return Err(if relay.log_text().contains("Address already in use") {
+                    Attempt::PortTaken(e)
+                } else {
+                    Attempt::Failed(e)
+                });
             }
             if Instant::now() >= until {
                 relay.kill();
                 return Err(fail(
                     "did not serve its certificate's fingerprint within 20 s".into(),
                     &relay.log,
-                ));
+                )
+                .into());
             }
             std::thread::sleep(Duration::from_millis(50));
         }
@@ -240,5 +287,42 @@ impl LocalRelay {
 impl Drop for LocalRelay {
     fn drop(&mut self) {
         self.kill();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A relay whose port another socket holds is told apart from other
+    /// failures, so that [`LocalRelay::start`] tries another port (with
+    /// the real relay; skipped without one).
+    #[test]
+    fn a_relay_finding_its_port_taken_is_tried_again_elsewhere() {
+        let Some(bin) = find_relay_binary() else {
+            assert!(
+                std::env::var_os("PSAO_REQUIRE_RELAY").is_none(),
+                "PSAO_REQUIRE_RELAY is set and no moq-relay was found"
+            );
+            eprintln!("skipped: no moq-relay (set PSAO_MOQ_RELAY or put it on the PATH)");
+            return;
+        };
+        let dir = std::env::temp_dir().join(format!("psao-moq-port-taken-{}", std::process::id()));
+        let cert = RelayCert::generate(&dir).expect("a certificate");
+        let held = std::net::TcpListener::bind("127.0.0.1:0").expect("a listener");
+        let port = held.local_addr().expect("its address").port();
+        let taken = LocalRelay::start_once(&bin, &cert, None, dir.join("taken.log"), port);
+        assert!(
+            matches!(taken, Err(Attempt::PortTaken(_))),
+            "a relay on a held port: {}",
+            match &taken {
+                Ok(r) => format!("served on {}", r.port),
+                Err(Attempt::PortTaken(e) | Attempt::Failed(e)) => e.to_string(),
+            }
+        );
+        let relay = LocalRelay::start(&bin, &cert, None, dir.join("free.log")).expect("a relay");
+        assert_ne!(relay.port, port);
+        drop(relay);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
