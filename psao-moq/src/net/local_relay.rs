@@ -177,6 +177,13 @@ impl LocalRelay {
             })?;
             match Self::start_once(bin, cert, peer, log.clone(), port) {
                 Err(Attempt::PortTaken(_)) if tries < PORT_TRIES => tries += 1,
+                Err(Attempt::PortTaken(LocalRelayError::Process { what, log, tail })) => {
+                    return Err(LocalRelayError::Process {
+                        what: format!("{what} (its port was taken on each of {PORT_TRIES} tries)"),
+                        log,
+                        tail,
+                    });
+                }
                 Err(Attempt::PortTaken(e) | Attempt::Failed(e)) => return Err(e),
                 Ok(relay) => return Ok(relay),
             }
@@ -235,10 +242,13 @@ impl LocalRelay {
         };
         let until = Instant::now() + Duration::from_secs(20);
         loop {
+            // (Its own process, still running, answers: not another one
+            // serving the same certificate there.)
             if let Ok(body) = http_get(port, "/certificate.sha256")
                 && body
                     .replace(':', "")
                     .eq_ignore_ascii_case(&fingerprint_hex(&cert.fingerprint))
+                && matches!(relay.child.try_wait(), Ok(None))
             {
                 return Ok(relay);
             }

@@ -154,7 +154,9 @@ pub(super) struct KeptScores {
 const NO_ENTRY: u8 = u8::MAX;
 
 impl KeptScores {
-    /// A store of points with `rays` rays, holding at most `max_bytes`.
+    /// A store of points with `rays` rays, holding at most `max_bytes` of
+    /// scores, plus each point's stops in a row: a byte per point (up to
+    /// two, as arrays grow) of the instances that hold entries.
     pub fn new(rays: u32, max_bytes: u64) -> KeptScores {
         let entry_bytes = rays as u64 * 4
             + (rays as u64).div_ceil(64) * 8
