@@ -67,6 +67,7 @@ use psao_codec::wire::point::quantize_ao;
 use rustc_hash::FxHashMap;
 
 use super::reach::RayMask;
+use super::slots::PointSlots;
 
 /// Early decisions' settings ([`PipelineConfig::early`]).
 ///
@@ -142,21 +143,18 @@ pub(super) struct KeptScores {
     entries: FxHashMap<u64, Kept>,
     /// The instances that hold entries.
     instances: std::collections::BTreeSet<usize>,
-    /// Per instance, per point, its entry's stops in a row ([`NO_ENTRY`]
-    /// where it holds none): what [`KeptScores::may_stop`] reads for each
-    /// of a step's tens of thousands of candidates, a byte a point in
-    /// point order, where a look-up in `entries` would miss the cache
-    /// (about 2 ms a step on a morphing cube of 61,000 points).
-    stops: Vec<Vec<u8>>,
+    /// Per point, its entry's stops in a row plus 1 (0 where it holds
+    /// none): what [`KeptScores::may_stop`] reads for each of a step's
+    /// tens of thousands of candidates, along memory in point order,
+    /// where a look-up in `entries` would miss the cache (about 2 ms a
+    /// step on a morphing cube of 61,000 points).
+    stops: PointSlots,
 }
-
-/// [`KeptScores`]'s stops for a point without an entry.
-const NO_ENTRY: u8 = u8::MAX;
 
 impl KeptScores {
     /// A store of points with `rays` rays, holding at most `max_bytes` of
-    /// scores, plus each point's stops in a row: a byte per point (up to
-    /// two, as arrays grow) of the instances that hold entries.
+    /// scores, plus each point's stops in a row: four bytes a point (up
+    /// to eight, as arrays grow) of the instances that hold entries.
     pub fn new(rays: u32, max_bytes: u64) -> KeptScores {
         let entry_bytes = rays as u64 * 4
             + (rays as u64).div_ceil(64) * 8
@@ -167,50 +165,28 @@ impl KeptScores {
             entry_bytes,
             entries: FxHashMap::default(),
             instances: Default::default(),
-            stops: Vec::new(),
+            stops: PointSlots::default(),
         }
-    }
-
-    /// Notes point `key`'s stops in a row (or [`NO_ENTRY`]).
-    fn note_stops(&mut self, key: u64, stops: u8) {
-        let (i, k) = ((key >> 32) as usize, key as u32 as usize);
-        if stops == NO_ENTRY && self.stops.get(i).is_none_or(|v| v.len() <= k) {
-            return;
-        }
-        if self.stops.len() <= i {
-            self.stops.resize_with(i + 1, Vec::new);
-        }
-        let v = &mut self.stops[i];
-        if v.len() <= k {
-            v.resize(k + 1, NO_ENTRY);
-        }
-        v[k] = stops;
     }
 
     /// Takes a point's entry out (put it back with [`Self::put`]).
     pub fn take(&mut self, key: u64) -> Option<Kept> {
         let kept = self.entries.remove(&key)?;
-        self.note_stops(key, NO_ENTRY);
+        self.stops.set(key, 0);
         Some(kept)
     }
 
     /// Whether a point holds scores it may stop early over (fewer than
     /// `max_stops` stops in a row).
     pub fn may_stop(&self, key: u64, max_stops: u8) -> bool {
-        // (A point without an entry reads NO_ENTRY, below no u8.)
-        let (i, k) = ((key >> 32) as usize, key as u32 as usize);
-        self.stops
-            .get(i)
-            .and_then(|v| v.get(k))
-            .is_some_and(|&s| s != NO_ENTRY && s < max_stops)
+        let s = self.stops.get(key);
+        s != 0 && s - 1 < u32::from(max_stops)
     }
 
     /// Puts a point's entry (back); a new one only while there is room.
     pub fn put(&mut self, key: u64, kept: Kept) {
         if self.entries.len() < self.max_entries || self.entries.contains_key(&key) {
-            // (An entry of 255 stops reads as none: either may not stop,
-            // `max_stops` being a u8.)
-            self.note_stops(key, kept.stops);
+            self.stops.set(key, u32::from(kept.stops) + 1);
             self.entries.insert(key, kept);
             self.instances.insert((key >> 32) as usize);
         }
@@ -231,9 +207,7 @@ impl KeptScores {
         }
         for &i in &rested {
             self.instances.remove(&i);
-            if let Some(v) = self.stops.get_mut(i) {
-                *v = Vec::new();
-            }
+            self.stops.drop_instance(i);
         }
         self.entries
             .retain(|&k, _| !rested.contains(&((k >> 32) as usize)));
@@ -241,8 +215,7 @@ impl KeptScores {
 
     /// Bytes held (capacity).
     pub fn memory_bytes(&self) -> u64 {
-        self.entries.capacity() as u64 * self.entry_bytes
-            + self.stops.iter().map(|v| v.capacity() as u64).sum::<u64>()
+        self.entries.capacity() as u64 * self.entry_bytes + self.stops.memory_bytes()
     }
 }
 

@@ -41,6 +41,13 @@ impl PointSlots {
         v[k] = value;
     }
 
+    /// Sets instance `i`'s values back to 0, its memory given back.
+    pub fn drop_instance(&mut self, i: usize) {
+        if let Some(v) = self.instances.get_mut(i) {
+            *v = Vec::new();
+        }
+    }
+
     /// Sets every value back to 0 (keeping the memory).
     pub fn clear(&mut self) {
         for v in &mut self.instances {
@@ -79,5 +86,10 @@ mod tests {
         s.set(key(3, 2), 4);
         assert_eq!(s.get(key(3, 2)), 4);
         assert_eq!(s.get(key(3, 7)), 0, "cleared values stay 0");
+        s.set(key(0, 0), 2);
+        s.drop_instance(3);
+        s.drop_instance(40);
+        assert_eq!(s.get(key(3, 2)), 0, "a dropped instance's values are 0");
+        assert_eq!(s.get(key(0, 0)), 2, "the others' stay");
     }
 }
