@@ -309,7 +309,8 @@ pub struct PipelineConfig {
     /// baseline), and below 8 rays a point. Moving points' scores take up to
     /// [`ray_cache_bytes`](Self::ray_cache_bytes) besides the static points'
     /// kept scores, plus four to eight bytes a point of the moving
-    /// instances (each point's early stops in a row). `None` by default: every point chosen casts all its rays.
+    /// instances (each point's early stops in a row). `None` by default:
+    /// every point chosen casts all its rays.
     /// (`psao serve`, `psao demo` and `psao bench` make them by default under
     /// a ray budget: BENCHMARKS.md, "the ray budget, eighteenth part",
     /// measures what they gain and cost there.)

@@ -154,7 +154,8 @@ pub(super) struct KeptScores {
 impl KeptScores {
     /// A store of points with `rays` rays, holding at most `max_bytes` of
     /// scores, plus each point's stops in a row: four bytes a point (up
-    /// to eight, as arrays grow) of the instances that hold entries.
+    /// to eight, as arrays grow) of the instances that have held entries
+    /// since they last rested.
     pub fn new(rays: u32, max_bytes: u64) -> KeptScores {
         let entry_bytes = rays as u64 * 4
             + (rays as u64).div_ceil(64) * 8

@@ -87,9 +87,15 @@ mod tests {
         assert_eq!(s.get(key(3, 2)), 4);
         assert_eq!(s.get(key(3, 7)), 0, "cleared values stay 0");
         s.set(key(0, 0), 2);
+        let held = s.memory_bytes();
         s.drop_instance(3);
+        assert!(s.memory_bytes() < held, "its memory is given back");
+        let dropped = s.memory_bytes();
         s.drop_instance(40);
+        assert_eq!(s.memory_bytes(), dropped, "no such instance: nothing");
         assert_eq!(s.get(key(3, 2)), 0, "a dropped instance's values are 0");
         assert_eq!(s.get(key(0, 0)), 2, "the others' stay");
+        s.set(key(3, 2), 6);
+        assert_eq!(s.get(key(3, 2)), 6, "it grows back");
     }
 }
