@@ -34,7 +34,6 @@
 
 use std::time::Instant;
 
-use crate::cmd::common::EarlyServers;
 use anyhow::Context as _;
 use indicatif::ProgressBar;
 use psao_codec::{Decoder, Limits};
@@ -50,6 +49,7 @@ use psao_scene::{
 use super::Backend;
 use super::images;
 use super::model::{Breakdown, Frame, Method, Row, SceneResult, Showcase, Shown};
+use crate::cmd::common::EarlyServers;
 
 /// Ticks an unbudgeted server steps one by one before each measured
 /// frame (the rest of the way there in one step).

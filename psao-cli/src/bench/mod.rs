@@ -444,18 +444,8 @@ mod tests {
         assert!(
             Cli::try_parse_from(["bench", "--early-decisions", "--no-early-decisions"]).is_err()
         );
-        // Which servers: a budgeted one by default, not the unbudgeted
-        // baseline, nor a "budgeted" one under `--ray-budget none`.
-        use psao_scene::RayBudget;
-        let budgets = [
-            RayBudget::Unlimited,
-            RayBudget::Rays(20_000),
-            RayBudget::Auto { share: 0.8 },
-        ];
-        let made = |e: EarlyServers| budgets.map(|b| e.make_them(b));
-        assert_eq!(made(EarlyServers::Budgeted), [false, true, true]);
-        assert_eq!(made(EarlyServers::All), [true; 3]);
-        assert_eq!(made(EarlyServers::None), [false; 3]);
+        // (Which servers each makes them on: `EarlyServers::make_them`'s
+        // test, in cmd/common.rs.)
     }
 
     /// `--loop-memory-mib` is the pipeline's default (64 MiB) unless

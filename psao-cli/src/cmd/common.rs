@@ -278,7 +278,8 @@ pub struct BudgetArgs {
     /// within the send threshold of what clients hold (nothing to send); a
     /// point that goes on is traced in full. Fewer rays on moving scenes,
     /// for rare updates sent a few frames late (BENCHMARKS.md measures
-    /// both); moving points' kept ray scores take up to 64 MiB more. Not
+    /// both); moving points' kept ray scores take up to 64 MiB more (and 4-8
+    /// bytes a point of the moving instances). Not
     /// made while --settle-steps is set, nor below 8 rays a point
     #[arg(long, conflicts_with = "no_early_decisions")]
     pub early_decisions: bool,
@@ -666,6 +667,29 @@ mod tests {
         assert!(early(&["--ray-budget", "none", "--early-decisions"]).is_some());
         assert_eq!(early(&["--no-early-decisions"]), None);
         assert!(budget_config(&["--early-decisions", "--no-early-decisions"]).is_err());
+    }
+
+    /// Which servers make early decisions: by default a budgeted one, not
+    /// the unbudgeted baseline, nor a "budgeted" one under `--ray-budget
+    /// none`; every server with `--early-decisions`, none with
+    /// `--no-early-decisions`.
+    #[test]
+    fn early_servers_follow_the_flags_and_the_budget() {
+        let budgets = [
+            RayBudget::Unlimited,
+            RayBudget::Rays(20_000),
+            RayBudget::Auto { share: 0.8 },
+        ];
+        let made = |e: EarlyServers| budgets.map(|b| e.make_them(b));
+        assert_eq!(made(EarlyServers::Budgeted), [false, true, true]);
+        assert_eq!(made(EarlyServers::All), [true; 3]);
+        assert_eq!(made(EarlyServers::None), [false; 3]);
+        assert_eq!(
+            EarlyServers::from_flags(false, false),
+            EarlyServers::Budgeted
+        );
+        assert_eq!(EarlyServers::from_flags(true, false), EarlyServers::All);
+        assert_eq!(EarlyServers::from_flags(false, true), EarlyServers::None);
     }
 
     #[test]
