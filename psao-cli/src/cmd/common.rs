@@ -279,8 +279,8 @@ pub struct BudgetArgs {
     /// point that goes on is traced in full. Fewer rays on moving scenes,
     /// for rare updates sent a few frames late (BENCHMARKS.md measures
     /// both); moving points' kept ray scores take up to 64 MiB more (and 4-8
-    /// bytes a point of the moving instances). Not
-    /// made while --settle-steps is set, nor below 8 rays a point
+    /// bytes a point of the moving instances). Not made while
+    /// --settle-steps is set, nor below 8 rays a point
     #[arg(long, conflicts_with = "no_early_decisions")]
     pub early_decisions: bool,
     /// No early decisions under a budget either: every moving point chosen
